@@ -1,0 +1,108 @@
+"""fuelid convert: recorded CAN logs (and a flow-meter capture) to MCAP, through the daemon's own decode path."""
+import heapq
+import json
+import sys
+from pathlib import Path
+
+HELP = "convert recorded CAN logs (candump, ASC, BLF, TRC, MF4) and flow-meter captures to MCAP"
+
+
+def add_arguments(p):
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="CAN recordings, played in the order given")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP file to write")
+    p.add_argument("--flowmeter", metavar="CAPTURE", help="flow-meter capture (.flow or .flow.gz) to merge by time")
+    p.add_argument("--flow-gain", type=float, default=12.5, metavar="KG_H_PER_V", help="meter calibration gain [kg/h per V] (default 12.5: 0-10 V = 0-125 kg/h)")
+    p.add_argument("--flow-offset", type=float, default=0.0, metavar="KG_H", help="meter calibration offset [kg/h] (default 0)")
+    p.add_argument("--truck", default="unknown", help="truck name until a VIN is seen on the bus")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def run(args) -> int:
+    from fuelid.errors import FuelidError
+    from fuelid.progress import progress
+    from logger.flowmeter import Calibration, parse_line, read_capture
+    from logger.readers import open_frames
+    from logger.recorder import Recorder, open_writer
+
+    inputs = [Path(p) for p in args.inputs]
+    for path in inputs + ([Path(args.flowmeter)] if args.flowmeter else []):
+        if not path.is_file():
+            raise FuelidError(f"no such file: {path}")
+    output = Path(args.output)
+    if output.resolve() in {p.resolve() for p in inputs}:
+        raise FuelidError(f"output {output} would overwrite an input")
+
+    sources = [open_frames(p) for p in inputs]
+    # One time-ordered stream of (time [s], kind, item): CAN frames of each input, then meter readings merged in.
+    frames = ((msg.timestamp, 0, msg) for source in sources for msg in source)
+    streams = [frames]
+    calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
+    if args.flowmeter:
+        streams.append((t, 1, parse_line(line, t, calibration)) for t, line in read_capture(args.flowmeter))
+
+    writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs))
+    recorder = Recorder(writer)
+    try:
+        for _, kind, item in progress(heapq.merge(*streams, key=lambda e: e[0]), desc="convert", unit="msg"):
+            if kind == 0:
+                recorder.on_message_received(item)
+            else:
+                recorder.on_flow_reading(item)
+    finally:
+        writer.close()
+
+    summary = conversion_summary(recorder, sources, output)
+    if args.json:
+        json.dump(summary, sys.stdout, indent=2)
+        print()
+    else:
+        print(format_summary(summary))
+    return 0
+
+
+def conversion_summary(recorder, sources, output: Path) -> dict:
+    """What was read and decoded, as plain JSON-able data."""
+    stats = recorder.stats
+    messages = {}
+    for (name, sa), count in sorted(stats.decoded.items()):
+        messages.setdefault(name, {})[f"0x{sa:02X}"] = count
+    invalid = {}
+    for (name, signal, status), count in sorted(stats.invalid.items()):
+        invalid.setdefault(f"{name}.{signal}", {})[status] = count
+    signals = sorted({f"{name}.{s}" for name in messages for s in recorder.decoder.signal_names(name)})
+    return {
+        "output": str(output),
+        "output_bytes": output.stat().st_size,
+        "truck": recorder.vin or "unknown",
+        "inputs": [{"path": str(s.path), "format": s.format, "frames": s.frames, "skipped_lines": s.skipped} for s in sources],
+        "frames": stats.frames,
+        "error_frames": stats.error_frames,
+        "remote_frames": stats.remote_frames,
+        "standard_frames": stats.standard_frames,
+        "decoder": recorder.decoder.counters(),
+        "transport_protocol": recorder.reassembler.counters(),
+        "messages": messages,
+        "signals": signals,
+        "invalid_values": invalid,
+        "flowmeter_readings": dict(stats.flow_readings),
+    }
+
+
+def format_summary(s: dict) -> str:
+    lines = [f"wrote {s['output']} ({s['output_bytes'] / 1e6:.2f} MB), truck {s['truck']}"]
+    for i in s["inputs"]:
+        lines.append(f"  read {i['path']} [{i['format']}]: {i['frames']} frames, {i['skipped_lines']} malformed lines skipped")
+    lines.append(f"frames: {s['frames']} ({s['error_frames']} error, {s['remote_frames']} remote, {s['standard_frames']} 11-bit)")
+    lines.append("decoder: " + ", ".join(f"{k} {v}" for k, v in s["decoder"].items()))
+    lines.append("transport protocol: " + ", ".join(f"{k} {v}" for k, v in s["transport_protocol"].items()))
+    lines.append("messages (per source address):")
+    for name, by_sa in s["messages"].items():
+        lines.append(f"  {name:<6} " + "  ".join(f"SA {sa}: {n}" for sa, n in by_sa.items()))
+    lines.append(f"signals decoded: {len(s['signals'])}")
+    if s["invalid_values"]:
+        lines.append("null values (not available / error / reserved / missing):")
+        for sig, by_status in s["invalid_values"].items():
+            lines.append(f"  {sig:<45} " + ", ".join(f"{k} {v}" for k, v in by_status.items()))
+    if s["flowmeter_readings"]:
+        lines.append("flow meter: " + ", ".join(f"{k} {v}" for k, v in s["flowmeter_readings"].items()))
+    return "\n".join(lines)
