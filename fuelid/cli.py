@@ -16,6 +16,9 @@ COMMANDS = [
     "convert",
     "recover",
     "simulate",
+    "dataset",
+    "identify",
+    "compare",
 ]
 
 

@@ -211,7 +211,10 @@ def as_inputs(u, m: int | None = None) -> np.ndarray:
 def input_responses(model: PolyModel, u) -> np.ndarray:
     """x_i(t) = B_i(q)/F_i(q) (u_i(t) − u0_i), one column per input, zero initial state."""
     du = as_inputs(u, len(model.B)) - np.asarray(model.u0)
-    return np.column_stack([lfilter(b, f, du[:, i]) for i, (b, f) in enumerate(zip(model.B, model.F))])
+    x = np.empty_like(du)
+    for i, (b, f) in enumerate(zip(model.B, model.F)):
+        x[:, i] = lfilter(b, f, du[:, i])
+    return x
 
 
 def simulate(model: PolyModel, u) -> np.ndarray:

@@ -25,6 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
+from fuelid.errors import FuelidError
+from ident.polymodel import predict, residuals, simulate
+
 
 @dataclass(frozen=True)
 class CorrelationTest:
@@ -158,3 +161,65 @@ def error_table(errors) -> dict[str, float]:
     if v.size == 0:
         return {"mean": float("nan"), "rms": float("nan")}
     return {"mean": float(v.mean()), "rms": float(np.sqrt(np.mean(v ** 2)))}
+
+
+def _per_segment(fn, segments, n: int, n_skip: int = 0) -> np.ndarray:
+    """fn(slice) run on each segment, NaN elsewhere (n samples) and on each segment's first n_skip samples."""
+    out = np.full(n, np.nan)
+    for s in segments:
+        r = np.asarray(fn(s), float)
+        r[:n_skip] = np.nan
+        out[s] = r
+    return out
+
+
+def evaluate(model, ds, k: int = 1, max_lag: int = 25) -> dict:
+    """The validation metrics of a PolyModel on a Dataset, JSON-ready.
+
+    The model's inputs are the data's engine speed and torque plus those of the effects it includes
+    (ident.effects.model_data; the fuel shifted when it includes the fuel delay). It runs on each segment of
+    ds separately from zero initial state, and its first n_start samples per segment, where the state is
+    unknown, are left out of every metric: simulation ŷ_s, k-step prediction ŷ_k, one-step residual ε.
+    Returns
+      fit_percent {simulation, prediction}   [%]   (fit_percent)
+      rmse {simulation, prediction}          [output unit]
+      whiteness {autocorr_pass, crosscorr_pass {input name: bool}, max_lag}   (eqs. 18–19 on ε)
+      cycle_fuel_error_percent {cycle id: E, mean, rms}   (eq. 20 on ŷ_s, absolute flow)
+    """
+    from ident.effects import model_data
+
+    if tuple(model.input_units[:2]) != tuple(ds.input_units) or model.output_unit != ds.output_unit:
+        raise FuelidError(f"model units {list(model.input_units[:2])} -> {model.output_unit} do not match the "
+                          f"data's {list(ds.input_units)} -> {ds.output_unit}")
+    try:
+        u, y = model_data(model, ds) if model.effects else (ds.u, ds.y)
+    except ValueError as exc:
+        raise FuelidError(str(exc)) from exc
+    segs, n0, N = ds.segments(), model.structure.n_start, len(ds)
+    ysim = _per_segment(lambda s: simulate(model, u[s]), segs, N, n0)
+    ypred = _per_segment(lambda s: predict(model, u[s], y[s], k), segs, N, n0)
+    eps = _per_segment(lambda s: residuals(model, u[s], y[s]), segs, N, n0)
+    used = np.isfinite(eps)
+    y = np.where(used, y, np.nan)
+    auto = autocorr_test(eps, max_lag)
+    cross = crosscorr_test(eps, np.where(used[:, None], u, np.nan), max_lag)
+    cycles = cycle_fuel_error(y, ysim, ds.cycle, ds.Ts)
+    return {
+        "fit_percent": {"simulation": fit_percent(y, ysim), "prediction": fit_percent(y, ypred)},
+        "rmse": {"simulation": rmse(y, ysim), "prediction": rmse(y, ypred)},
+        "prediction_horizon": k,
+        "whiteness": {"autocorr_pass": auto.passed, "max_lag": max_lag,
+                      "crosscorr_pass": {name: c.passed for name, c in zip(model.input_names, cross)}},
+        "cycle_fuel_error_percent": {**{str(c): e for c, e in cycles.items()}, **error_table(cycles)},
+    }
+
+
+def evaluate_static(yhat, ds) -> dict:
+    """fit, rmse and cycle fuel errors of a static prediction yhat (N) [output unit] on ds's valid samples."""
+    y = np.where(ds.valid, ds.y, np.nan)
+    cycles = cycle_fuel_error(y, yhat, ds.cycle, ds.Ts)
+    return {
+        "fit_percent": {"simulation": fit_percent(y, yhat)},
+        "rmse": {"simulation": rmse(y, yhat)},
+        "cycle_fuel_error_percent": {**{str(c): e for c, e in cycles.items()}, **error_table(cycles)},
+    }

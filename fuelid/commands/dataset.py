@@ -1,0 +1,60 @@
+"""fuelid dataset: MCAP recordings to a resampled identification data set (.csv or .mat) for cross-checks."""
+import json
+import sys
+
+HELP = "resample MCAP recordings to an identification data set (CSV or MATLAB .mat)"
+
+
+def add_dataset_arguments(p):
+    """The data-set options shared by dataset, identify and compare."""
+    p.add_argument("--ts", type=float, metavar="S",
+                   help="sampling interval [s] (default 0.3, the paper's; compare: the model's)")
+    p.add_argument("--fuel", choices=["auto", "flowmeter", "lfe1"], default="auto",
+                   help="output signal: the flow meter [kg/h], LFE1 fuel rate [L/h], or auto (meter when logged)")
+    p.add_argument("--max-gap", type=float, default=1.0, metavar="S",
+                   help="longest gap [s] a signal is held over; longer gaps split the data (default 1)")
+    p.add_argument("--cycle", type=float, default=1800.0, metavar="S",
+                   help="drive-cycle length [s] for the cumulative fuel error (default 1800, the paper's 30 min)")
+
+
+def build(args, paths):
+    """The Dataset of `paths` with the options of add_dataset_arguments."""
+    import warnings
+
+    from ident.dataset import build_dataset
+
+    with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
+        warnings.simplefilter("ignore", UserWarning)
+        return build_dataset(paths, Ts=args.ts or 0.3, fuel=args.fuel, max_gap_s=args.max_gap, cycle_s=args.cycle)
+
+
+def add_arguments(p):
+    p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings (fuelid convert / fuelid log)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="data set to write: .csv or .mat")
+    add_dataset_arguments(p)
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def run(args) -> int:
+    from fuelid.errors import FuelidError
+    from ident.dataset import save_dataset
+
+    if not args.output.endswith((".csv", ".mat")):
+        raise FuelidError(f"{args.output}: output must end in .csv or .mat")
+    ds = build(args, args.inputs)
+    save_dataset(ds, args.output)
+    summary = {"output": args.output, **ds.summary()}
+    if args.json:
+        json.dump(summary, sys.stdout, indent=2)
+        print()
+    else:
+        op = summary["operating_point"]
+        print(f"{args.output}: {summary['samples']} samples every {ds.Ts:g} s, "
+              f"{summary['valid_duration_s'] / 60:.1f} min valid in {summary['segments']} segments, "
+              f"{len(summary['cycles'])} drive cycles")
+        print(f"inputs {', '.join(f'{n} [{u}]' for n, u in zip(ds.input_names, ds.input_units))}; "
+              f"output {ds.output_name} [{ds.output_unit}]")
+        print(f"operating point u0 = ({op['u0'][0]:.1f}, {op['u0'][1]:.1f}), y0 = {op['y0']:.3f}")
+        for note in ds.notes:
+            print(f"warning: {note}", file=sys.stderr)
+    return 0

@@ -1,0 +1,164 @@
+"""fuelid identify: a Box-Jenkins fuel-flow model from MCAP recordings by prediction-error identification."""
+import json
+import sys
+import time
+
+from fuelid.commands.dataset import add_dataset_arguments
+
+HELP = "identify a Box-Jenkins fuel-flow model (engine speed, torque -> fuel) from MCAP recordings"
+
+ORDERS_HELP = ("model orders: 'paper' (Gw nb=4 nf=5 nk=3, GT nb=5 nf=5 nk=0, C and D order 11), 'auto' (order "
+               "search), or a SPEC 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11' (per-input lists for nb, nf, nk; "
+               "nc, nd, na single numbers, 0 when left out)")
+PAPER = dict(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11)
+
+
+def parse_orders(spec: str) -> dict:
+    """'paper' or 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11[;na=0]' → Structure keyword arguments."""
+    from fuelid.errors import FuelidError
+
+    if spec == "paper":
+        return dict(PAPER)
+    out = {}
+    try:
+        for part in filter(None, (p.strip() for p in spec.replace(" ", ";").split(";"))):
+            key, value = (x.strip() for x in part.split("=", 1))
+            if key in ("nb", "nf", "nk"):
+                out[key] = tuple(int(v) for v in value.split(","))
+            elif key in ("nc", "nd", "na"):
+                out[key] = int(value)
+            else:
+                raise ValueError(f"unknown order {key!r}")
+        if "nb" not in out:
+            raise ValueError("nb is required")
+        m = len(out["nb"])
+        out.setdefault("nf", (0,) * m)
+        out.setdefault("nk", (1,) * m)
+        if not len(out["nf"]) == len(out["nk"]) == m == 2:
+            raise ValueError("nb, nf and nk need one value per input (engine speed, torque)")
+    except ValueError as exc:
+        raise FuelidError(f"--orders {spec!r}: {exc}") from exc
+    return out
+
+
+def add_arguments(p):
+    p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings to identify on")
+    p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
+    p.add_argument("--orders", default="paper", metavar="paper|auto|SPEC", help=ORDERS_HELP)
+    p.add_argument("--effect", action="append", default=[], metavar="ID",
+                   help="add a physical effect as extra input (ids as in `fuelid diagnose`; fuel_delay=SECONDS); "
+                        "repeatable")
+    p.add_argument("--min-segment", type=float, default=30.0, metavar="S",
+                   help="leave out valid stretches shorter than this [s] (default 30)")
+    add_dataset_arguments(p)
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def training_data(ds, u, y, min_s: float):
+    """(u, y) of the valid stretches of ds at least min_s [s] long where every column is finite, end to end.
+
+    The paper identifies on one contiguous record; pem takes one record, so the stretches are concatenated
+    (each junction costs a short transient, negligible against stretches of minutes)."""
+    import dataclasses
+
+    import numpy as np
+
+    finite = ds.valid & np.isfinite(u).all(axis=1) & np.isfinite(y)
+    segs = dataclasses.replace(ds, valid=finite).segments(min_s)
+    if not segs:
+        return None, None, segs
+    return np.concatenate([u[s] for s in segs]), np.concatenate([y[s] for s in segs]), segs
+
+
+def run(args) -> int:
+    import dataclasses
+    import warnings
+
+    import numpy as np
+
+    from fuelid.commands.dataset import build
+    from fuelid.errors import FuelidError
+    from ident.polymodel import Structure
+
+    t_start = time.perf_counter()
+    if args.orders == "auto":
+        raise FuelidError("--orders auto: the order search is not available yet; use paper or a SPEC")
+    structure = Structure(**parse_orders(args.orders))
+
+    from ident.effects import apply_effects
+    from ident.modelfile import save_model
+    from ident.pem import pem
+    from ident.validation import evaluate
+
+    ds = build(args, args.inputs)
+    t_data = time.perf_counter()
+
+    try:
+        fx = apply_effects(ds, args.effect)
+    except ValueError as exc:
+        raise FuelidError(str(exc)) from exc
+    u, y = np.hstack([ds.u, fx.u]), fx.y
+    structure = fx.extend(structure)
+    u_train, y_train, segs = training_data(ds, u, y, args.min_segment)
+    if u_train is None or len(y_train) <= 2 * structure.n_params + structure.n_start:
+        raise FuelidError(f"too little valid data to identify {structure.n_params} parameters "
+                          f"({int(ds.valid.sum())} valid samples, {len(segs)} stretches ≥ {args.min_segment:g} s)")
+    u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
+    try:
+        with warnings.catch_warnings():  # pem records its warnings in model.info; they are printed below
+            warnings.simplefilter("ignore", UserWarning)
+            model = pem(u_train, y_train, structure, ds.Ts, u0=u0, y0=ds.y0)
+    except ValueError as exc:
+        raise FuelidError(f"identification failed: {exc}") from exc
+    t_pem = time.perf_counter()
+
+    model = dataclasses.replace(
+        model, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
+        output_name=ds.output_name, output_unit=ds.output_unit, effects=fx.effects,
+        info={**model.info, "effect_parameters": fx.parameters},
+        training={**ds.summary(), "files": list(map(str, args.inputs)),
+                  "identification_samples": int(len(y_train)), "identification_stretches": len(segs)})
+    metrics = evaluate(model, ds)
+    model = dataclasses.replace(model, validation=metrics)
+    save_model(model, args.output)
+    t_end = time.perf_counter()
+
+    result = {
+        "model": args.output,
+        "orders": args.orders,
+        "structure": dataclasses.asdict(structure),
+        "effects": list(fx.effects),
+        "training": {"samples": int(len(y_train)), "stretches": len(segs), "Ts": ds.Ts,
+                     "operating_point": {"u0": [float(v) for v in ds.u0], "y0": float(ds.y0)},
+                     "warnings": ds.notes + list(model.info.get("warnings", []))},
+        **metrics,
+        "wall_time_s": {"dataset": t_data - t_start, "pem": t_pem - t_data, "total": t_end - t_start},
+    }
+    if args.json:
+        json.dump(result, sys.stdout, indent=2)
+        print()
+    else:
+        print(f"{args.output}: BJ {structure.nb}/{structure.nf}/{structure.nk} nc={structure.nc} nd={structure.nd}"
+              f" on {len(y_train) * ds.Ts / 60:.1f} min ({len(segs)} stretches), {t_end - t_start:.1f} s")
+        print(format_table([(args.output, metrics)], ds.output_unit))
+        for w in result["training"]["warnings"]:
+            print(f"warning: {w}", file=sys.stderr)
+    return 0
+
+
+def format_table(rows, unit: str) -> str:
+    """A short human table of evaluate()/evaluate_static() results: [(label, metrics), ...]."""
+    def f(v, fmt="{:.1f}"):
+        return "-" if v is None or v != v else fmt.format(v)
+
+    lines = [f"{'model':<28} {'fit sim %':>9} {'fit pred %':>10} {'RMSE ' + unit:>10} {'white':>6} "
+             f"{'xcorr':>8} {'cycle mean %':>12} {'cycle RMS %':>11}"]
+    for label, m in rows:
+        w = m.get("whiteness")
+        white = "-" if w is None else ("yes" if w["autocorr_pass"] else "no")
+        xcorr = "-" if w is None else "/".join("y" if p else "n" for p in w["crosscorr_pass"].values())
+        cyc = m["cycle_fuel_error_percent"]
+        lines.append(f"{label[-28:]:<28} {f(m['fit_percent']['simulation']):>9} "
+                     f"{f(m['fit_percent'].get('prediction')):>10} {f(m['rmse']['simulation'], '{:.3f}'):>10} "
+                     f"{white:>6} {xcorr:>8} {f(cyc['mean'], '{:+.2f}'):>12} {f(cyc['rms'], '{:.2f}'):>11}")
+    return "\n".join(lines)

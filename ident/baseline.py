@@ -1,0 +1,210 @@
+"""Static baselines the dynamic model is judged against.
+
+1. The steady-state engine map of paper 000, Section V.A: data points from segments of ≥ 3 s at essentially
+   constant vehicle speed, interpolated over (engine speed, torque). "Essentially constant" is defined here
+   as max − min of the (0.3 s-averaged) wheel-based vehicle speed ≤ 1 km/h over the window; each
+   non-overlapping such window of one segment gives one point (window means of speed, torque and fuel).
+   Interpolation: scipy's LinearNDInterpolator (piecewise linear on a Delaunay triangulation of the points,
+   axes rescaled to the unit square) inside their convex hull, NearestNDInterpolator outside it.
+
+2. The static locally weighted regression (LWR) models of paper 001, calibrated and evaluated on the
+   resampled data:
+     VB   fuel = f(vehicle speed v [km/h], acceleration dv/dt [m/s²])   (no wheel torque on the FMS bus)
+     EB   fuel = f(engine speed n [rpm], engine torque T [Nm])
+     EB*  fuel = f(n, T + J1 dω/dt),  ω = 2π n / 60 [rad/s], J1 [kg·m²]  (paper 001, eq. 2)
+   with the fuel-shift sensitivity sweep (fuel advanced/delayed within ±1 s) and the J1 sweep.
+
+LWR is written here (`lwr`) because the libraries at hand do not have it in two dimensions: statsmodels'
+lowess is 1-D only and scikit-learn has no local linear regression. It reproduces MATLAB's 2-D 'lowess'
+surface fit (Curve Fitting Toolbox, used by paper 001): at each query point a linear model fitted by
+weighted least squares to the `span` nearest points, tricube weights w = (1 − (d/d_max)³)³ of the
+distance d relative to the farthest of them, after scaling each input by its standard deviation.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+from scipy.spatial import QhullError, cKDTree
+
+from fuelid.errors import FuelidError
+from ident.dataset import VEHICLE_SPEED, Dataset
+
+
+def _segment_ids(ds: Dataset) -> np.ndarray:
+    """Per sample the index of its segment, −1 when invalid."""
+    seg = np.full(len(ds), -1)
+    for i, s in enumerate(ds.segments()):
+        seg[s] = i
+    return seg
+
+
+def _vehicle_speed(ds: Dataset) -> np.ndarray:
+    if VEHICLE_SPEED not in ds.extra:
+        raise FuelidError(f"no vehicle speed ({VEHICLE_SPEED}) in the data")
+    return ds.extra[VEHICLE_SPEED]
+
+
+def steady_points(ds: Dataset, min_duration_s: float = 3.0, speed_tol_kmh: float = 1.0):
+    """Steady-state points: (X (n×2) [rpm, torque unit of ds], fuel (n) [output unit of ds]).
+
+    One point per non-overlapping window of ceil(min_duration_s / Ts) samples [s] inside one segment
+    where the vehicle speed varies by at most speed_tol_kmh [km/h]; windows are taken greedily in time.
+    """
+    L = int(np.ceil(min_duration_s / ds.Ts))
+    if len(ds) < L:
+        return np.empty((0, 2)), np.empty(0)
+    v, seg = _vehicle_speed(ds), _segment_ids(ds)
+    vw, sw = sliding_window_view(v, L), sliding_window_view(seg, L)
+    ok = (sw.min(axis=1) == sw.max(axis=1)) & (sw[:, 0] >= 0) & np.isfinite(vw).all(axis=1)
+    ok &= np.where(ok, np.ptp(np.nan_to_num(vw), axis=1), np.inf) <= speed_tol_kmh
+    starts, nxt = [], 0
+    for i in np.flatnonzero(ok):
+        if i >= nxt:
+            starts.append(i)
+            nxt = i + L
+    idx = np.asarray(starts, dtype=int)[:, None] + np.arange(L)
+    return ds.u[idx].mean(axis=1), ds.y[idx].mean(axis=1)
+
+
+@dataclass
+class EngineMap:
+    """Steady-state fuel map: points X (n×2) [rpm, Nm] and fuel (n) [fuel unit]; call it with u (N×2)."""
+    X: np.ndarray
+    fuel: np.ndarray
+
+    def __post_init__(self):
+        if len(self.X) == 0:
+            raise FuelidError("no steady-state segments for the engine map (vehicle speed never constant ≥ 3 s)")
+        self._nearest = NearestNDInterpolator(self.X, self.fuel, rescale=True)
+        try:
+            self._linear = LinearNDInterpolator(self.X, self.fuel, rescale=True)
+        except (QhullError, ValueError):  # fewer than 3 points or all on a line
+            self._linear = None
+
+    def __call__(self, u) -> np.ndarray:
+        u = np.asarray(u, float)
+        out = np.full(len(u), np.nan)
+        ok = np.isfinite(u).all(axis=1)
+        if ok.any():
+            lin = self._linear(u[ok]) if self._linear is not None else np.full(ok.sum(), np.nan)
+            out[ok] = np.where(np.isnan(lin), self._nearest(u[ok]), lin)
+        return out
+
+
+def engine_map(ds: Dataset, min_duration_s: float = 3.0, speed_tol_kmh: float = 1.0) -> EngineMap:
+    """The paper-000 baseline map built from the steady-state points of ds (see steady_points)."""
+    return EngineMap(*steady_points(ds, min_duration_s, speed_tol_kmh))
+
+
+def lwr(X, y, Xq, span: float = 0.05) -> np.ndarray:
+    """Locally weighted linear regression (2-D lowess) of y on X, evaluated at Xq.
+
+    X (n×p), y (n), Xq (m×p) in any units (each column is scaled by its standard deviation over X);
+    span: the neighbourhood, a fraction of n when < 1 (MATLAB's convention), else a number of points.
+    Rows with a non-finite value are left out of the fit; queries with one give NaN.
+    """
+    X, y, Xq = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float), np.atleast_2d(np.asarray(Xq, float))
+    fit = np.isfinite(X).all(axis=1) & np.isfinite(y)
+    X, y = X[fit], y[fit]
+    p = X.shape[1]
+    k = int(np.ceil(span * len(X))) if span < 1 else int(span)
+    k = min(max(k, p + 2), len(X))
+    if len(X) < p + 1:
+        raise ValueError(f"LWR needs at least {p + 1} finite points, got {len(X)}")
+    scale = X.std(axis=0)
+    scale[scale == 0] = 1.0
+    tree = cKDTree(X / scale)
+    out = np.full(len(Xq), np.nan)
+    q = np.flatnonzero(np.isfinite(Xq).all(axis=1))
+    for chunk in np.array_split(q, max(1, len(q) // 2000)):
+        if not len(chunk):
+            continue
+        d, j = tree.query(Xq[chunk] / scale, k=k)
+        d, j = d.reshape(len(chunk), k), j.reshape(len(chunk), k)
+        dmax = d[:, -1:] * (1 + 1e-9) + 1e-12
+        w = (1 - (d / dmax) ** 3) ** 3
+        Z = np.concatenate([np.ones((len(chunk), k, 1)), (X[j] - Xq[chunk, None, :]) / scale], axis=2)
+        A = np.einsum("mki,mk,mkj->mij", Z, w, Z) + 1e-9 * np.eye(p + 1)
+        b = np.einsum("mki,mk,mk->mi", Z, w, y[j])
+        out[chunk] = np.linalg.solve(A, b[..., None])[:, 0, 0]
+    return out
+
+
+STATIC_KINDS = ("VB", "EB", "EB*")
+
+
+def static_inputs(ds: Dataset, kind: str, J1: float = 0.0) -> np.ndarray:
+    """The regressors (N×2) of a paper-001 static model: 'VB' [km/h, m/s²], 'EB' [rpm, Nm] or
+    'EB*' [rpm, Nm] with torque T + J1 dω/dt, J1 [kg·m²]. Derivatives are central differences on the
+    grid, NaN next to an invalid sample."""
+    if kind == "VB":
+        v = _vehicle_speed(ds)
+        return np.column_stack([v, np.gradient(v / 3.6, ds.Ts)])
+    if kind == "EB":
+        return ds.u
+    if kind == "EB*":
+        if ds.input_units[1] != "Nm":
+            raise FuelidError("EB* needs the torque in Nm (EC1 reference torque missing)")
+        dw = np.gradient(ds.u[:, 0] * 2 * np.pi / 60, ds.Ts)
+        return np.column_stack([ds.u[:, 0], ds.u[:, 1] + J1 * dw])
+    raise ValueError(f"static model kind must be one of {STATIC_KINDS}, got {kind!r}")
+
+
+def shifted_output(ds: Dataset, shift_s: float) -> np.ndarray:
+    """Fuel shifted in time within each segment: y_s(t) = y(t − shift_s), shift_s [s] rounded to whole
+    samples; negative = fuel advanced (paper 001's 0.4 s advance is shift_s = −0.4). NaN where t − shift_s
+    leaves the segment."""
+    n = int(round(shift_s / ds.Ts))
+    seg = _segment_ids(ds)
+    idx = np.arange(len(ds)) - n
+    ok = (idx >= 0) & (idx < len(ds))
+    out = np.full(len(ds), np.nan)
+    src = idx[ok]
+    same = (seg[ok] >= 0) & (seg[src] == seg[ok])
+    out[np.flatnonzero(ok)[same]] = ds.y[src[same]]
+    return out
+
+
+def static_model(train: Dataset, test: Dataset, kind: str = "EB", J1: float = 0.0, shift_s: float = 0.0,
+                 span: float = 0.05) -> np.ndarray:
+    """Fuel predicted on `test` [output unit] by the LWR model `kind` calibrated on `train` (fuel shifted by
+    shift_s [s]); NaN on test's invalid samples."""
+    X = static_inputs(train, kind, J1)
+    yq = lwr(X[train.valid], shifted_output(train, shift_s)[train.valid], static_inputs(test, kind, J1), span)
+    return np.where(test.valid, yq, np.nan)
+
+
+def _scores(y, yhat) -> tuple[float, float]:
+    ok = np.isfinite(y) & np.isfinite(yhat)
+    res = y[ok] - yhat[ok]
+    return float(np.sqrt(np.mean(res ** 2))), float(1 - res @ res / np.sum((y[ok] - y[ok].mean()) ** 2))
+
+
+def fuel_shift_sweep(ds: Dataset, kind: str = "EB", shifts_s=None, J1: float = 0.0, span: float = 0.05) -> dict:
+    """Paper 001's fuel-shift sensitivity: for each shift [s] (default every sample within ±1 s) calibrate
+    and evaluate `kind` on ds with the shifted fuel; returns {'shift_s', 'rmse' [output unit], 'r2'} lists."""
+    if shifts_s is None:
+        n = int(np.floor(1.0 / ds.Ts + 1e-9))
+        shifts_s = np.arange(-n, n + 1) * ds.Ts
+    out = {"shift_s": [], "rmse": [], "r2": []}
+    for s in shifts_s:
+        ys = shifted_output(ds, s)
+        r, r2 = _scores(ys, static_model(ds, ds, kind, J1, s, span))
+        out["shift_s"].append(float(s)), out["rmse"].append(r), out["r2"].append(r2)
+    return out
+
+
+def inertia_sweep(ds: Dataset, J1_values=None, shift_s: float = 0.0, span: float = 0.05) -> dict:
+    """Paper 001's J1 sweep for EB*: calibrate and evaluate on ds for each J1 [kg·m²] (default −5…5 in 0.25
+    steps: the sign is left to the data, since the bus torque of a truck engine already contains the
+    inertial part); returns {'J1', 'rmse' [output unit], 'r2'} lists."""
+    J1_values = np.arange(-5.0, 5.0 + 1e-9, 0.25) if J1_values is None else J1_values
+    ys = shifted_output(ds, shift_s)
+    out = {"J1": [], "rmse": [], "r2": []}
+    for J in J1_values:
+        r, r2 = _scores(ys, static_model(ds, ds, "EB*", J, shift_s, span))
+        out["J1"].append(float(J)), out["rmse"].append(r), out["r2"].append(r2)
+    return out

@@ -1,0 +1,54 @@
+"""Synthetic identification data from the paper's appendix diesel model (tests and benchmarks/bench_pem.py).
+
+Inputs are deviations from idle, truck-like: engine speed 600–1900 rpm and torque 0–100 %, each a sequence of
+random set-points held 3–40 s, smoothed by first-order lags (speed τ = 2 s, torque τ = 0.6 s) plus small
+filtered jitter; torque partly follows speed changes (acceleration needs torque). Output: y = G u + H e with the
+appendix Gw, GT and the appendix noise numerator C over the printed D stabilised (its root pair at |z| = 1.033
+reflected inside), e white with std sigma_e [L/h].
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+from ident.pem import stabilize
+from ident.polymodel import PolyModel, simulate
+
+TS = 0.3
+
+
+def truck_inputs(n: int, rng: np.random.Generator, ts: float = TS) -> np.ndarray:
+    """N × 2 inputs [engine speed − 600 rpm, torque %]."""
+
+    def held_steps(lo, hi):
+        out = np.empty(n)
+        i = 0
+        while i < n:
+            hold = int(rng.uniform(3.0, 40.0) / ts)
+            out[i : i + hold] = rng.uniform(lo, hi)
+            i += hold
+        return out
+
+    def lag(x, tau):
+        a = np.exp(-ts / tau)
+        return lfilter([1 - a], [1, -a], x, zi=[a * x[0]])[0]
+
+    speed = lag(held_steps(0.0, 1300.0), 2.0) + lag(rng.normal(0, 40.0, n), 1.0)
+    accel = np.gradient(speed) / ts
+    torque = lag(held_steps(0.0, 80.0), 0.6) + 0.02 * accel + lag(rng.normal(0, 4.0, n), 0.5)
+    return np.column_stack([np.clip(speed, 0.0, 1300.0), np.clip(torque, 0.0, 100.0)])
+
+
+def true_model(paper: PolyModel) -> PolyModel:
+    """The paper's model with its noise denominator D stabilised (a stationary noise model)."""
+    return PolyModel(A=paper.A, B=paper.B, F=paper.F, C=paper.C, D=stabilize(paper.D), Ts=paper.Ts, nk=paper.nk,
+                     input_names=paper.input_names, input_units=paper.input_units)
+
+
+def paper_data(truth: PolyModel, n: int = 18000, seed: int = 0, sigma_e: float = 0.05):
+    """(u, y, y_noise_free) simulated from `truth` on truck-like inputs; e white, std sigma_e."""
+    rng = np.random.default_rng(seed)
+    u = truck_inputs(n, rng)
+    y0 = simulate(truth, u)
+    v = lfilter(truth.C, truth.D, rng.normal(0.0, sigma_e, n))
+    return u, y0 + v, y0

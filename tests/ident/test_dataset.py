@@ -1,0 +1,170 @@
+import warnings
+
+import numpy as np
+import pytest
+
+from fuelid.errors import FuelidError
+from ident.dataset import build_dataset, load_dataset, save_dataset
+
+NS = 1_000_000_000
+
+
+def eec1(t, speed, pct, sa=0):
+    return ("/j1939/EEC1", int(round(t * NS)), {"t": t, "pgn": 61444, "sa": sa, "da": 255,
+                                                 "EngSpeed": speed, "ActualEngPercentTorque": pct})
+
+
+def lfe1(t, rate, sa=0):
+    return ("/j1939/LFE1", int(round(t * NS)), {"t": t, "pgn": 65266, "sa": sa, "da": 255, "EngFuelRate": rate})
+
+
+def ec1(t, ref=2000.0):
+    return ("/j1939/EC1", int(round(t * NS)), {"t": t, "pgn": 65251, "sa": 0, "da": 255,
+                                               "EngReferenceTorque": ref, "EngMomentOfInertia": 3.5})
+
+
+def ccvs1(t, v):
+    return ("/j1939/CCVS1", int(round(t * NS)), {"t": t, "pgn": 65265, "sa": 0, "da": 255,
+                                                 "WheelBasedVehicleSpeed": v, "ParkingBrakeSwitch": 0})
+
+
+def trip(t_end=60.0, gap=None, with_ec1=True, speed=lambda t: 600 + 10 * t, pct=lambda t: 10.0):
+    """EEC1 every 20 ms, LFE1 and CCVS1 every 100 ms; no traffic at all inside `gap` (a, b)."""
+    recs = [ec1(0.0)] if with_ec1 else []
+    for i in range(int(t_end / 0.02)):
+        t = i * 0.02
+        if gap and gap[0] <= t < gap[1]:
+            continue
+        recs.append(eec1(t, speed(t), pct(t)))
+        if i % 5 == 0:
+            recs.append(lfe1(t, 2.0 + 0.1 * t))
+            recs.append(ccvs1(t, 0.0 if t < 10 else 50.0))
+    return recs
+
+
+def test_grid_means_units_and_extras():
+    ds = build_dataset(trip(), Ts=0.3)
+    assert ds.input_units == ("rpm", "Nm") and ds.output_unit == "L/h"
+    assert ds.Ts == 0.3 and np.allclose(np.diff(ds.t), 0.3)
+    # bin k holds EEC1 samples t = 0.3k + 0.02j: mean speed = 600 + 10 (0.3k + 0.14)
+    k = 10
+    assert ds.u[k, 0] == pytest.approx(600 + 10 * (0.3 * k + 0.14), abs=1e-9)
+    assert ds.u[k, 1] == pytest.approx(10.0 * 2000.0 / 100.0)
+    assert "CCVS1.WheelBasedVehicleSpeed" in ds.extra and "EC1.EngMomentOfInertia" in ds.extra
+    assert ds.valid.all() and len(ds.segments()) == 1
+    assert ds.sources["EEC1.EngSpeed"] == 0
+
+
+def test_long_gap_is_not_interpolated_and_splits_segments():
+    ds = build_dataset(trip(gap=(20.0, 25.0)), Ts=0.3, max_gap_s=1.0)
+    inside = (ds.t >= 21.2) & (ds.t < 24.7)
+    assert not ds.valid[inside].any()
+    assert np.isnan(ds.u[inside & ~np.isin(np.arange(len(ds)), [])][:, 0]).all()
+    segs = ds.segments()
+    assert len(segs) == 2
+    assert ds.t[segs[0].stop - 1] < 21.0 and ds.t[segs[1].start] >= 24.9
+    # held for at most max_gap_s: the last valid sample is within 1 s after the last record
+    assert ds.t[segs[0].stop - 1] + 0.3 - 19.98 <= 1.0 + 1e-9
+
+
+def test_short_gap_is_held():
+    ds = build_dataset(trip(gap=(20.0, 20.5)), Ts=0.3, max_gap_s=1.0)
+    assert ds.valid.all() and len(ds.segments()) == 1
+    k = np.flatnonzero((ds.t >= 20.0) & (ds.t < 20.3))[0]
+    assert ds.u[k, 0] == pytest.approx(600 + 10 * 19.98)
+
+
+def test_very_long_break_keeps_grid_small():
+    recs = trip(t_end=10.0) + [(topic, ns + 86400 * NS, rec) for topic, ns, rec in trip(t_end=10.0, with_ec1=False)]
+    ds = build_dataset(recs, Ts=0.3)
+    assert len(ds) < 100
+    assert len(ds.segments()) == 2
+
+
+def test_source_preference_and_nulls():
+    recs = trip(t_end=20.0)
+    # a second ECU (0x17) sends EEC1 with other values and nulls; LFE1 only from 0x17
+    for i in range(1000):
+        t = i * 0.02 + 0.01
+        recs.append(eec1(t, None if i % 2 else 5000.0, None, sa=0x17))
+    recs = [r for r in recs if r[0] != "/j1939/LFE1"] + [lfe1(i * 0.1, 3.0, sa=0x17) for i in range(200)]
+    ds = build_dataset(recs, Ts=0.3)
+    assert ds.sources["EEC1.EngSpeed"] == 0 and ds.sources["LFE1.EngFuelRate"] == 0x17
+    assert np.nanmax(ds.u[:, 0]) < 1000  # never the 5000 rpm of 0x17
+    assert np.allclose(ds.y[ds.valid], 3.0)
+    # the engine sends only nulls for speed, valid torque; 0x17 sends both
+    recs2 = [r for r in recs if r[0] != "/j1939/EEC1"]
+    recs2 += [eec1(i * 0.02, None, 12.0) for i in range(1000)]
+    recs2 += [eec1(i * 0.02 + 0.005, 700.0, 12.0, sa=0x17) for i in range(1000)]
+    with pytest.warns(UserWarning, match="idle"):
+        ds2 = build_dataset(recs2, Ts=0.3)
+    # speed: engine never valid → falls back to 0x17; torque: engine valid → engine
+    assert ds2.sources["EEC1.EngSpeed"] == 0x17 and ds2.sources["EEC1.ActualEngPercentTorque"] == 0
+    assert np.allclose(ds2.u[ds2.valid, 0], 700.0)
+
+
+def test_torque_percent_fallback_warns():
+    with pytest.warns(UserWarning, match="EC1"):
+        ds = build_dataset(trip(with_ec1=False), Ts=0.3)
+    assert ds.input_units == ("rpm", "%")
+    assert ds.u[5, 1] == pytest.approx(10.0)
+    assert ds.notes
+
+
+def test_operating_point_idle():
+    speed = lambda t: 600.0 if t < 10 else 1200.0
+    pct = lambda t: 5.0 if t < 10 else 60.0
+    recs = [r for r in trip(speed=speed, pct=pct)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ds = build_dataset(recs, Ts=0.3)
+    assert ds.u0 == pytest.approx([600.0, 100.0])
+    idle = ds.t < 9.9
+    assert ds.y0 == pytest.approx(ds.y[idle & ds.valid].mean())
+    assert np.allclose(ds.du[3], ds.u[3] - ds.u0)
+
+
+def test_missing_signals_are_user_errors():
+    with pytest.raises(FuelidError, match="fuel"):
+        build_dataset([r for r in trip(t_end=5) if r[0] != "/j1939/LFE1"])
+    with pytest.raises(FuelidError, match="engine speed"):
+        build_dataset([r for r in trip(t_end=5) if r[0] != "/j1939/EEC1"])
+    with pytest.raises(FuelidError, match="flow"):
+        build_dataset(trip(t_end=5), fuel="flowmeter")
+
+
+def test_flowmeter_preferred_in_auto():
+    recs = trip(t_end=10)
+    recs += [("/flowmeter", int(i * 0.1 * NS), {"t": i * 0.1, "device_t": None, "volts": 1.0,
+                                                 "flow_kg_h": 12.5, "status": "ok", "raw": "1.0"}) for i in range(100)]
+    ds = build_dataset(recs)
+    assert ds.output_name == "flowmeter.flow_kg_h" and ds.output_unit == "kg/h"
+    assert "LFE1.EngFuelRate" in ds.extra
+
+
+def test_drive_cycles():
+    ds = build_dataset(trip(t_end=100.0, gap=(40.0, 45.0)), Ts=0.3, cycle_s=15.0, min_cycle_s=5.0)
+    segs = ds.segments()
+    for s in segs:
+        assert len(set(ds.cycle[s])) >= 2
+    c = ds.cycle[ds.cycle >= 0]
+    assert np.all(np.diff(c) >= 0)
+    assert np.all(ds.cycle[~ds.valid] == -1)
+    durations = np.bincount(c) * 0.3
+    assert durations.min() >= 15.0 - 1e-9
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".mat"])
+def test_export_round_trip(tmp_path, suffix):
+    ds = build_dataset(trip(t_end=20.0, gap=(10.0, 12.0)), Ts=0.3)
+    back = load_dataset(save_dataset(ds, tmp_path / f"d{suffix}"))
+    assert back.Ts == ds.Ts and back.input_units == ds.input_units and back.output_name == ds.output_name
+    np.testing.assert_allclose(back.t, ds.t)
+    np.testing.assert_allclose(back.u, ds.u, equal_nan=True)
+    np.testing.assert_allclose(back.y, ds.y, equal_nan=True)
+    np.testing.assert_array_equal(back.valid, ds.valid)
+    np.testing.assert_array_equal(back.cycle, ds.cycle)
+    np.testing.assert_allclose(back.u0, ds.u0)
+    assert set(back.extra) == set(ds.extra)
+    for k in ds.extra:
+        np.testing.assert_allclose(back.extra[k], ds.extra[k], equal_nan=True)

@@ -1,0 +1,205 @@
+"""Crash-safe MCAP: files the plain mcap reader opens, truncated files read and recovered, timely flushes."""
+import io
+import json
+import random
+import time
+
+import can
+import pytest
+from mcap.data_stream import ReadDataStream
+from mcap.reader import make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import breakup_chunk
+
+from fuelid.errors import FuelidError
+from logger.flowmeter import parse_line
+from logger.mcap_log import (
+    FLOWMETER_SCHEMA,
+    RAW_SCHEMA,
+    McapLogWriter,
+    raw_record,
+    read_messages,
+    read_metadata,
+    recover,
+)
+
+T0 = 1_700_000_000_000_000_000  # log time origin [ns]
+VIN = "YS2R4X20005399401"
+
+
+def _write_log(path, n=400, **kwargs):
+    """A log with frames every 50 ms of log time, a flow reading every 100 ms, and the VIN found halfway:
+    1 s of log time per chunk gives ~20 chunks. Returns the messages written, in order."""
+    written = []
+    with McapLogWriter(path, metadata={"truck": "unknown", "source": ["trip.log"]}, fsync=False, **kwargs) as w:
+        w.add_channel("/can/raw", RAW_SCHEMA)
+        w.add_channel("/flowmeter", FLOWMETER_SCHEMA)
+        for i in range(n):
+            t_ns = T0 + i * 50_000_000
+            frame = can.Message(timestamp=t_ns / 1e9, arbitration_id=0x0CF00400, data=bytes([i % 256] * 8), channel="can0")
+            items = [("/can/raw", raw_record(frame))]
+            if i % 2:
+                items.append(("/flowmeter", parse_line(b"%d,%.3f" % (i, i % 100 / 10), t_ns / 1e9).to_record()))
+            for topic, record in items:
+                w.write(topic, t_ns, record)
+                written.append((topic, t_ns, record))
+            if i == n // 2:
+                w.set_metadata({"truck": VIN})
+    return written
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mcap") / "trip.mcap"
+    return path, _write_log(path)
+
+
+def test_plain_mcap_reader_opens_the_file_with_schemas(log):
+    path, written = log
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        messages = list(reader.iter_messages(log_time_order=False))
+        metadata = list(reader.iter_metadata())
+    assert summary.statistics.chunk_count >= 15
+    schemas = {s.name: json.loads(s.data) for s in summary.schemas.values()}
+    assert schemas == {"fuelid.can.raw": RAW_SCHEMA, "fuelid.flowmeter": FLOWMETER_SCHEMA}
+    assert all(s.encoding == "jsonschema" for s in summary.schemas.values())
+    assert [(c.topic, c.message_encoding) for c in summary.channels.values()] == [("/can/raw", "json"), ("/flowmeter", "json")]
+    assert [(ch.topic, m.log_time, json.loads(m.data)) for _, ch, m in messages] == written
+    assert [m.metadata["truck"] for m in metadata] == ["unknown", VIN]
+
+
+def test_read_messages_and_metadata_of_a_complete_file(log):
+    path, written = log
+    assert list(read_messages(path)) == written
+    assert list(read_messages(path, topics=["/flowmeter"])) == [w for w in written if w[0] == "/flowmeter"]
+    meta = read_metadata(path)["fuelid"]
+    assert meta["truck"] == VIN and json.loads(meta["source"]) == ["trip.log"] and meta["logger_version"]
+
+
+def _chunk_ends(data: bytes) -> list[tuple[int, int, int]]:
+    """(end offset, message count, start offset) of each chunk, from the complete file's index."""
+    summary = make_reader(io.BytesIO(data)).get_summary()
+    ends = []
+    for index in summary.chunk_indexes:
+        body = data[index.chunk_start_offset + 9 : index.chunk_start_offset + index.chunk_length]
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+        ends.append((index.chunk_start_offset + index.chunk_length,
+                     sum(isinstance(r, Message) for r in breakup_chunk(chunk)), index.chunk_start_offset))
+    return sorted(ends)
+
+
+def test_truncated_file_gives_every_complete_chunk(log, tmp_path):
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    rng = random.Random(7)
+    cuts = {e + d for e, *_ in ends for d in (-1, 0, 1)} | {rng.randrange(8, len(data)) for _ in range(40)}
+    cut_path, fixed = tmp_path / "cut.mcap", tmp_path / "fixed.mcap"
+    for cut in sorted(cuts):
+        cut_path.write_bytes(data[:cut])
+        expected = written[: sum(n for end, n, _ in ends if end <= cut)]
+        assert list(read_messages(cut_path)) == expected, cut
+        stats = recover(cut_path, fixed)
+        assert sum(stats.messages.values()) == len(expected)
+        with open(fixed, "rb") as f:  # the plain reader reads the recovered file through its index
+            reader = make_reader(f)
+            assert reader.get_summary() is not None
+            got = [(ch.topic, m.log_time, json.loads(m.data)) for _, ch, m in reader.iter_messages(log_time_order=False)]
+        assert got == expected, cut
+        assert read_metadata(fixed)["fuelid"]["truck"] in ("unknown", VIN)
+
+
+def test_truncated_file_still_names_its_truck(log, tmp_path):
+    path, written = log
+    data = path.read_bytes()
+    cut_path = tmp_path / "cut.mcap"
+    cut_path.write_bytes(data[: len(data) * 3 // 4])
+    assert read_metadata(cut_path)["fuelid"]["truck"] == VIN
+    cut_path.write_bytes(data[:200])
+    assert read_metadata(cut_path)["fuelid"]["truck"] == "unknown"
+
+
+def test_plain_reader_alone_gets_nothing_from_a_cut_file(log, tmp_path):
+    """Why the project ships its own reader path: if this starts passing, mcap learned to read cut files."""
+    path, _ = log
+    cut_path = tmp_path / "cut.mcap"
+    cut_path.write_bytes(path.read_bytes()[:-100])
+    with open(cut_path, "rb") as f, pytest.raises(Exception):
+        list(make_reader(f).iter_messages())
+
+
+def test_recover_reports_what_it_kept(log, tmp_path):
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    cut_path = tmp_path / "cut.mcap"
+    cut_path.write_bytes(data[: ends[4][0] + 10])
+    stats = recover(cut_path, tmp_path / "fixed.mcap")
+    kept = written[: sum(n for _, n, _ in ends[:5])]
+    assert dict(stats.messages) == {t: sum(1 for w in kept if w[0] == t) for t in ("/can/raw", "/flowmeter")}
+    assert not stats.complete and stats.bytes_total == len(data[: ends[4][0] + 10])
+    assert 10 <= stats.bytes_lost < 100  # the 10 bytes cut off, plus the message indexes' bytes after them
+    full = recover(path, tmp_path / "again.mcap")
+    assert full.complete and full.bytes_lost == 0 and sum(full.messages.values()) == len(written)
+    with pytest.raises(FuelidError):
+        recover(path, path)
+
+
+@pytest.mark.parametrize("content", [b"", b"\x89MCA", b"hello, not an mcap file at all\n" * 10, bytes(range(256))])
+def test_garbage_is_a_clear_error(tmp_path, content):
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(content)
+    with pytest.raises(FuelidError, match="not an MCAP file"):
+        list(read_messages(path))
+    with pytest.raises(FuelidError, match="not an MCAP file"):
+        recover(path, tmp_path / "out.mcap")
+
+
+def test_damaged_chunk_stops_the_scan_before_it(log, tmp_path):
+    path, written = log
+    ends = _chunk_ends(path.read_bytes())
+    data = bytearray(path.read_bytes()[:-50])  # no footer: sequential scan
+    data[ends[2][2] + 100] ^= 0xFF  # inside the third chunk's compressed data
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    got = list(read_messages(bad))
+    assert got == written[: len(got)] and len(got) == sum(n for _, n, _ in ends[:2])
+
+
+def test_chunks_close_every_second_of_log_time(tmp_path):
+    path = tmp_path / "t.mcap"
+    with McapLogWriter(path, metadata={}, fsync=False) as w:
+        w.add_channel("/can/raw", RAW_SCHEMA)
+        for i in range(50):  # 10 s of log time at 5 Hz
+            w.write("/can/raw", T0 + i * 200_000_000, {"t": i})
+    with open(path, "rb") as f:
+        assert 9 <= make_reader(f).get_summary().statistics.chunk_count <= 11
+
+
+def test_data_reaches_disk_within_a_second_of_wall_time(tmp_path):
+    path = tmp_path / "live.mcap"
+    w = McapLogWriter(path, metadata={"truck": "unknown"}, chunk_flush_s=0.3)
+    w.add_channel("/flowmeter", FLOWMETER_SCHEMA)
+    try:
+        for i in range(5):  # log times 1 ms apart: only wall time can trigger the flush
+            w.write("/flowmeter", T0 + i * 1_000_000, {"i": i})
+        time.sleep(0.35)
+        w.write("/flowmeter", T0 + 5_000_000, {"i": 5})  # a write after the deadline flushes
+        assert [r["i"] for _, _, r in read_messages(path)] == list(range(6))
+        w.write("/flowmeter", T0 + 6_000_000, {"i": 6})
+        time.sleep(0.35)
+        w.flush_if_due()  # a quiet bus: the idle loop flushes
+        assert [r["i"] for _, _, r in read_messages(path)] == list(range(7))
+    finally:
+        w.close()
+    assert len(list(read_messages(path))) == 7
+
+
+def test_raw_record_matches_schema():
+    frame = can.Message(timestamp=12.5, arbitration_id=0x18FEF100, data=b"\x01\xff", is_extended_id=True, channel=0)
+    record = raw_record(frame)
+    assert set(record) == set(RAW_SCHEMA["properties"]) == set(RAW_SCHEMA["required"])
+    assert record == {"t": 12.5, "id": 0x18FEF100, "extended": True, "dlc": 2, "data": "01ff",
+                      "error": False, "remote": False, "channel": 0}

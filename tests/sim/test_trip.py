@@ -1,0 +1,67 @@
+"""Determinism and physical sanity of simulated trips."""
+import numpy as np
+import pytest
+
+from sim import gearbox
+from sim.drive import NEUTRAL
+from sim.engine import ENGINES
+from sim.trip import TripConfig, simulate, write
+
+
+def test_same_seed_gives_byte_identical_files(tmp_path):
+    cfg = TripConfig(truth="gas_p340", cycle="urban", duration_s=120.0, seed=5, effects=(("fuel_delay", 0.2),))
+    a = write(simulate(cfg), tmp_path / "a" / "t.log.gz")
+    b = write(simulate(cfg), tmp_path / "b" / "t.log.gz")
+    for kind in a:
+        assert a[kind].read_bytes() == b[kind].read_bytes(), kind
+    other = write(simulate(TripConfig(truth="gas_p340", cycle="urban", duration_s=120.0, seed=6,
+                                      effects=(("fuel_delay", 0.2),))), tmp_path / "c" / "t.log.gz")
+    assert other["log"].read_bytes() != a["log"].read_bytes()
+
+
+def test_idle_fuel_is_2_to_3_litres_per_hour(trip):
+    tr = trip(cycle="urban", duration_s=600.0, seed=11).truth
+    idle = (tr["mode"] == NEUTRAL) & (tr["speed_kmh"] == 0) & (tr["t_s"] > 20)
+    assert idle.sum() > 100
+    assert 2.0 <= tr["fuel_true"][idle].mean() <= 3.0
+    assert np.all(np.abs(tr["engine_speed_rpm"][idle] - 600.0) < 30.0)
+
+
+def test_loaded_truck_on_the_motorway_burns_25_to_40_litres_per_hour(trip):
+    tr = trip(cycle="motorway", duration_s=900.0, seed=12, mass_kg=40000.0).truth
+    cruising = tr["speed_kmh"] > 75.0
+    assert cruising.mean() > 0.5
+    assert 25.0 <= tr["fuel_true"][cruising].mean() <= 40.0
+
+
+def test_engine_stays_in_its_envelope(trip):
+    t = trip(cycle="mixed", duration_s=900.0, seed=13)
+    engine = ENGINES["diesel_p320"]
+    rpm = t.signals["engine_speed_rpm"]
+    torque_nm = t.truth["torque_true_pct"] / 100.0 * engine.reference_torque_nm
+    assert rpm.min() >= engine.idle_speed_rpm - 30.0 and rpm.max() <= engine.max_speed_rpm + 50.0
+    assert np.all(torque_nm <= engine.full_load_torque_nm(t.truth["engine_speed_rpm"]) * 1.02 + 1.0)
+    assert np.all(t.truth["torque_true_pct"] >= 0.0)
+
+
+def test_gear_changes_interrupt_traction(trip):
+    t = trip(cycle="urban", duration_s=600.0, seed=14)
+    s, dt = t.signals, t.config.dt_s
+    neutral = (s["current_gear"] == 0) & (s["selected_gear"] > 0) & (s["speed_kmh"] > 5.0)
+    starts = np.flatnonzero(np.diff(neutral.astype(int)) == 1) + 1
+    assert len(starts) > 10
+    lengths = [np.argmin(neutral[i:]) * dt for i in starts]
+    assert np.median(lengths) == pytest.approx(gearbox.NEUTRAL_S, abs=0.05)
+    # No torque reaches the wheels while in neutral: on average the truck slows down.
+    accel = np.gradient(s["speed_kmh"] / 3.6, dt)
+    assert accel[neutral].mean() < 0.0
+    assert set(np.unique(s["current_gear"][s["speed_kmh"] > 5.0])) <= set(range(0, 13))
+
+
+def test_bad_configurations_are_rejected():
+    with pytest.raises(ValueError):
+        TripConfig(truth="petrol")
+    with pytest.raises(ValueError):
+        TripConfig(cycle="offroad")
+    with pytest.raises(ValueError):
+        TripConfig(truth="gas_p340", effects=(("dpf_regeneration", 0.1),))

@@ -1,0 +1,131 @@
+"""fuelid dataset / identify / compare end to end on a synthetic MCAP recording."""
+import json
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from fuelid.cli import main
+from ident.polymodel import PolyModel, simulate
+
+NS = 1_000_000_000
+TS = 0.3
+REF_NM = 2000.0
+
+
+def truth() -> PolyModel:
+    """A small Box-Jenkins truck model on deviations from idle: [rpm, Nm] → L/h."""
+    return PolyModel(A=[1.0], B=[[0, 0.004, 0.002], [0.02, 0.01]], F=[[1, -0.5], [1, -0.3]], C=[1, 0.5],
+                     D=[1, -0.6], Ts=TS, nk=(1, 0), input_units=("rpm", "Nm"), output_unit="L/h",
+                     u0=(600.0, 100.0), y0=2.0)
+
+
+def trip(n=4000, seed=0):
+    """Grid signals: speed [rpm], torque [%], fuel [L/h], vehicle speed [km/h]; idle for the first minute."""
+    rng = np.random.default_rng(seed)
+
+    def held(lo, hi):
+        out, i = np.empty(n), 0
+        while i < n:
+            k = int(rng.uniform(5, 40) / TS)
+            out[i:i + k] = rng.uniform(lo, hi)
+            i += k
+        return out
+
+    a = np.exp(-TS / 1.5)
+    speed = 600 + lfilter([1 - a], [1, -a], held(150, 1200))
+    pct = 5 + lfilter([1 - a], [1, -a], held(0, 70)) + rng.normal(0, 2, n)
+    speed[:200], pct[:200] = 600 + rng.normal(0, 5, 200), 5 + rng.normal(0, 1, 200)
+    u = np.column_stack([speed, pct * REF_NM / 100])
+    y = simulate(truth(), u) + lfilter([1, 0.5], [1, -0.6], rng.normal(0, 0.05, n))
+    v = np.round((speed - 600) / 12)
+    return speed, pct, y, v
+
+
+def write_mcap(path, n=4000, seed=0):
+    """EEC1, LFE1, CCVS1 every 100 ms (each grid value three times), EC1 every 5 s."""
+    from logger.mcap_log import McapLogWriter
+
+    speed, pct, y, v = trip(n, seed)
+    with McapLogWriter(path, metadata={"truck": "test"}, fsync=False) as w:
+        for topic in ("/j1939/EEC1", "/j1939/LFE1", "/j1939/CCVS1", "/j1939/EC1"):
+            w.add_channel(topic, {"type": "object"})
+        for i in range(3 * n):
+            t, k = (i + 0.5) * 0.1, i // 3
+            ns = int(t * NS)
+            base = {"t": t, "sa": 0, "da": 255}
+            if i % 50 == 0:
+                w.write("/j1939/EC1", ns, {**base, "pgn": 65251, "EngReferenceTorque": REF_NM, "EngMomentOfInertia": 3.0})
+            w.write("/j1939/EEC1", ns, {**base, "pgn": 61444, "EngSpeed": speed[k], "ActualEngPercentTorque": pct[k]})
+            w.write("/j1939/LFE1", ns, {**base, "pgn": 65266, "EngFuelRate": y[k]})
+            w.write("/j1939/CCVS1", ns, {**base, "pgn": 65265, "WheelBasedVehicleSpeed": v[k]})
+    return path
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    return write_mcap(tmp_path_factory.mktemp("rec") / "trip.mcap")
+
+
+def test_dataset_command_csv_and_json(recording, tmp_path, capsys):
+    out = tmp_path / "d.csv"
+    assert main(["dataset", str(recording), "-o", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["samples"] == 4000 and summary["valid_samples"] == 4000
+    assert summary["inputs"][1]["unit"] == "Nm" and summary["output"]["unit"] == "L/h"
+    assert summary["operating_point"]["u0"][0] == pytest.approx(600, abs=2)
+    from ident.dataset import load_dataset
+    ds = load_dataset(out)
+    speed, pct, y, v = trip()
+    np.testing.assert_allclose(ds.u[:, 0], speed, rtol=1e-9)
+    np.testing.assert_allclose(ds.y, y, rtol=1e-9, atol=1e-12)
+
+
+def test_bad_inputs_one_line_errors(tmp_path, capsys):
+    bad = tmp_path / "x.mcap"
+    bad.write_text("not mcap")
+    assert main(["dataset", str(bad), "-o", str(tmp_path / "d.csv")]) == 1
+    err = capsys.readouterr().err
+    assert "not an MCAP file" in err and len(err.strip().splitlines()) == 1
+    assert main(["dataset", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "d.csv")]) == 1
+    assert main(["dataset", str(bad), "-o", str(tmp_path / "d.txt")]) == 1
+    from logger.mcap_log import McapLogWriter
+    nofuel = tmp_path / "nofuel.mcap"
+    with McapLogWriter(nofuel, metadata={}, fsync=False) as w:
+        w.add_channel("/j1939/EEC1", {"type": "object"})
+        w.write("/j1939/EEC1", 1, {"t": 0, "sa": 0, "EngSpeed": 600.0, "ActualEngPercentTorque": 5.0})
+    capsys.readouterr()
+    assert main(["dataset", str(nofuel), "-o", str(tmp_path / "d.csv")]) == 1
+    assert "fuel" in capsys.readouterr().err
+
+
+def test_identify_and_compare(recording, tmp_path, capsys):
+    pytest.importorskip("ident.modelfile")
+    model = tmp_path / "m.json"
+    spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
+    assert main(["identify", str(recording), "--orders", spec, "-o", str(model), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["fit_percent"]["simulation"] > 90 and res["fit_percent"]["prediction"] > res["fit_percent"]["simulation"]
+    assert res["whiteness"]["autocorr_pass"]
+    assert set(res["whiteness"]["crosscorr_pass"]) == {"EEC1.EngSpeed", "EngTorque"}
+    assert abs(res["cycle_fuel_error_percent"]["mean"]) < 2
+    assert res["wall_time_s"]["total"] > 0
+
+    assert main(["compare", str(model), str(recording), "--json"]) == 0
+    cmp = json.loads(capsys.readouterr().out)
+    m = cmp["models"][0]
+    assert m["fit_percent"]["simulation"] == pytest.approx(res["fit_percent"]["simulation"])
+    assert "rms" in cmp["baseline_map"]["cycle_fuel_error_percent"]
+
+    assert main(["compare", str(model), str(recording)]) == 0
+    assert "baseline map" in capsys.readouterr().out
+
+    broken = tmp_path / "broken.json"
+    broken.write_text("{")
+    assert main(["compare", str(broken), str(recording)]) == 1
+    assert "broken.json" in capsys.readouterr().err
+
+
+def test_identify_rejects_bad_orders(recording, tmp_path, capsys):
+    assert main(["identify", str(recording), "--orders", "nb=4;zz=1", "-o", str(tmp_path / "m.json")]) == 1
+    assert "--orders" in capsys.readouterr().err
