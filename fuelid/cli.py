@@ -15,18 +15,25 @@ from fuelid.errors import FuelidError
 COMMANDS = [
     "convert",
     "recover",
+    "log",
+    "status",
+    "replay",
     "simulate",
     "dataset",
     "identify",
     "compare",
+    "diagnose",
+    "online",
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str]) -> argparse.ArgumentParser:
+    """The parser for `argv`: only the named command's module is imported (all of them for the overview help)."""
     parser = argparse.ArgumentParser(prog="fuelid", description="Truck CAN logger and fuel-flow model identification.")
     parser.add_argument("--version", action="version", version=f"fuelid {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
+    chosen = [name for name in COMMANDS if name in argv[:1]] or COMMANDS
+    for name in chosen:
         module = importlib.import_module(f"fuelid.commands.{name}")
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
@@ -35,7 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()

@@ -53,7 +53,7 @@ from scipy.stats import chi2
 from ident import effects as fx
 from ident.pem import pem, prediction_errors
 from ident.polymodel import PolyModel, input_responses, predict, simulate
-from ident.validation import autocorr_test, crosscorr_test, cycle_fuel_error, error_table, fit_percent, rmse
+from ident.validation import autocorr_test, crosscorr_test, evaluate
 
 CONTEXT_EFFECTS = ("gear_shift", "overrun_cutoff", "idle_fuelling", "dpf_regeneration", "cold_engine", "pto",
                    "retarder", "engine_fan")
@@ -201,19 +201,7 @@ def candidate_columns(model: PolyModel, ds, run: Run, effect: fx.Effect):
     return reg, np.vstack(psi), np.vstack(raw)
 
 
-# ---- compare and where it fails --------------------------------------------------------------------------
-
-def compare(model: PolyModel, ds, run: Run) -> dict:
-    """Fit [%] of simulation and 1-step prediction, RMSE [output unit], cumulative fuel error per drive cycle
-    [%] (eq. 20) with its mean and RMS."""
-    cycles = cycle_fuel_error(run.y, run.ysim, ds.cycle, ds.Ts)
-    return {
-        "fit_percent": {"simulation": fit_percent(run.y, run.ysim), "prediction": fit_percent(run.y, run.ypred)},
-        "rmse": {"simulation": rmse(run.y, run.ysim), "prediction": rmse(run.y, run.ypred)},
-        "unit": ds.output_unit,
-        "cycle_fuel_error_percent": {"per_cycle": {str(k): v for k, v in cycles.items()}, **error_table(cycles)},
-    }
-
+# ---- where it fails (the compare section is ident.validation.evaluate) --------------------------------------------------------------------------
 
 def context_flags(ds) -> dict[str, np.ndarray]:
     """Per sample, whether each driving context (gear shift, overrun, idle, DPF regeneration, cold engine, PTO,
@@ -510,7 +498,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, candi
     return {
         "model": {"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         "data": ds.summary() if hasattr(ds, "summary") else {},
-        "compare": compare(model, ds, run),
+        "compare": {**evaluate(model, ds), "unit": ds.output_unit},
         "where_it_fails": where_it_fails(model, ds, run),
         "test": {"method": "score (LM) test on the prediction errors, Newey-West robust, chi2(k); Holm step-down "
                            "over all candidates; verified by two-fold interleaved refits",

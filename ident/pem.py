@@ -308,7 +308,7 @@ def pem(u, y, structure: Structure, Ts: float, *, init: PolyModel | None = None,
         "loss_V": V,
         "noise_variance": lam,
         "n_samples": int(y.size),
-        "condition_number": float(np.sqrt(ell[-1] / ell[0])) if ell[0] > 0 else float("inf"),
+        "condition_number": float(np.sqrt(ell[-1] / ell[0])) if ell[0] > 0 else None,  # None: singular
         "parameter_names": parameter_names(s),
         "wall_time_s": time.perf_counter() - t_start,
         "warnings": msgs,

@@ -234,17 +234,16 @@ def gain(P, psi, r, n, Ppsi, K):
 
 
 @njit(cache=True)
-def covariance_update(P, Ppsi, denom, lam, q, n):
-    """P = (P − K ψᵀ P)/λ + diag(q) on the n × n block, with K ψᵀ P = P ψ (P ψ)ᵀ/denom so that P stays
-    symmetric to the last bit."""
+def covariance_update(P, Ppsi, denom, lam, Q, n):
+    """P = (P − K ψᵀ P)/λ + Q on the n × n block, with K ψᵀ P = P ψ (P ψ)ᵀ/denom so that P stays symmetric
+    to the last bit (Q symmetric)."""
     for a in range(n):
         for b in range(n):
-            P[a, b] = (P[a, b] - Ppsi[a] * Ppsi[b] / denom) / lam
-        P[a, a] += q[a]
+            P[a, b] = (P[a, b] - Ppsi[a] * Ppsi[b] / denom) / lam + Q[a, b]
 
 
 @njit(cache=True)
-def _run(u, y, valid, theta, P, q, hist, orders, nc, nd, oc, od, cfg, st, every, snaps,
+def _run(u, y, valid, theta, P, Q, hist, orders, nc, nd, oc, od, cfg, st, every, snaps,
          yhat, ysim, eps, status, dtheta, trace_P):
     """Process samples u[t] (deviation inputs, N×m), y[t] (deviation output) in order; see the module docstring.
 
@@ -335,7 +334,7 @@ def _run(u, y, valid, theta, P, q, hist, orders, nc, nd, oc, od, cfg, st, every,
                     else:
                         status[t] = REJECTED
                         st[S_REJECTED] += 1.0
-                    covariance_update(P, Ppsi, denom, lam, q, n_act)
+                    covariance_update(P, Ppsi, denom, lam, Q, n_act)
                     tr = np.trace(P)
                     if tr > cfg[C_TRACE_MAX]:
                         P *= cfg[C_TRACE_MAX] / tr
@@ -382,7 +381,8 @@ class RPEM:
                 × R/Λ (Λ its noise variance), or (0.1 θ_j)² without one (10 % uncertainty); from scratch
                 100 I
     R           noise variance [output unit²] the update weighs ε against; default the prior's, else 1
-    q           random-walk variance added to diag(P) each update (scalar or vector; 0 for RPEM)
+    Q           random-walk covariance added to P each update: scalar (× I), vector (diagonal) or d × d
+                matrix; 0 for RPEM (ident.kalman sets it)
     u0, y0      operating point [input units], [output unit]; default the prior's, else 0
     trace_max   bound on trace(P) (default 10 trace(P0))
     max_gap_s   longest stretch [s] of missing input (held) or output (ε = 0) bridged without a restart
@@ -395,7 +395,7 @@ class RPEM:
     """
 
     def __init__(self, structure=None, Ts: float | None = None, *, prior=None, lam: float | None = None,
-                 lam_start: float | None = None, lam0: float = 0.99, P0=None, R: float | None = None, q=0.0,
+                 lam_start: float | None = None, lam0: float = 0.99, P0=None, R: float | None = None, Q=0.0,
                  u0=None, y0: float | None = None, trace_max: float | None = None, radius: float = RADIUS,
                  max_gap_s: float = 1.0, warmup_s: float = 10.0, fit_window_s: float = 600.0,
                  noise_after_s: float | None = None):
@@ -434,7 +434,10 @@ class RPEM:
         self.P = np.array(self.P, float)
         if self.P.shape != (d, d):
             raise ValueError(f"P0 must be {d} × {d}")
-        self.q = np.array(np.broadcast_to(np.asarray(q, float), (d,)))
+        Q = np.asarray(Q, float)
+        self.Q = np.array(Q if Q.ndim == 2 else np.diag(np.broadcast_to(Q, (d,))), float)
+        if self.Q.shape != (d, d):
+            raise ValueError(f"Q must be {d} × {d}")
         self.u0 = np.asarray(u0 if u0 is not None else prior.u0 if prior is not None else np.zeros(m), float)
         self.y0 = float(y0 if y0 is not None else prior.y0 if prior is not None else 0.0)
 
@@ -473,7 +476,7 @@ class RPEM:
         k = (t0 + N) // every - t0 // every if every > 0 else 0
         snaps = np.empty((k, self.theta.size))
         out = [np.empty(N) for _ in range(3)] + [np.empty(N, np.int8)] + [np.empty(N) for _ in range(2)]
-        _run(np.ascontiguousarray(u - self.u0), y - self.y0, valid, self.theta, self.P, self.q, self._hist,
+        _run(np.ascontiguousarray(u - self.u0), y - self.y0, valid, self.theta, self.P, self.Q, self._hist,
              self._orders, self.structure.nc, self.structure.nd, self._oc, self._od, self._cfg, self._st, every,
              snaps, *out)
         yhat, ysim, eps, status, dtheta, trace_P = out
@@ -520,7 +523,7 @@ class RPEM:
 
     def model(self, **info):
         """The current estimate as a PolyModel (operating point, names and units of the prior), with the
-        covariance and the `report()` in info (plus any extra info given)."""
+        covariance and the `report()` (None for what is not known yet) in info, plus any extra info given."""
         from ident.polymodel import from_theta, parameter_names
 
         meta = {}
@@ -528,7 +531,7 @@ class RPEM:
             p = self.prior
             meta = dict(input_names=p.input_names, input_units=p.input_units, output_name=p.output_name,
                         output_unit=p.output_unit, effects=p.effects)
-        rep = self.report()
+        rep = {k: (v if v == v else None) for k, v in self.report().items()}  # NaN (not yet known) → None
         return from_theta(self.theta, self.structure, self.Ts, u0=tuple(self.u0), y0=self.y0,
                           covariance=self.covariance(), **meta,
                           info={"method": "recursive prediction error (RPEM)", **rep,

@@ -49,8 +49,12 @@ def coolant_temperature_c(t_s, fuel_power_kw, ambient_c, start_c: float, fan_on=
         x = min(x, THERMOSTAT_C)
         temp[k] = x
     coolant = np.interp(t_s, grid, temp)
-    if fan_on is not None:
-        coolant = np.maximum(coolant, np.where(fan_on, FAN_ON_C + 1.5, -np.inf))
+    if fan_on is not None and np.any(fan_on):
+        # The coolant climbs past the switch-on point before the fan engages and falls after it: the fan
+        # state smoothed forwards and backwards (τ = 20 s) blends towards FAN_ON_C + 1.5 °C.
+        a = np.exp(-(t_s[1] - t_s[0]) / 20.0)
+        heat = np.clip(signal.filtfilt([1 - a], [1, -a], fan_on.astype(float)) * 2.0, 0.0, 1.0)
+        coolant = coolant + heat * (FAN_ON_C + 1.5 - coolant)
     return coolant
 
 

@@ -1,6 +1,7 @@
 """fuelid convert: recorded CAN logs (and a flow-meter capture) to MCAP, through the daemon's own decode path."""
 import heapq
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -20,7 +21,7 @@ def add_arguments(p):
 def run(args) -> int:
     from fuelid.errors import FuelidError
     from fuelid.progress import progress
-    from logger.flowmeter import Calibration, parse_line, read_capture
+    from logger.flowmeter import Calibration, capture_readings
     from logger.readers import open_frames
     from logger.recorder import Recorder, open_writer
 
@@ -38,7 +39,7 @@ def run(args) -> int:
     streams = [frames]
     calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
     if args.flowmeter:
-        streams.append((t, 1, parse_line(line, t, calibration)) for t, line in read_capture(args.flowmeter))
+        streams.append((r.t, 1, r) for r in capture_readings(args.flowmeter, calibration))
 
     writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs))
     recorder = Recorder(writer)
@@ -48,6 +49,7 @@ def run(args) -> int:
                 recorder.on_message_received(item)
             else:
                 recorder.on_flow_reading(item)
+        recorder.reassembler.expire(math.inf)  # transport sessions still open at the end of the input time out
     finally:
         writer.close()
 

@@ -191,7 +191,13 @@ payloads = st.binary(min_size=9, max_size=300)
 
 
 def mutate(frames, data):
-    """Drop, duplicate, swap and renumber TP.DT frames, as a faulty bus or logger might."""
+    """Drop, duplicate, swap and renumber frames, as a faulty bus, stack or logger might.
+
+    Renumbering picks a sequence number no packet of this message has (0 or above the packet count):
+    TP has no checksum, so a frame carrying one packet's data under another packet's valid number is
+    indistinguishable from the genuine packet; CAN's CRC guards the bits, TP only the order. Misplaced
+    genuine packets are what drop, duplicate and swap produce."""
+    n_packets = sum(1 for f in frames if f.arbitration_id >> 16 & 0xFF == 0xEB)
     frames = list(frames)
     for _ in range(data.draw(st.integers(0, 4))):
         op = data.draw(st.sampled_from(["drop", "dup", "swap", "renumber"]))
@@ -204,7 +210,7 @@ def mutate(frames, data):
             frames[i], frames[i + 1] = frames[i + 1], frames[i]
         elif op == "renumber":
             f = frames[i]
-            seq = data.draw(st.integers(0, 255))
+            seq = data.draw(st.sampled_from([0, *range(n_packets + 1, 256)]))
             frames[i] = can.Message(timestamp=f.timestamp, arbitration_id=f.arbitration_id,
                                     data=bytes([seq]) + bytes(f.data[1:]))
         if not frames:

@@ -1,0 +1,101 @@
+"""fuelid diagnose: where a fuel model fails on measurements, and which physical effect it is missing."""
+import json
+import sys
+
+from fuelid.commands.dataset import add_dataset_arguments
+
+HELP = "diagnose a model on recordings: where it fails and which physical effect is missing (ranked, tested)"
+
+
+def add_arguments(p):
+    p.add_argument("model", metavar="MODEL.json", help="model file (fuelid identify)")
+    p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings to diagnose it on")
+    p.add_argument("--alpha", type=float, default=0.05,
+                   help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
+    p.add_argument("--verify", type=int, default=3, metavar="N",
+                   help="refit with each of the N strongest candidates to measure the held-out error drop "
+                        "(default 3; 0 skips)")
+    p.add_argument("--top", type=int, default=8, metavar="N", help="candidates shown in the report (default 8)")
+    add_dataset_arguments(p)
+    p.add_argument("--json", action="store_true", help="print the full result as JSON")
+
+
+def _json_safe(x):
+    """NaN/inf → null, numpy scalars → Python numbers (strict JSON)."""
+    import math
+
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _json_safe(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def format_report(result: dict, top: int = 8) -> str:
+    """The short human-readable report."""
+    c = result["compare"]
+    unit = c["unit"]
+    w = result["where_it_fails"]["whiteness"]
+    lines = [
+        f"fit: simulation {c['fit_percent']['simulation']:.1f} %, 1-step prediction {c['fit_percent']['prediction']:.1f} %;"
+        f" RMS error {c['rmse']['simulation']:.2f} {unit} (simulation)",
+        f"cycle fuel error: mean {c['cycle_fuel_error_percent']['mean']:+.2f} %, "
+        f"RMS {c['cycle_fuel_error_percent']['rms']:.2f} %",
+        "residual whiteness (99 %): " + ("pass" if w["autocorr_pass"] else "FAIL") + "; input cross-correlation: "
+        + ", ".join(f"{k} {'pass' if v else 'FAIL'}" for k, v in w["crosscorr_pass"].items()),
+        "worst stretches:",
+    ]
+    for s in result["where_it_fails"]["worst_segments"][:3]:
+        lines.append(f"  {s['t_start_s']:.0f}-{s['t_end_s']:.0f} s: RMS {s['rmse']:.2f} {unit}, bias {s['bias']:+.2f}, "
+                     f"{s['speed_rpm']:.0f} rpm — {', '.join(s['context'])}")
+    lines.append(f"candidate effects ({result['test']['candidates_tested']} tested, Holm α = {result['test']['alpha']:g}):")
+    lines.append(f"  {'effect':34s} {'LM':>9s} {'p':>9s} {'sig':>4s} {'RMS drop':>9s}")
+    for r in [r for r in result["candidates"] if r.get("testable")][:top]:
+        drop = "" if r["rmse_drop_percent"] is None else f"{r['rmse_drop_percent']:.0f} %"
+        lines.append(f"  {r['effect'][:34]:34s} {r['statistic']:9.1f} {r['p_value']:9.1e} "
+                     f"{'yes' if r['significant'] else 'no':>4s} {drop:>9s}")
+    lines.append(result["verdict"])
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from fuelid.commands.dataset import build
+    from fuelid.errors import FuelidError
+    from ident.diagnosis import diagnose
+    from ident.modelfile import load_model
+
+    try:
+        model = load_model(args.model)
+    except FuelidError:
+        raise
+    except Exception as exc:
+        raise FuelidError(f"{args.model}: unreadable model ({exc})") from exc
+    if args.ts is None:
+        args.ts = model.Ts
+    if args.fuel == "auto":
+        args.fuel = {"kg/h": "flowmeter", "L/h": "lfe1"}.get(model.output_unit, "auto")
+    ds = build(args, args.inputs)
+    if abs(model.Ts - ds.Ts) > 1e-9:
+        raise FuelidError(f"model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
+    try:
+        result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify)
+    except ValueError as exc:
+        raise FuelidError(str(exc)) from exc
+    result["data"]["files"] = list(map(str, args.inputs))
+    result["model"]["file"] = args.model
+    if args.json:
+        json.dump(_json_safe(result), sys.stdout, indent=2)
+        print()
+    else:
+        print(format_report(result, args.top))
+    return 0

@@ -1,0 +1,134 @@
+"""fuelid online: the recursive (RPEM or Kalman) estimator run over recorded files, as it runs live in the daemon."""
+import json
+import sys
+import time
+
+from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.commands.identify import ORDERS_HELP
+
+HELP = "run the online BJ estimator (recursive prediction error or Kalman) over MCAP recordings"
+CHUNK = 20000  # samples per estimator call (progress bar step)
+
+
+def add_arguments(p):
+    p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings, in time order")
+    p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write (final estimate)")
+    p.add_argument("--orders", default=None, metavar="paper|SPEC",
+                   help=ORDERS_HELP.replace("'auto' (order search), ", "") + "; default: the prior's, else paper")
+    p.add_argument("--prior", metavar="MODEL.json", help="model to start from (e.g. a fleet model), with its "
+                   "covariance as the initial P; default: from scratch")
+    p.add_argument("--method", choices=["rpem", "kalman"], default="rpem",
+                   help="rpem: recursive prediction error with forgetting; kalman: random-walk parameters "
+                        "(tracks a drifting fuel gain; needs --prior)")
+    p.add_argument("--forgetting", type=float, metavar="LAMBDA",
+                   help="rpem: constant forgetting factor λ in (0, 1], e.g. 0.9995 (memory ≈ Ts/(1−λ) = 10 min); "
+                        "default λ growing from 0.95 to 1 (1 with a prior)")
+    p.add_argument("--drift", type=float, default=3e-4, metavar="RATE",
+                   help="kalman: relative fuel-gain drift per sample (default 3e-4)")
+    add_dataset_arguments(p)
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def run(args) -> int:
+    import dataclasses
+
+    import numpy as np
+
+    from fuelid.commands.dataset import build
+    from fuelid.commands.identify import parse_orders
+    from fuelid.errors import FuelidError
+    from fuelid.progress import progress
+    from ident.modelfile import load_model, save_model
+    from ident.polymodel import Structure
+    from ident.validation import evaluate
+
+    prior = load_model(args.prior) if args.prior else None
+    structure = Structure(**parse_orders(args.orders or "paper")) if args.orders or not prior else prior.structure
+    if prior is not None and prior.structure != structure:
+        raise FuelidError(f"--orders {args.orders} differ from the prior's structure {prior.structure}")
+    if structure.na or structure.n_inputs != 2:
+        raise FuelidError("the online estimator takes BJ/OE orders for engine speed and torque (na = 0)")
+    if prior is not None and prior.effects:
+        raise FuelidError(f"the prior includes effects {list(prior.effects)}; the online estimator has speed and "
+                          "torque only")
+    if args.forgetting is not None and not 0.0 < args.forgetting <= 1.0:
+        raise FuelidError(f"--forgetting must be in (0, 1], got {args.forgetting}")
+
+    ds = build(args, args.inputs)
+    if prior is not None and (tuple(prior.input_units) != tuple(ds.input_units) or prior.output_unit != ds.output_unit):
+        raise FuelidError(f"prior units {list(prior.input_units)} -> {prior.output_unit} do not match the data's "
+                          f"{list(ds.input_units)} -> {ds.output_unit}")
+    if prior is not None and abs(prior.Ts - ds.Ts) > 1e-9:
+        raise FuelidError(f"prior Ts = {prior.Ts} s but the data are resampled to {ds.Ts} s (use --ts {prior.Ts})")
+    est = make_estimator(args, structure, ds, prior)
+
+    # one restart per jump of the time axis (engine off, rotated files): the filter states are not continuous
+    breaks = np.flatnonzero(np.diff(ds.t) > 1.5 * ds.Ts) + 1
+    pieces = [p for part in np.split(np.arange(len(ds)), breaks) for p in np.array_split(part, -(-len(part) // CHUNK))]
+    counts = np.zeros(5, int)
+    t_est = 0.0
+    with progress(total=len(ds), desc="online", unit="sample") as bar:
+        for idx in pieces:
+            if idx[0] in breaks:
+                est.reset()
+            t0 = time.perf_counter()
+            trace = est.update(ds.u[idx], ds.y[idx], ds.valid[idx])
+            t_est += time.perf_counter() - t0
+            counts += np.bincount(trace.status + 1, minlength=5)
+            bar.update(len(idx))
+
+    model = est.model(files=list(map(str, args.inputs)))
+    model = dataclasses.replace(model, input_names=ds.input_names, input_units=ds.input_units,
+                                output_name=ds.output_name, output_unit=ds.output_unit, training=ds.summary())
+    metrics = evaluate(model, ds)
+    model = dataclasses.replace(model, validation=metrics)
+    save_model(model, args.output)
+
+    report = model.info
+    result = {
+        "model": args.output,
+        "method": args.method,
+        "structure": dataclasses.asdict(structure),
+        "samples": len(ds),
+        "updates": report["updates"],
+        "samples_without_update": int(counts[0] + counts[1]),
+        "shrunk_steps": report["shrunk_steps"],
+        "rejected_steps": report["rejected_steps"],
+        "restarts": len(breaks),
+        "update_rate_samples_per_s": len(ds) / t_est if t_est > 0 else None,
+        "final_lambda": report["lam"],
+        "trace_P": report["trace_P"],
+        "running_fit_percent": {"prediction": report["running_fit_prediction_pct"],
+                                "simulation": report["running_fit_simulation_pct"]},
+        **metrics,
+    }
+    if args.json:
+        json.dump(result, sys.stdout, indent=2)
+        print()
+    else:
+        fit = metrics["fit_percent"]
+        print(f"{args.output}: {args.method} over {len(ds)} samples ({len(ds) * ds.Ts / 3600:.2f} h), "
+              f"{result['updates']} updates, {len(breaks)} restarts")
+        print(f"final model fit: simulation {fit['simulation']:.1f} %, prediction {fit.get('prediction', float('nan')):.1f} %"
+              f" (running over the last window: {_pct(result['running_fit_percent']['simulation'])} / "
+              f"{_pct(result['running_fit_percent']['prediction'])})")
+        print(f"update rate: {result['update_rate_samples_per_s']:,.0f} samples/s")
+    return 0
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{v:.1f} %"
+
+
+def make_estimator(args, structure, ds, prior):
+    """The RPEM or Kalman estimator the options ask for, on the data's operating point unless a prior gives one."""
+    from fuelid.errors import FuelidError
+    from ident.kalman import ParameterKalman
+    from ident.rpem import RPEM
+
+    at = {} if prior is not None else {"u0": ds.u0, "y0": ds.y0}
+    if args.method == "kalman":
+        if prior is None:
+            raise FuelidError("--method kalman needs --prior (its drift covariance is scaled from the prior's B)")
+        return ParameterKalman(structure, ds.Ts, prior=prior, rate=args.drift)
+    return RPEM(structure, ds.Ts, prior=prior, lam=args.forgetting, **at)

@@ -1,0 +1,85 @@
+"""The logger daemon's configuration: a TOML file (example in docs/raspberry-pi.md), command-line overrides."""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+from fuelid.errors import FuelidError
+from logger.j1939 import DEFAULT_SOURCE_PREFERENCE
+
+# TOML table -> {key in the table: LoggerConfig field}
+TOML_KEYS = {
+    "bus": {"interface": "interface", "channel": "channel", "bitrate": "bitrate", "listen_only": "listen_only",
+            "options": "bus_options"},
+    "flowmeter": {"port": "serial_port", "baudrate": "serial_baudrate", "gain_kg_h_per_v": "flow_gain",
+                  "offset_kg_h": "flow_offset"},
+    "output": {"dir": "output_dir", "rotate_s": "rotate_s", "rotate_mb": "rotate_mb", "min_free_mb": "min_free_mb",
+               "status_file": "status_file"},
+    "truck": {"name": "truck"},
+    "sources": None,  # DBC message name (or "default") -> preferred source address
+}
+
+
+@dataclass
+class LoggerConfig:
+    interface: str = "socketcan"
+    channel: str = "can0"
+    bitrate: int | None = None  # [bit/s]; for socketcan set with `ip link` (needs CAP_NET_ADMIN)
+    listen_only: bool = False
+    bus_options: dict = field(default_factory=dict)  # extra keyword arguments for can.Bus
+    serial_port: str | None = None
+    serial_baudrate: int = 9600
+    flow_gain: float = 12.5  # [kg/h per V]
+    flow_offset: float = 0.0  # [kg/h]
+    output_dir: Path = Path("fuelid-logs")
+    rotate_s: float = 3600.0  # start a new file after this long [s]
+    rotate_mb: float = 256.0  # ... or this size [MB]
+    min_free_mb: float = 32.0  # stop writing below this much free space [MB]; resume above twice as much
+    status_file: Path | None = None  # default: <output_dir>/status.json
+    truck: str = "unknown"  # until a VIN is seen
+    source_preference: dict = field(default_factory=lambda: dict(DEFAULT_SOURCE_PREFERENCE))
+
+    def __post_init__(self):
+        self.output_dir = Path(self.output_dir)
+        self.status_file = Path(self.status_file) if self.status_file else self.output_dir / "status.json"
+        if self.rotate_s <= 0 or self.rotate_mb <= 0:
+            raise FuelidError("rotation limits must be > 0")
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, **overrides) -> LoggerConfig:
+        """Defaults, then the TOML file at `path`, then the `overrides` that are not None."""
+        values: dict = {}
+        if path is not None:
+            values = _from_toml(Path(path))
+        names = {f.name for f in fields(cls)}
+        for key, value in overrides.items():
+            if key not in names:
+                raise TypeError(f"unknown setting {key}")
+            if value is not None:
+                values[key] = value
+        return cls(**values)
+
+
+def _from_toml(path: Path) -> dict:
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except OSError as exc:
+        raise FuelidError(f"cannot read config {path}: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise FuelidError(f"config {path}: {exc}") from None
+    values = {}
+    for table, content in doc.items():
+        if table not in TOML_KEYS or not isinstance(content, dict):
+            raise FuelidError(f"config {path}: unknown table [{table}] (known: {', '.join(TOML_KEYS)})")
+        if table == "sources":
+            if not all(isinstance(v, int) and 0 <= v <= 0xFF for v in content.values()):
+                raise FuelidError(f"config {path}: [sources] maps message names to source addresses 0-255")
+            values["source_preference"] = {**DEFAULT_SOURCE_PREFERENCE, **content}
+            continue
+        for key, value in content.items():
+            if key not in TOML_KEYS[table]:
+                raise FuelidError(f"config {path}: unknown key {key} in [{table}] (known: {', '.join(TOML_KEYS[table])})")
+            values[TOML_KEYS[table][key]] = value
+    return values
