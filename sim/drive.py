@@ -10,7 +10,6 @@ held at the launch speed), DRIVE (clutch closed: n = v i_gear i_fd / r_w), SHIFT
 In DRIVE the engine inertia is part of the vehicle's effective mass; with the clutch open or slipping the
 crankshaft obeys J dω/dt = T_brake - T_clutch.
 """
-import math
 from dataclasses import dataclass
 
 import numpy as np

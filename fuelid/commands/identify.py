@@ -94,7 +94,7 @@ def run(args) -> int:
     t_data = time.perf_counter()
 
     try:
-        fx = apply_effects(ds, args.effect)
+        fx = apply_effects(ds, args.effect, structure=structure)
     except ValueError as exc:
         raise FuelidError(str(exc)) from exc
     u, y = np.hstack([ds.u, fx.u]), fx.y

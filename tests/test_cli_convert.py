@@ -1,0 +1,90 @@
+"""`fuelid convert` end to end: recorded logs in, MCAP out, read back the way the identifier reads it."""
+import json
+import statistics
+
+import can
+import pytest
+
+from fuelid.cli import main
+from ident.dataset import build_dataset
+from logger.flowmeter import CaptureWriter
+from logger.mcap_log import read_messages, read_metadata
+
+
+def convert(capsys, *args):
+    code = main(["convert", *map(str, args), "--json"])
+    out, err = capsys.readouterr()
+    return code, (json.loads(out) if code == 0 else None), err
+
+
+def values(path, topic, signal, sa=0x00):
+    return [r[signal] for t, _, r in read_messages(path, [topic]) if r["sa"] == sa and r[signal] is not None]
+
+
+def test_css_idle_truck_decodes_to_its_known_values(real_log, tmp_path, capsys):
+    out = tmp_path / "idle.mcap"
+    code, summary, _ = convert(capsys, real_log("css_j1939_truck_idle.MF4"), "-o", out)
+    assert code == 0
+    assert summary["frames"] == summary["inputs"][0]["frames"] > 50_000
+    assert statistics.median(values(out, "/j1939/EEC1", "EngSpeed")) == pytest.approx(650, abs=15)
+    fuel = values(out, "/j1939/LFE1", "EngFuelRate")
+    assert 2.45 <= min(fuel) and max(fuel) <= 2.85
+    assert statistics.median(values(out, "/j1939/ET1", "EngCoolantTemp")) == pytest.approx(71, abs=1.5)
+    assert statistics.median(values(out, "/j1939/AMB", "AmbientAirTemp")) == pytest.approx(13.6, abs=0.3)
+    assert summary["transport_protocol"]["completed"] > 0 and values(out, "/j1939/EC1", "EngReferenceTorque")
+
+
+@pytest.mark.parametrize("name", ["systemscyber_truck_drive_normal.log", "systemscyber_truck_drive_tsc1.log"])
+def test_systemscyber_drives_use_the_engines_own_source_address(real_log, tmp_path, capsys, name):
+    out = tmp_path / "drive.mcap"
+    code, summary, _ = convert(capsys, real_log(name), "-o", out)
+    assert code == 0
+    assert set(summary["messages"]["CCVS1"]) == {"0x00", "0x31"}  # two ECUs send it, kept apart
+    ds = build_dataset([out])
+    for signal in ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque", "LFE1.EngFuelRate", "CCVS1.WheelBasedVehicleSpeed"):
+        assert ds.sources[signal] == 0x00, signal
+    assert ds.sources["ETC2.TransCurrentGear"] == 0x03
+
+
+def test_vin_from_bam_names_the_truck(real_log, tmp_path, capsys):
+    out = tmp_path / "kw.mcap"
+    code, summary, _ = convert(capsys, real_log("kenworth_free_rev.txt"), "-o", out)
+    assert code == 0 and summary["truck"] == "2NKHHM6X2EM406412"
+    assert read_metadata(out)["fuelid"]["truck"] == "2NKHHM6X2EM406412"
+
+
+def test_flow_meter_capture_is_merged_by_time(tmp_path, capsys):
+    log = tmp_path / "gas.log"
+    with can.CanutilsLogWriter(log) as writer:
+        for i in range(50):
+            writer.on_message_received(can.Message(timestamp=100 + i * 0.02, arbitration_id=0x0CF00400, data=bytes([0, 125, 135, 0x40, 0x1F, 0, 0, 125])))
+    capture = tmp_path / "gas.flow"
+    with CaptureWriter(capture) as meter:
+        meter.write(100.10, b"1.000,2.000")  # 25 kg/h
+        meter.write(100.20, b"\xff\xfe garbage")
+        meter.write(100.30, b"0.100")  # 1.25 kg/h: below the meter's 2.5 kg/h
+    out = tmp_path / "gas.mcap"
+    code, summary, _ = convert(capsys, log, "-o", out, "--flowmeter", capture)
+    assert code == 0 and summary["flowmeter_readings"] == {"ok": 1, "invalid": 1, "below_range": 1}
+    readings = [r for _, _, r in read_messages(out, ["/flowmeter"])]
+    assert [r["flow_kg_h"] for r in readings] == [25.0, None, None]
+    times = [t for _, t, _ in read_messages(out)]
+    assert times == sorted(times)
+    assert values(out, "/j1939/EEC1", "EngSpeed")[0] == 1000.0
+
+
+@pytest.mark.parametrize("content", [b"", b"\x00\x01garbage\xff" * 100, b"not a can log\n"])
+def test_unreadable_input_is_one_line_error(tmp_path, capsys, content):
+    bad = tmp_path / "bad.log"
+    bad.write_bytes(content)
+    code, _, err = convert(capsys, bad, "-o", tmp_path / "out.mcap")
+    assert code != 0 and err.count("\n") == 1 and err.startswith("fuelid convert: error:")
+
+
+def test_missing_input_and_overwriting_input_are_refused(tmp_path, capsys):
+    code, _, err = convert(capsys, tmp_path / "nope.log", "-o", tmp_path / "out.mcap")
+    assert code == 1 and "no such file" in err
+    log = tmp_path / "a.log"
+    log.write_text("(1.0) can0 0CF00400#0000000000000000\n")
+    code, _, err = convert(capsys, log, "-o", log)
+    assert code == 1 and "overwrite" in err and log.read_text().startswith("(1.0)")
