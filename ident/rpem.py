@@ -395,7 +395,7 @@ class RPEM:
     """
 
     def __init__(self, structure=None, Ts: float | None = None, *, prior=None, lam: float | None = None,
-                 lam_start: float | None = None, lam0: float = 0.99, P0=None, R: float | None = None, Q=0.0,
+                 lam_start: float | None = None, lam0: float = 0.999, P0=None, R: float | None = None, Q=0.0,
                  u0=None, y0: float | None = None, trace_max: float | None = None, radius: float = RADIUS,
                  max_gap_s: float = 1.0, warmup_s: float = 10.0, fit_window_s: float = 600.0,
                  noise_after_s: float | None = None):
@@ -443,7 +443,7 @@ class RPEM:
 
         lam_inf = 1.0 if lam is None else float(lam)
         if lam_start is None:
-            lam_start = 0.95 if prior is None else 1.0
+            lam_start = 0.99 if prior is None else 1.0
         for name, value in (("lam", lam_inf), ("lam_start", lam_start), ("lam0", lam0)):
             if not 0.0 < value <= 1.0:
                 raise ValueError(f"{name} must be in (0, 1], got {value}")
