@@ -15,11 +15,13 @@ Gradient by filtering (no finite differences). With x_i = B_i/F_i ũ_i and w = A
 Each family is one filtered signal, shifted: for m inputs 2m + 3 lfilter calls give the whole N × d Jacobian
 Ψ = [ψ(n0) … ψ(N−1)]ᵀ.
 
-Levenberg–Marquardt step (columns of Ψ scaled to unit norm, S = diag of the norms): with the thin SVD
-Ψ S⁻¹ = U Σ Vᵀ and g = Uᵀ ε, δ(μ) = S⁻¹ V diag(σ/(σ² + μ)) g, which minimises ‖ε − Ψ δ‖² + μ ‖S δ‖². One SVD
-per iteration serves every μ tried. A step is taken when V falls; μ shrinks on success and grows on failure.
-Stopping: the Gauss–Newton decrement ½‖g‖² (the fall of V a full GN step would give to first order) below
-tol · V, or max_iter.
+Levenberg–Marquardt step: with S = diag of the column norms of Ψ and the eigendecomposition
+S⁻¹ΨᵀΨS⁻¹ = Q diag(ℓ) Qᵀ (a d × d problem, d = 41 for the paper's orders), g = Qᵀ S⁻¹ Ψᵀ ε and
+δ(μ) = S⁻¹ Q diag(1/(ℓ + μ ℓ_max)) g, which minimises ‖ε − Ψ δ‖² + μ ℓ_max ‖S δ‖². One decomposition per
+iteration serves every μ tried; μ adapts (see `levenberg_marquardt`). Stopping: the Gauss–Newton decrement
+½ gᵀ diag(1/ℓ) g (the fall of V a full Gauss–Newton step promises) below tol · V, or no μ lowering V.
+(Normal equations rather than a QR/SVD of the N × d Ψ: 10× cheaper here, and accurate enough for the step,
+which is always checked by evaluating V.)
 
 Stability: after every step the roots of F_i, C and D outside the unit circle are reflected to 1/z̄ and all
 roots are clipped to radius ≤ 0.9999 (`stabilize`); the reflected candidate must still lower V to be
@@ -31,11 +33,13 @@ and the first n0 = max(na, nk_i + nb_i − 1, nf_i, nc, nd) samples are left out
 
 Covariance: P = λ̂ (ΨᵀΨ)⁻¹ at θ̂ with λ̂ = 2V/(N − n0 − d) (Ljung eq. 9.18), d = dim θ.
 
-Initialisation (`initial_estimate`): the input part by least squares (ARX, when no F), or for OE/BJ by a
-high-order ARX whose per-input responses are reduced to B_i/F_i by Steiglitz–McBride iterations and then
-refined as an OE model by the same LM; then the noise model C/D by Hannan–Rissanen (a long AR, then least
-squares) on the residual w. Hand-written because SciPy has no PEM; the linear algebra is numpy/scipy.linalg and
-all filtering is scipy.signal.lfilter.
+Initialisation (`initial_estimate`): the input part by least squares (ARX, when there is no F or there is an
+A), or for OE/BJ by a high-order ARX (A_h, B_h,i), whose per-input responses B_h,i/A_h u_i are reduced to
+B_i/F_i by Steiglitz–McBride iterations and refined by the same LM as an OE model on data prefiltered by
+A_h ≈ H⁻¹ (prefiltering by the inverse noise model makes the OE criterion the BJ one with H fixed, Ljung
+sec. 14.4); then the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
+w = A y − Σ B_i/F_i u_i, refined by LM as an ARMA model. Hand-written because SciPy has no PEM; the linear
+algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter.
 """
 from __future__ import annotations
 
@@ -301,7 +305,7 @@ def pem(u, y, structure: Structure, Ts: float, *, init: PolyModel | None = None,
         warnings.warn(msg, stacklevel=2)
     model.info = {
         "method": "prediction error minimisation, Levenberg-Marquardt, analytic gradient",
-        "initialisation": "given model" if init is not None else "ARX/Steiglitz-McBride + OE, Hannan-Rissanen",
+        "initialisation": "given model" if init is not None else "high-order ARX, Steiglitz-McBride, prefiltered OE; Hannan-Rissanen + ARMA",
         "initial_conditions": f"zero initial state, first {s.n_start} samples excluded from V",
         "iterations": iterations,
         "converged": converged,

@@ -19,8 +19,9 @@ Identification*, 1983, §3.7; Ljung, *System Identification*, 1999, §11.4 and e
     P(t)   = (P − K ψᵀ P) / λ + Q
     λ(t)   = λ0 λ(t−1) + (1 − λ0) λ∞
 
-With Q = 0 this is the RPEM with forgetting factor λ (λ∞ = 1 and λ(0) < 1: forgetting that grows towards 1,
-the textbook choice λ0 = 0.99, λ(0) = 0.95). With λ ≡ 1 and Q > 0 it is the Kalman filter for the random-walk
+With Q = 0 this is the RPEM with forgetting factor λ (λ∞ = 1 and λ(0) < 1: forgetting that grows towards 1;
+default λ0 = 0.999, λ(0) = 0.99 — the textbook 0.99/0.95 remembers ~20 samples at the start, fewer than the
+41 parameters of the paper's orders, and diverged on the simulated truck logs). With λ ≡ 1 and Q > 0 it is the Kalman filter for the random-walk
 parameter model of ident.kalman. R is the noise variance the weights refer to (1 when unknown); since
 P⁻¹ grows by ψψᵀ/R, the parameter covariance is P Λ̂/R with Λ̂ the running mean of ε².
 
@@ -375,8 +376,9 @@ class RPEM:
     prior       PolyModel to start from (θ(0), its operating point, names, units and, when it has one, its
                 covariance as P0); None starts from θ = 0 (B_i = 0, F_i = C = D = 1)
     lam         constant forgetting factor λ; None: λ grows from lam_start to 1 at rate lam0
-    lam_start   λ(0) when lam is None: default 0.95 from scratch, 1 from a prior (a λ below 1 would inflate
-                P0, the prior's information, by up to Π 1/λ(t) ≈ 150)
+    lam_start   λ(0) when lam is None: default 0.99 from scratch, 1 from a prior (a λ below 1 would inflate
+                P0, the prior's information, by Π 1/λ(t) ≈ e^10)
+    lam0        growth rate of λ(t) towards lam (default 0.999)
     P0          initial P: scalar (× I), vector (diagonal) or d × d matrix; default from a prior its covariance
                 × R/Λ (Λ its noise variance), or (0.1 θ_j)² without one (10 % uncertainty); from scratch
                 100 I

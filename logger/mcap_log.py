@@ -86,10 +86,11 @@ class McapLogWriter:
     """Writes one MCAP log that survives a power cut.
 
     Messages are JSON (orjson) on channels with jsonschema schemas, in zstd chunks. A chunk is closed and
-    flushed to the OS (and fsync'd when `fsync`) as soon as a write finds `chunk_flush_s` [s] of log time
-    or of wall time passed since the last flush, or the chunk exceeds `chunk_size` [bytes]; a file cut at
-    any byte then loses only what came after the last flush. A caller whose messages may pause (quiet
-    bus) calls `flush_if_due()` from its idle loop to keep that bound.
+    pushed to the OS as soon as a write finds `chunk_flush_s` [s] of log time passed since the chunk began,
+    or the chunk exceeds `chunk_size` [bytes]; every `chunk_flush_s` of wall time everything is also
+    fsync'd (when `fsync`). Live, log time is wall time, so a file cut at any byte loses only the last
+    second. A caller whose messages may pause (quiet bus) calls `flush_if_due()` from its idle loop to keep
+    that bound.
 
     Built on the Foxglove SDK's MCAP writer (Rust) rather than the pure-Python `mcap` Writer, which
     caps at ~120,000 messages/s on one core, too slow for the logger's decode + write budget.
@@ -148,7 +149,9 @@ class McapLogWriter:
         self._channels[topic].log(orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY), log_time=log_time_ns)
         if self._log_due_ns is None:
             self._log_due_ns = log_time_ns + self._flush_ns
-        elif log_time_ns >= self._log_due_ns or time.monotonic_ns() >= self._wall_due_ns:
+        elif log_time_ns >= self._log_due_ns:
+            self._close_chunk()
+        if time.monotonic_ns() >= self._wall_due_ns:
             self.flush()
 
     def set_metadata(self, metadata: dict) -> None:
@@ -163,12 +166,17 @@ class McapLogWriter:
         if time.monotonic_ns() >= self._wall_due_ns:
             self.flush()
 
+    def _close_chunk(self) -> None:
+        # One chunk per `chunk_flush_s` of log time, pushed to the OS; the disk sync waits for flush(), on
+        # the wall clock, so converting a recording (hours of log time a minute) does not fsync per chunk.
+        self._writer.flush()
+        self._log_due_ns = None
+
     def flush(self) -> None:
         """Close the open chunk and push everything to the OS (and the disk when fsync)."""
-        self._writer.flush()
+        self._close_chunk()
         if self._fsync:
             self._sync()
-        self._log_due_ns = None
         self._wall_due_ns = time.monotonic_ns() + self._flush_ns
 
     def _sync(self) -> None:

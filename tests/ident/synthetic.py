@@ -1,10 +1,12 @@
 """Synthetic identification data from the paper's appendix diesel model (tests and benchmarks/bench_pem.py).
 
 Inputs are deviations from idle, truck-like: engine speed 600–1900 rpm and torque 0–100 %, each a sequence of
-random set-points held 3–40 s, smoothed by first-order lags (speed τ = 2 s, torque τ = 0.3 s: gear
-shifts and pedal steps are fast) plus jitter (speed lagged τ = 0.5 s, torque white); torque partly follows speed changes (acceleration needs torque). Output: y = G u + H e with the
-appendix Gw, GT and the appendix noise numerator C over the printed D stabilised (its root pair at |z| = 1.033
-reflected inside), e white with std sigma_e [L/h].
+random set-points held 3–40 s, smoothed by first-order lags (speed τ = 2 s; torque τ = 0.3 s, as gear shifts
+and pedal steps are fast) plus jitter (speed lagged τ = 0.5 s, torque white); torque partly follows speed
+changes (acceleration needs torque). Output y = G u + H e, e white with std sigma_e [L/h]:
+- `true_model`: the appendix Gw, GT, C over the printed D stabilised (its pair at |z| = 1.033 reflected);
+- `minimal_truth`: the appendix G without its near pole–zero cancellations, with a simple ARMA noise model
+  (identifiable, for checking coefficients against standard errors).
 """
 from __future__ import annotations
 
