@@ -1,14 +1,13 @@
-"""Every frame on the simulated bus decodes back to the simulator's values within one quantisation step.
-
-Decoding goes through `decode_log`, which uses cantools on the project DBC for now; switching the test to the
-logger's own decode path (fuelid convert) only means replacing that function.
-"""
+"""Every frame on the simulated bus decodes back, through `fuelid convert`, to the simulator's values within one
+quantisation step."""
 import can
 import cantools
 import numpy as np
 import pytest
 
 from dbc import FMS_DBC
+from fuelid.cli import main
+from logger.mcap_log import read_messages
 from sim import gateway
 from sim.trip import TripConfig, simulate, write
 
@@ -16,18 +15,14 @@ DB = cantools.database.load_file(FMS_DBC)
 
 
 def decode_log(path):
-    """{(DBC message name, source address): [(t, {signal: value or None}), ...]} of a candump log; None where
-    the raw value is not available/error (0xFF.., 0xFE..)."""
-    by_pgn = {m.frame_id >> 8 & 0x3FFFF: m for m in DB.messages if m.length == 8}
+    """{(DBC message name, source address): [(t, {signal: value or None}), ...]} of a candump log, converted to
+    MCAP by `fuelid convert` and read back; None where the value is not available / error / reserved."""
+    mcap = path.with_name(path.name.split(".")[0] + ".mcap")
+    assert main(["convert", str(path), "-o", str(mcap), "--json"]) == 0
     out = {}
-    for msg in can.LogReader(str(path)):
-        m = by_pgn.get(msg.arbitration_id >> 8 & 0x3FFFF)
-        if m is None:
-            continue
-        raw = m.decode(msg.data, decode_choices=False, scaling=False)
-        values = {s.name: (None if raw[s.name] > gateway.max_valid_raw(s.length) else
-                           raw[s.name] * s.scale + s.offset) for s in m.signals}
-        out.setdefault((m.name, msg.arbitration_id & 0xFF), []).append((msg.timestamp, values))
+    for topic, _, record in read_messages(mcap):
+        if topic.startswith("/j1939/") and "tp" not in record:
+            out.setdefault((topic[len("/j1939/"):], record["sa"]), []).append((record["t"], record))
     return out
 
 
