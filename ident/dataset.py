@@ -133,6 +133,7 @@ def _records(sources):
     record iterables; a bare list of records works too."""
     if isinstance(sources, (str, Path)):
         sources = [sources]
+    spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
     for src in sources:
         if isinstance(src, (str, Path)):
             from fuelid.progress import progress
@@ -142,7 +143,16 @@ def _records(sources):
             if not p.is_file():
                 raise FuelidError(f"{p}: no such file")
             topics = ["/flowmeter"] + [f"/j1939/{m}" for m in Decoder().message_names()]  # not /can/raw
-            yield from progress(read_messages(p, topics), desc=p.name, unit="msg")
+            first = last = None
+            for record in progress(read_messages(p, topics), desc=p.name, unit="msg"):
+                first = record[1] if first is None else min(first, record[1])
+                last = record[1] if last is None else max(last, record[1])
+                yield record
+            for other, (a, b) in spans.items():
+                if first is not None and a is not None and first <= b and a <= last:
+                    raise FuelidError(f"{p} and {other} overlap in time: they are not parts of one recording; "
+                                      "give them to separate runs")
+            spans[p] = (first, last)
         elif isinstance(src, tuple) and len(src) == 3 and isinstance(src[0], str):
             yield src
         else:

@@ -49,10 +49,12 @@ class TripConfig:
     altitude_m: float = 60.0       # altitude at the start [m]
     hilliness: float = 1.0         # multiplies the cycle's grade standard deviation
     dt_s: float = 0.01             # simulation step [s]
-    start_unix_s: float = 1717236000.0
+    start_unix_s: float | None = None  # None: 2024-06-01 10:00 UTC plus `seed` days, so trips never overlap
     vin: str = ""                  # empty: derived from the seed
 
     def __post_init__(self):
+        if self.start_unix_s is None:  # frozen dataclass: set the derived default through object.__setattr__
+            object.__setattr__(self, "start_unix_s", 1717236000.0 + 86400.0 * self.seed)
         if self.truth not in fuel.TRUTHS:
             raise ValueError(f"unknown truth {self.truth!r}; known: {', '.join(fuel.TRUTHS)}")
         if self.cycle not in route.CYCLE_NAMES:

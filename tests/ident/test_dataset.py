@@ -168,3 +168,24 @@ def test_export_round_trip(tmp_path, suffix):
     assert set(back.extra) == set(ds.extra)
     for k in ds.extra:
         np.testing.assert_allclose(back.extra[k], ds.extra[k], equal_nan=True)
+
+
+def _write_mcap(path, records):
+    from logger.mcap_log import McapLogWriter
+    with McapLogWriter(path, metadata={"truck": "test"}, fsync=False) as writer:
+        for topic, log_ns, rec in records:
+            if not writer.has_channel(topic):
+                writer.add_channel(topic, {"type": "object"})
+            writer.write(topic, log_ns, rec)
+
+
+def test_files_join_into_one_timeline_but_overlapping_recordings_are_refused(tmp_path):
+    first, later, same_time = tmp_path / "a.mcap", tmp_path / "b.mcap", tmp_path / "c.mcap"
+    shift = lambda recs, s: [(tp, ns + int(s * NS), {**r, "t": r["t"] + s}) for tp, ns, r in recs]
+    _write_mcap(first, trip(60.0))
+    _write_mcap(later, shift(trip(60.0), 3600.0))
+    _write_mcap(same_time, shift(trip(60.0), 30.0))
+    ds = build_dataset([first, later])
+    assert len(ds.segments()) == 2 and ds.valid.sum() * ds.Ts == pytest.approx(120.0, abs=1.0)
+    with pytest.raises(FuelidError, match="overlap in time"):
+        build_dataset([first, same_time])
