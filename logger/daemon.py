@@ -13,6 +13,7 @@ The parts, each doing one thing:
 """
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -304,8 +305,10 @@ class BusLink:
         if cfg.listen_only:
             options.update(LISTEN_ONLY.get(cfg.interface, {}))
         try:
-            if cfg.interface == "socketcan" and (cfg.bitrate or cfg.listen_only):
-                self._configure_socketcan()
+            if cfg.interface == "socketcan":
+                if cfg.bitrate or cfg.listen_only:
+                    self._configure_socketcan()
+                _require_link_up(cfg.channel)
             self.bus = can.Bus(interface=cfg.interface, channel=cfg.channel, **options)
         except Exception as exc:  # any interface's failure to open: retry later
             self._fail(now, exc)
@@ -345,6 +348,13 @@ class BusLink:
             except Exception:  # a bus that already failed may fail to close too; it is dropped either way
                 pass
             self.bus = None
+
+
+def _require_link_up(channel: str) -> None:
+    # Binding to a down interface succeeds (the error comes with the first receive), so look first.
+    flags = Path(f"/sys/class/net/{channel}/flags")
+    if flags.exists() and not int(flags.read_text(), 16) & 0x1:  # IFF_UP
+        raise OSError(errno.ENETDOWN, f"interface {channel} is down")
 
 
 def _enlarge_receive_buffer(bus: can.BusABC, size: int = 1 << 22) -> None:

@@ -11,6 +11,9 @@ def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="FILE",
                    help="model files (*.json) and MCAP recordings (anything else), in any order")
     p.add_argument("--horizon", type=int, default=1, metavar="K", help="prediction horizon [samples] (default 1)")
+    p.add_argument("--map-from", nargs="+", metavar="DATA.mcap", default=[],
+                   help="build the baseline engine map from these recordings (e.g. the identification trip; "
+                        "default: from the compared data itself, which flatters the map)")
     add_dataset_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
@@ -51,8 +54,9 @@ def run(args) -> int:
             raise FuelidError(f"{path}: model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
         results.append({"model": path, **evaluate(model, ds, k=args.horizon)})
     try:
-        fmap = engine_map(ds)
-        baseline = {"points": len(fmap.fuel), "in_sample": True, **evaluate_static(fmap(ds.u), ds)}
+        fmap = engine_map(build(args, args.map_from) if args.map_from else ds)
+        baseline = {"points": len(fmap.fuel), "in_sample": not args.map_from, "built_from": args.map_from or data_paths,
+                    **evaluate_static(fmap(ds.u), ds)}
     except FuelidError as exc:
         baseline = {"error": str(exc)}
 

@@ -34,6 +34,7 @@ def run(args) -> int:
     config = LoggerConfig.load(args.config, **overrides)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(levelname)s %(message)s")
+    logging.getLogger("can").setLevel(logging.WARNING)  # python-can says "Created a socket" at each reconnect
     daemon = Daemon(config)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: daemon.stop())

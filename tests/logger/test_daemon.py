@@ -1,0 +1,258 @@
+"""The logger daemon on python-can's virtual bus: rotation, shutdown, crashes, faults, status."""
+import errno
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import can
+import pytest
+
+from fuelid.cli import main
+from logger import daemon as daemon_mod
+from logger.config import LoggerConfig
+from logger.daemon import Daemon
+from logger.mcap_log import McapLogWriter, read_messages, read_metadata
+from logger.replay import replay
+from tests.logger import traffic
+
+
+def _wait(cond, timeout=10.0):
+    end = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.02)
+
+
+class Running:
+    """A Daemon in a thread on a virtual bus, with a sender on the same bus."""
+
+    def __init__(self, tmp_path, name, **config):
+        self.config = LoggerConfig(interface="virtual", channel=name, output_dir=tmp_path / "logs", **config)
+        self.daemon = Daemon(self.config)
+        self.thread = threading.Thread(target=self.daemon.run)
+        self.thread.start()
+        _wait(lambda: self.daemon.bus is not None and self.daemon.bus.state == "up")
+        self.tx = can.Bus(interface="virtual", channel=name)
+
+    def status(self):
+        return json.loads(self.config.status_file.read_text())
+
+    def stop(self):
+        self.tx.shutdown()
+        self.daemon.stop()
+        self.thread.join(timeout=10)
+        assert not self.thread.is_alive()
+
+    def raw(self):
+        return [rec for f in sorted(self.config.output_dir.glob("*.mcap")) for _, _, rec in read_messages(f, "/can/raw")]
+
+
+@pytest.fixture
+def drive(tmp_path):
+    path = tmp_path / "drive.log"
+    return path, traffic.write_candump(path, 3.0)
+
+
+def test_rotation_loses_no_frame(tmp_path, drive):
+    path, msgs = drive
+    run = Running(tmp_path, "rotate", rotate_s=0.3)
+    replay([path], run.tx, speed=2)
+    time.sleep(0.3)
+    run.stop()
+    files = sorted(run.config.output_dir.glob("*.mcap"))
+    assert len(files) >= 4 and not list(run.config.output_dir.glob("*.part"))
+    assert [(r["id"], r["data"]) for r in run.raw()] == [(m.arbitration_id, m.data.hex()) for m in msgs]
+    # every file names the truck; the VIN once it was seen (early in the log)
+    assert read_metadata(files[-1])["fuelid"]["truck"] == traffic.VIN
+
+
+def test_rotation_by_size(tmp_path, drive):
+    path, msgs = drive
+    run = Running(tmp_path, "size", rotate_mb=0.01)
+    replay([path], run.tx, speed=4)
+    run.stop()
+    assert len(list(run.config.output_dir.glob("*.mcap"))) >= 2
+    assert len(run.raw()) == len(msgs)
+
+
+def test_status_file(tmp_path, drive):
+    path, msgs = drive
+    run = Running(tmp_path, "status", truck="truck-7")
+    assert run.status()["truck"] == "truck-7" and run.status()["vin"] is None
+    replay([path], run.tx, speed=4)
+    _wait(lambda: run.status()["frames"] == len(msgs), timeout=5)
+    s = run.status()
+    assert s["state"] == "running" and s["bus"]["state"] == "up" and s["drops"] == 0
+    assert s["vin"] == traffic.VIN and s["truck"] == traffic.VIN
+    assert s["decode_errors"] == 1  # the one short EEC1 frame
+    assert s["file"].endswith(".mcap.part") and s["uptime_s"] >= 0 and "frames_per_s" in s
+    run.stop()
+    assert run.status()["state"] == "stopped"
+
+
+def test_status_command(tmp_path, capsys):
+    run = Running(tmp_path, "statuscmd")
+    try:
+        assert main(["status", "--status-file", str(run.config.status_file), "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["running"] is True
+        assert main(["status", "--status-file", str(run.config.status_file)]) == 0
+        out = capsys.readouterr().out
+        assert "running" in out and "virtual statuscmd up" in out
+    finally:
+        run.stop()
+    assert main(["status", "--status-file", str(run.config.status_file)]) == 1  # stopped
+    assert main(["status", "--status-file", str(tmp_path / "none.json")]) == 1
+    assert "no status file" in capsys.readouterr().err
+
+
+def test_bus_error_reconnects_and_is_logged_once(tmp_path, drive, monkeypatch, caplog):
+    path, msgs = drive
+    failures = {"left": 3}
+    real_recv = can.interfaces.virtual.VirtualBus._recv_internal
+
+    def flaky(self, timeout):
+        if failures["left"] > 0:
+            failures["left"] -= 1
+            raise can.CanOperationError("bus-off (injected)")
+        return real_recv(self, timeout)
+
+    monkeypatch.setattr(can.interfaces.virtual.VirtualBus, "_recv_internal", flaky)
+    caplog.set_level(logging.INFO, logger="fuelid.log")
+    run = Running(tmp_path, "flaky")
+    run.daemon.bus.backoff_s = (0.05, 0.1)
+    _wait(lambda: failures["left"] == 0 and run.daemon.bus.state == "up" and run.daemon.bus.connects >= 2)
+    time.sleep(0.3)
+    replay([path], run.tx, speed=4)
+    _wait(lambda: run.daemon.sink.recorder.stats.frames == len(msgs))
+    run.stop()
+    status = run.status()
+    assert status["faults"]["bus"] >= 1 and "injected" in status["bus"]["last_error"]
+    warnings = [r for r in caplog.records if r.levelno == logging.WARNING and "bus" in r.getMessage()]
+    assert len(warnings) == 1
+    assert len(run.raw()) == len(msgs)
+
+
+def test_disk_full_stops_writing_and_resumes(tmp_path, drive, monkeypatch):
+    path, msgs = drive
+    run = Running(tmp_path, "enospc")
+    half = len(msgs) // 2
+    for m in msgs[:half]:
+        run.tx.send(m)
+    _wait(lambda: run.daemon.sink.recorder.stats.frames == half)
+    first_file = run.daemon.sink.part
+
+    real_write = McapLogWriter.write
+
+    def full(self, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(McapLogWriter, "write", full)
+    for m in msgs[half: half + 50]:
+        run.tx.send(m)
+    _wait(lambda: run.daemon.sink.dropped >= 50)
+    assert run.daemon.sink.part is None  # stopped writing
+    monkeypatch.setattr(McapLogWriter, "write", real_write)  # space is back
+    _wait(lambda: run.daemon.sink.part is not None, timeout=5)
+    for m in msgs[half + 50:]:
+        run.tx.send(m)
+    _wait(lambda: run.daemon.sink.recorder.stats.frames >= len(msgs) - 50)
+    run.stop()
+    status = run.status()
+    assert status["faults"]["storage"] >= 1 and status["drops"] == 50
+    # the file cut by the error was recovered (not lost), the later one closed normally
+    assert not list(run.config.output_dir.glob("*.part"))
+    assert first_file.with_name(first_file.name[:-5]).exists()
+    raw = run.raw()
+    assert len(raw) >= len(msgs) - 50 - 20  # at most the unflushed chunk of the broken file is lost
+    assert [r["id"] for r in raw[-(len(msgs) - half - 50):]] == [m.arbitration_id for m in msgs[half + 50:]]
+
+
+def test_low_free_space_closes_the_file_cleanly(tmp_path, drive, monkeypatch):
+    path, msgs = drive
+    free = {"mb": 1000.0}
+    real = daemon_mod.shutil.disk_usage
+    monkeypatch.setattr(daemon_mod.shutil, "disk_usage",
+                        lambda p: real(p)._replace(free=int(free["mb"] * 1e6)))
+    run = Running(tmp_path, "lowspace", min_free_mb=10)
+    for m in msgs[:100]:
+        run.tx.send(m)
+    _wait(lambda: run.daemon.sink.recorder.stats.frames == 100)
+    free["mb"] = 5.0
+    _wait(lambda: run.daemon.sink.part is None, timeout=5)
+    assert len(list(run.config.output_dir.glob("*.mcap"))) == 1  # closed and renamed, not abandoned
+    free["mb"] = 50.0
+    _wait(lambda: run.daemon.sink.part is not None, timeout=5)
+    run.stop()
+    assert len(run.raw()) == 100
+
+
+def test_malformed_traffic_keeps_logging(tmp_path, monkeypatch):
+    run = Running(tmp_path, "malformed")
+    real = daemon_mod.Recorder.on_message_received
+
+    def choke(self, msg):
+        if msg.arbitration_id == 0x123:
+            raise ValueError("cannot decode")
+        return real(self, msg)
+
+    monkeypatch.setattr(daemon_mod.Recorder, "on_message_received", choke)
+    junk = [can.Message(arbitration_id=0x18FEF100, data=b""), can.Message(arbitration_id=0x7FF, is_extended_id=False),
+            can.Message(arbitration_id=0x123, is_extended_id=False), can.Message(arbitration_id=0x0CF00400, data=bytes(8))]
+    for m in junk * 3:
+        run.tx.send(m)
+    _wait(lambda: run.daemon.sink.record_errors == 3 and run.daemon.sink.recorder.stats.frames == 9)
+    run.stop()
+    assert run.status()["faults"]["decode"] == 3
+
+
+def _cli_daemon(out, *extra):
+    return subprocess.Popen([sys.executable, "-m", "fuelid.cli", "log", "--interface", "virtual", "--channel", "cli",
+                             "--output-dir", str(out), "--truck", "cli-truck", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _wait_status(out, proc):
+    _wait(lambda: (out / "status.json").exists() or proc.poll() is not None, timeout=60)
+    assert proc.poll() is None, proc.stdout.read()
+
+
+def test_sigterm_finalises_and_sigkill_is_recovered(tmp_path):
+    out = tmp_path / "logs"
+    proc = _cli_daemon(out)
+    _wait_status(out, proc)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=20) == 0
+    (closed,) = out.glob("*.mcap")
+    assert not list(out.glob("*.part")) and read_metadata(closed)["fuelid"]["truck"] == "cli-truck"
+    assert json.loads((out / "status.json").read_text())["state"] == "stopped"
+
+    os.remove(out / "status.json")
+    proc = _cli_daemon(out)
+    _wait_status(out, proc)
+    proc.kill()
+    proc.wait()
+    (orphan,) = out.glob("*.part")
+    os.remove(out / "status.json")
+    proc = _cli_daemon(out)
+    _wait_status(out, proc)
+    proc.send_signal(signal.SIGTERM)
+    log_text = proc.communicate(timeout=20)[0]
+    assert proc.returncode == 0 and "recovered" in log_text
+    assert not list(out.glob("*.part")) and len(list(out.glob("*.mcap"))) == 3
+    assert read_metadata(orphan.with_name(orphan.name[:-5]))["fuelid"]["truck"] == "cli-truck"
+
+
+def test_config_file_and_overrides(tmp_path):
+    cfg = tmp_path / "fuelid.toml"
+    cfg.write_text('[bus]\ninterface = "virtual"\nchannel = "x"\nbitrate = 250000\n[output]\ndir = "/data"\nrotate_s = 600\n'
+                   '[flowmeter]\nport = "/dev/ttyUSB0"\ngain_kg_h_per_v = 10.0\n[truck]\nname = "t1"\n[sources]\nEEC1 = 1\n')
+    c = LoggerConfig.load(cfg, channel="y", rotate_s=None)
+    assert (c.interface, c.channel, c.bitrate, c.rotate_s, c.flow_gain, c.truck) == ("virtual", "y", 250000, 600, 10.0, "t1")
+    assert str(c.status_file) == "/data/status.json" and c.source_preference["EEC1"] == 1 and c.source_preference["default"] == 0
+    cfg.write_text("[bus]\nchanel = 'x'\n")
+    assert main(["log", "--config", str(cfg)]) == 1
