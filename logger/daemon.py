@@ -85,9 +85,11 @@ class LogFiles:
         self.dir.mkdir(parents=True, exist_ok=True)
 
     def new_path(self) -> Path:
-        stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        # Names sort in time order: UTC to the millisecond, then _1, _2... (after ".") in the same millisecond.
+        now = datetime.now(timezone.utc)
+        stamp = now.strftime("%Y%m%dT%H%M%S") + f".{now.microsecond // 1000:03d}Z"
         for n in range(1000):
-            name = f"fuelid-{stamp}" + (f"-{n}" if n else "") + ".mcap"
+            name = f"fuelid-{stamp}" + (f"_{n}" if n else "") + ".mcap"
             if not (self.dir / name).exists() and not (self.dir / (name + PART)).exists():
                 return self.dir / (name + PART)
         raise FileExistsError(f"no free file name in {self.dir}")

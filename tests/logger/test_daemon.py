@@ -73,7 +73,7 @@ def test_rotation_loses_no_frame(tmp_path, drive):
 
 def test_rotation_by_size(tmp_path, drive):
     path, msgs = drive
-    run = Running(tmp_path, "size", rotate_mb=0.01)
+    run = Running(tmp_path, "size", rotate_mb=0.001)
     replay([path], run.tx, speed=4)
     run.stop()
     assert len(list(run.config.output_dir.glob("*.mcap"))) >= 2
@@ -145,6 +145,7 @@ def test_disk_full_stops_writing_and_resumes(tmp_path, drive, monkeypatch):
         run.tx.send(m)
     _wait(lambda: run.daemon.sink.recorder.stats.frames == half)
     first_file = run.daemon.sink.part
+    time.sleep(1.5)  # the daemon flushes within a second, on a quiet bus too: these frames are on disk
 
     real_write = McapLogWriter.write
 
@@ -168,7 +169,7 @@ def test_disk_full_stops_writing_and_resumes(tmp_path, drive, monkeypatch):
     assert not list(run.config.output_dir.glob("*.part"))
     assert first_file.with_name(first_file.name[:-5]).exists()
     raw = run.raw()
-    assert len(raw) >= len(msgs) - 50 - 20  # at most the unflushed chunk of the broken file is lost
+    assert len(raw) == len(msgs) - 50
     assert [r["id"] for r in raw[-(len(msgs) - half - 50):]] == [m.arbitration_id for m in msgs[half + 50:]]
 
 
