@@ -27,7 +27,13 @@ wait_for() {  # FILE PATTERN SECONDS
     done
 }
 set -e
-trap 'rc=$?; set +e; kill -KILL $(jobs -p) 2>/dev/null; exit $rc' EXIT  # on a failure, do not leave the VM waiting for daemons
+# The daemons write to the VM's own file system (/tmp: an overlay in memory), like the in-cab box to its
+# local disk, not to the folder shared with the host (9p); the results are copied back at the end. On a
+# failure the trap also kills what is left running, so the VM does not wait for it.
+OUT=$(mktemp -d)
+mkdir $OUT/run1 $OUT/run2
+ln -s $OUT/run1 run1; ln -s $OUT/run2 run2
+trap 'rc=$?; set +e; kill -KILL $(jobs -p) 2>/dev/null; rm run1 run2; cp -a $OUT/run1 $OUT/run2 .; exit $rc' EXIT
 # Start-up takes ~20 s per Python process under emulation: start what can run side by side together.
 # run1: flow meter on a pty; replay, interface down and up, replay again; SIGTERM.
 # run2: a second daemon on the same bus, killed with SIGKILL during a third replay, then restarted.
