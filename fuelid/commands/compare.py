@@ -1,8 +1,8 @@
 """fuelid compare: validation metrics of model files on MCAP recordings, next to the steady-state map baseline."""
-import json
 import sys
 
 from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.output import print_json
 
 HELP = "compare model files with measurements (fit, whiteness, cycle fuel error) and the engine-map baseline"
 
@@ -62,8 +62,7 @@ def run(args) -> int:
 
     out = {"data": {"files": data_paths, **ds.summary()}, "models": results, "baseline_map": baseline}
     if args.json:
-        json.dump(out, sys.stdout, indent=2)
-        print()
+        print_json(out)
     else:
         rows = [(r["model"], r) for r in results]
         if "error" not in baseline:

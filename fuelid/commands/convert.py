@@ -1,9 +1,9 @@
 """fuelid convert: recorded CAN logs (and a flow-meter capture) to MCAP, through the daemon's own decode path."""
 import heapq
-import json
 import math
-import sys
 from pathlib import Path
+
+from fuelid.output import print_json
 
 HELP = "convert recorded CAN logs (candump, ASC, BLF, TRC, MF4) and flow-meter captures to MCAP"
 
@@ -55,8 +55,7 @@ def run(args) -> int:
 
     summary = conversion_summary(recorder, sources, output)
     if args.json:
-        json.dump(summary, sys.stdout, indent=2)
-        print()
+        print_json(summary)
     else:
         print(format_summary(summary))
     return 0

@@ -1,6 +1,7 @@
 """fuelid dataset: MCAP recordings to a resampled identification data set (.csv or .mat) for cross-checks."""
-import json
 import sys
+
+from fuelid.output import print_json
 
 HELP = "resample MCAP recordings to an identification data set (CSV or MATLAB .mat)"
 
@@ -45,8 +46,7 @@ def run(args) -> int:
     save_dataset(ds, args.output)
     summary = {"output": args.output, **ds.summary()}
     if args.json:
-        json.dump(summary, sys.stdout, indent=2)
-        print()
+        print_json(summary)
     else:
         op = summary["operating_point"]
         print(f"{args.output}: {summary['samples']} samples every {ds.Ts:g} s, "

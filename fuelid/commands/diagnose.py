@@ -1,8 +1,7 @@
 """fuelid diagnose: where a fuel model fails on measurements, and which physical effect it is missing."""
-import json
-import sys
 
 from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.output import print_json
 
 HELP = "diagnose a model on recordings: where it fails and which physical effect is missing (ranked, tested)"
 
@@ -18,27 +17,6 @@ def add_arguments(p):
     p.add_argument("--top", type=int, default=8, metavar="N", help="candidates shown in the report (default 8)")
     add_dataset_arguments(p)
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
-
-
-def _json_safe(x):
-    """NaN/inf → null, numpy scalars → Python numbers (strict JSON)."""
-    import math
-
-    import numpy as np
-
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _json_safe(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 def format_report(result: dict, top: int = 8) -> str:
@@ -94,8 +72,7 @@ def run(args) -> int:
     result["data"]["files"] = list(map(str, args.inputs))
     result["model"]["file"] = args.model
     if args.json:
-        json.dump(_json_safe(result), sys.stdout, indent=2)
-        print()
+        print_json(result)
     else:
         print(format_report(result, args.top))
     return 0

@@ -1,9 +1,9 @@
 """fuelid identify: a Box-Jenkins fuel-flow model from MCAP recordings by prediction-error identification."""
-import json
 import sys
 import time
 
 from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.output import print_json
 
 HELP = "identify a Box-Jenkins fuel-flow model (engine speed, torque -> fuel) from MCAP recordings"
 
@@ -135,8 +135,7 @@ def run(args) -> int:
         "wall_time_s": {"dataset": t_data - t_start, "pem": t_pem - t_data, "total": t_end - t_start},
     }
     if args.json:
-        json.dump(result, sys.stdout, indent=2)
-        print()
+        print_json(result)
     else:
         print(f"{args.output}: BJ {structure.nb}/{structure.nf}/{structure.nk} nc={structure.nc} nd={structure.nd}"
               f" on {len(y_train) * ds.Ts / 60:.1f} min ({len(segs)} stretches), {t_end - t_start:.1f} s")

@@ -1,10 +1,9 @@
 """fuelid online: the recursive (RPEM or Kalman) estimator run over recorded files, as it runs live in the daemon."""
-import json
-import sys
 import time
 
 from fuelid.commands.dataset import add_dataset_arguments
 from fuelid.commands.identify import ORDERS_HELP
+from fuelid.output import print_json
 
 HELP = "run the online BJ estimator (recursive prediction error or Kalman) over MCAP recordings"
 CHUNK = 20000  # samples per estimator call (progress bar step)
@@ -104,8 +103,7 @@ def run(args) -> int:
         **metrics,
     }
     if args.json:
-        json.dump(result, sys.stdout, indent=2)
-        print()
+        print_json(result)
     else:
         fit = metrics["fit_percent"]
         print(f"{args.output}: {args.method} over {len(ds)} samples ({len(ds) * ds.Ts / 3600:.2f} h), "

@@ -1,6 +1,7 @@
 """`fuelid recover BROKEN.mcap [-o FIXED.mcap] [--json]`: rewrite a truncated MCAP log as a valid one."""
-import json
 from pathlib import Path
+
+from fuelid.output import print_json
 
 HELP = "rewrite an MCAP log cut by a power loss as a valid, indexed file"
 
@@ -19,7 +20,7 @@ def run(args) -> int:
     stats = recover(args.input, output)
     summary = {"input": str(args.input), "output": str(output), **stats.to_dict()}
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print_json(summary)
         return 0
     state = "was complete" if stats.complete else f"was truncated: {stats.bytes_lost} of {stats.bytes_total} bytes lost"
     print(f"{args.input} {state}")

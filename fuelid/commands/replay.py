@@ -1,8 +1,9 @@
 """fuelid replay: play recorded CAN traffic onto a python-can bus (and a flow-meter capture onto a pty)."""
-import json
 import signal
 import sys
 import threading
+
+from fuelid.output import print_json
 
 HELP = "play recorded CAN logs (candump, ASC, BLF, TRC, MCAP) onto a CAN bus with their original timing"
 
@@ -58,7 +59,7 @@ def run(args) -> int:
 
     report = stats.to_dict()
     if args.json:
-        print(json.dumps(report, indent=2))
+        print_json(report)
     else:
         print(f"sent {stats.frames} frames" + (f" and {stats.flow_lines} flow-meter lines" if args.flowmeter else "")
               + f" in {stats.duration_s:.2f} s ({stats.passes} pass{'es' if stats.passes != 1 else ''})")

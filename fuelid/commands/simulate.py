@@ -1,8 +1,8 @@
 """fuelid simulate: synthetic truck trips with a known fuel truth (candump log, flow capture, truth files)."""
-import json
-import sys
 import time
 from pathlib import Path
+
+from fuelid.output import print_json
 
 HELP = "simulate a truck trip: FMS CAN log (+ gas flow-meter capture) and its truth files"
 
@@ -80,8 +80,7 @@ def run(args) -> int:
     if args.list:
         listing = _listing()
         if args.json:
-            json.dump(listing, sys.stdout, indent=2)
-            print()
+            print_json(listing)
         else:
             print("truths:  " + ", ".join(listing["truths"]))
             print("cycles:  " + ", ".join(listing["cycles"]))
@@ -108,8 +107,7 @@ def run(args) -> int:
 
     results = [_run_one(cfg, out, label) for cfg, out, label in jobs]
     if args.json:
-        json.dump(results if len(results) > 1 else results[0], sys.stdout, indent=2)
-        print()
+        print_json(results if len(results) > 1 else results[0])
     else:
         for r in results:
             size = sum(r["bytes"].values()) / 1e6

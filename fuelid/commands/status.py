@@ -1,6 +1,7 @@
 """fuelid status: what the running logger daemon reports in its status file."""
-import json
 import time
+
+from fuelid.output import print_json
 
 HELP = "show the logger daemon's health: uptime, frames/s, drops, decode errors, current file, serial, VIN"
 
@@ -27,7 +28,7 @@ def run(args) -> int:
         raise FuelidError(f"unreadable status file {path}: {exc}") from None
     running = s["state"] == "running" and s["age_s"] <= STALE_S
     if args.json:
-        print(json.dumps({**s, "running": running}, indent=2))
+        print_json({**s, "running": running})
         return 0 if running else 1
     state = "running" if running else ("stopped" if s["state"] == "stopped" else f"not running (status {s['age_s']:.0f} s old)")
     bus = s["bus"]
