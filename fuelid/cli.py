@@ -23,7 +23,14 @@ COMMANDS = [
     "identify",
     "compare",
     "diagnose",
+    "report",
     "online",
+    "serve",
+    "token",
+    "upload",
+    "trucks",
+    "fetch",
+    "refit",
 ]
 
 

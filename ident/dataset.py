@@ -160,21 +160,32 @@ def _records(sources):
 
 
 def _collect(records) -> dict[str, dict]:
-    """signal name → source address → ([log time ns], [value]) of the valid (numeric) samples."""
-    sig: dict[str, dict] = {}
+    """signal name → source address → ([log time ns], [value]) of the valid (numeric) samples.
+
+    Records are grouped by message and source address first, then each signal is pulled out of a group's
+    records by one list comprehension (a per-value dict walk was the slowest step after reading the file)."""
+    groups: dict[tuple, tuple[list, list]] = {}
     for topic, log_ns, rec in records:
         if topic == "/flowmeter":
-            msg, sa = "flowmeter", None
+            key = ("flowmeter", None)
         elif topic.startswith("/j1939/"):
-            msg, sa = topic[7:], rec.get("sa")
+            key = (topic[7:], rec.get("sa"))
         else:
             continue
-        for key, v in rec.items():
-            if key in NOT_SIGNALS or v is None or isinstance(v, (bool, str)) or not isinstance(v, (int, float)):
-                continue
-            ts, vs = sig.setdefault(f"{msg}.{key}", {}).setdefault(sa, ([], []))
-            ts.append(int(log_ns))
-            vs.append(float(v))
+        group = groups.get(key)
+        if group is None:
+            group = groups[key] = ([], [])
+        group[0].append(log_ns)
+        group[1].append(rec)
+    sig: dict[str, dict] = {}
+    for (msg, sa), (times, recs) in groups.items():
+        for name in sorted(set().union(*recs) - NOT_SIGNALS):
+            values = [r.get(name) for r in recs]
+            # JSON numbers only: None (not available), booleans and strings are no samples
+            keep = [i for i, v in enumerate(values) if type(v) is float or type(v) is int]
+            if keep:
+                sig.setdefault(f"{msg}.{name}", {})[sa] = ([int(times[i]) for i in keep],
+                                                          [float(values[i]) for i in keep])
     return sig
 
 

@@ -191,15 +191,17 @@ def _idle(ds):
     return regime(ds, on, "idle")
 
 
-def _gear_shift(ds, window_s: float = 1.0):
+def _gear_shift(ds, after_s: float = 2.0):
+    """On while the transmission shifts (selected ≠ current gear) and for after_s [s] after each change of the
+    current gear, when the clutch closes and torque ramps up with low boost."""
     gear = _signal(ds, "ETC2.TransCurrentGear")
     if gear is None:
         return None
     changes = np.flatnonzero(np.diff(gear) != 0) + 1
     on = np.zeros(len(gear), bool)
-    half = max(int(round(window_s / ds.Ts)), 1)
+    after = max(int(round(after_s / ds.Ts)), 1)
     for k in changes:
-        on[max(k - half, 0): k + half] = True
+        on[k: k + after] = True
     selected = _signal(ds, "ETC2.TransSelectedGear")
     if selected is not None:
         on |= selected != gear

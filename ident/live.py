@@ -9,18 +9,32 @@ EEC1.ActualEngPercentTorque [%] × EC1.EngReferenceTorque [Nm] / 100 (a model in
 address engine_sa, default 0x00) are used; null (not available) values are no sample. A silence longer than
 max_gap_s (engine off, logger restart) restarts the estimator's filters.
 
-Every closed bin gives records for the daemon to write (topic, log time [s], record):
+Replay at `speed` × real time (fuelid replay --speed): receive times run `speed` times faster than the
+recording, so the grid step and max_gap_s are divided by `speed` on the receive-time axis; the estimator still
+sees Ts-spaced samples of the recorded trip.
+
+Starting from a prior model (`from_model`) the estimator runs from the first bin. From scratch
+(`from_scratch`) the operating point (u0, y0) the model's deviations are taken from (ident.dataset: the idle
+point) is not known yet: bins are only watched until idle_min_s of complete bins with the engine speed within
+idle_tol_rpm of idle_rpm, whose mean inputs and fuel become (u0, y0); then the RPEM starts from θ = 0.
+
+Every closed bin once the estimator runs gives records for the daemon to write (topic, receive time [s], record):
 
     /ident/prediction  {t, predicted, simulated, measured, unit}   ŷ(t|t−1), the model's simulation and the
                        measured fuel [output unit] (null when not available)
     /ident/residual    {t, eps, status, unit}                       ε = measured − predicted; status as
                        ident.rpem.Trace (−1 no state, 0 no update, 1 updated, 2 shrunk step, 3 rejected)
-    /ident/parameters  {t, names, theta, dc_gain, lam, trace_P, dtheta, fit_prediction_pct,
+    /ident/parameters  {t, names, theta, dc_gain, fuel_change_pct, lam, trace_P, dtheta, fit_prediction_pct,
                         fit_simulation_pct, updates, noise_variance}   every parameters_every_s
 
-and every snapshot_every_s the current model is written to snapshot_path (model.json, atomically).
-This module imports numpy and ident.rpem only; model files are read and written through ident.modelfile,
-imported when a snapshot is first written.
+dc_gain G_i(1) = B_i(1)/F_i(1) [output unit per input unit]; fuel_change_pct how much the steady-state fuel
+at the mean operating point has moved since the prior, 100 (Σ_i G_i(1) ū_i / Σ_i G⁰_i(1) ū_i − 1) with ū the
+mean deviation inputs so far and G⁰ the prior's gains (null from scratch): the drift of the fuel system
+(injector wear, fuel quality, meter calibration) the forgetting or Kalman estimator tracks.
+
+Every snapshot_every_s (receive time) the current model is written to snapshot_path (model.json, atomically);
+`snapshot()` writes it on demand (the daemon at shutdown). This module imports numpy only; ident.rpem (numba)
+comes with the estimator, ident.polymodel and ident.modelfile (no SciPy) with the first snapshot.
 """
 from __future__ import annotations
 
@@ -36,7 +50,9 @@ RESIDUAL_SCHEMA = {"type": "object", "properties": {
     "unit": {"type": "string"}}}
 PARAMETERS_SCHEMA = {"type": "object", "properties": {
     "t": {"type": "number"}, "names": {"type": "array", "items": {"type": "string"}},
-    "theta": {"type": "array", "items": {"type": "number"}}, "dc_gain": {"type": "array", "items": {"type": "number"}},
+    "theta": {"type": "array", "items": {"type": "number"}},
+    "dc_gain": {"type": "array", "items": {"type": ["number", "null"]}},
+    "fuel_change_pct": {"type": ["number", "null"]},
     "lam": {"type": "number"}, "trace_P": {"type": "number"}, "dtheta": {"type": "number"},
     "fit_prediction_pct": {"type": ["number", "null"]}, "fit_simulation_pct": {"type": ["number", "null"]},
     "updates": {"type": "integer"}, "noise_variance": {"type": ["number", "null"]}}}
@@ -50,27 +66,51 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
+def dc_gains(theta, structure) -> np.ndarray:
+    """G_i(1) = B_i(1)/F_i(1) per input from θ (order of ident.polymodel.parameter_names, na = 0)."""
+    nb = np.cumsum([0, *structure.nb])
+    nf = nb[-1] + np.cumsum([0, *structure.nf])
+    return np.array([theta[nb[i]:nb[i + 1]].sum() / (1.0 + theta[nf[i]:nf[i + 1]].sum())
+                     for i in range(structure.n_inputs)])
+
+
 class LiveEstimator:
     """Resample decoded records to Ts and run an ident.rpem estimator on them (module docstring).
 
-    estimator       an ident.rpem.RPEM or ident.kalman.ParameterKalman (its Ts is the grid step)
+    estimator       an ident.rpem.RPEM or ident.kalman.ParameterKalman (its Ts is the grid step); or None with
+    start           a function (u0 [input units], y0 [output unit]) -> estimator, called once the idle
+                    operating point is known (from scratch), and Ts [s]
     torque_unit     'Nm' or '%': the unit of the model's torque input
     fuel            'lfe1' (LFE1.EngFuelRate, L/h) or 'flowmeter' (flow_kg_h, kg/h)
     names           parameter names for /ident/parameters (default θ0, θ1, …)
+    speed           the records arrive `speed` times faster than recorded (a sped-up replay)
+    idle_rpm, idle_tol_rpm, idle_min_s   the idle operating point from scratch [rpm], [rpm], [s]
     """
 
-    def __init__(self, estimator, *, torque_unit: str = "Nm", fuel: str = "lfe1", engine_sa: int = 0,
-                 names=None, snapshot_path=None, snapshot_every_s: float = 600.0,
-                 parameters_every_s: float = 10.0, max_gap_s: float = 1.0):
+    def __init__(self, estimator=None, *, start=None, Ts: float | None = None, torque_unit: str = "Nm",
+                 fuel: str = "lfe1", engine_sa: int = 0, names=None, snapshot_path=None,
+                 snapshot_every_s: float = 600.0, parameters_every_s: float = 10.0, max_gap_s: float = 1.0,
+                 speed: float = 1.0, idle_rpm: float = 600.0, idle_tol_rpm: float = 50.0, idle_min_s: float = 3.0):
         if torque_unit not in ("Nm", "%") or fuel not in ("lfe1", "flowmeter"):
             raise ValueError("torque_unit must be 'Nm' or '%', fuel 'lfe1' or 'flowmeter'")
-        self.est = estimator
-        self.Ts = estimator.Ts
+        if (estimator is None) == (start is None) or (start is not None and Ts is None):
+            raise ValueError("give an estimator, or a start function and Ts")
+        if not speed > 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.est, self._start = estimator, start
+        self.Ts = estimator.Ts if estimator is not None else float(Ts)
         self.torque_unit, self.fuel, self.engine_sa = torque_unit, fuel, engine_sa
         self.unit = "kg/h" if fuel == "flowmeter" else "L/h"
-        self.names = list(names) if names is not None else [f"theta{j}" for j in range(estimator.theta.size)]
+        self.names = list(names) if names is not None else None
         self.snapshot_path, self.snapshot_every_s = snapshot_path, snapshot_every_s
-        self.parameters_every_s, self.max_gap_s = parameters_every_s, max_gap_s
+        self.parameters_every_s = parameters_every_s
+        self._step, self._max_gap = self.Ts / speed, max_gap_s / speed  # on the receive-time axis [s]
+        self._idle = (idle_rpm, idle_tol_rpm, max(1, math.ceil(idle_min_s / self.Ts)))
+        self._idle_bins: list[np.ndarray] = []  # [speed, torque, fuel] of the current idle stretch (from scratch)
+        self._gain0 = None  # the prior's G_i(1), the reference of fuel_change_pct
+        if estimator is not None and estimator.prior is not None:
+            self._gain0 = dc_gains(estimator.prior.theta, estimator.structure)
+        self._du_sum, self._du_n = 0.0, 0  # Σ ũ and its count, for the mean operating point ū
         self.ref_torque = None  # [Nm], from EC1
         self._bin = None  # index k of the open bin
         self._t0 = None
@@ -80,21 +120,44 @@ class LiveEstimator:
         self._next_parameters = self._next_snapshot = None
 
     @classmethod
-    def from_model(cls, model, *, method: str = "rpem", forgetting: float | None = 0.9995, **kwargs):
-        """A LiveEstimator starting from a PolyModel (e.g. load_model('fleet.json')), units from the model."""
+    def from_model(cls, model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
+                   **kwargs):
+        """A LiveEstimator starting from a PolyModel (e.g. load_model('fleet.json')), units from the model.
+
+        method 'rpem' (constant forgetting λ = forgetting; None: λ = 1) or 'kalman' (random-walk fuel gain,
+        relative drift per sample `drift`)."""
         from ident.polymodel import parameter_names
 
         if method == "kalman":
             from ident.kalman import ParameterKalman
 
-            est = ParameterKalman(prior=model)
-        else:
+            est = ParameterKalman(prior=model, rate=drift)
+        elif method == "rpem":
             from ident.rpem import RPEM
 
             est = RPEM(prior=model, lam=forgetting)
+        else:
+            raise ValueError(f"method must be 'rpem' or 'kalman', got {method!r}")
         fuel = "flowmeter" if model.output_unit == "kg/h" else "lfe1"
         return cls(est, torque_unit=model.input_units[1] or "Nm", fuel=fuel,
                    names=parameter_names(model.structure), **kwargs)
+
+    @classmethod
+    def from_scratch(cls, structure, Ts: float = 0.3, *, forgetting: float | None = None, **kwargs):
+        """A LiveEstimator whose RPEM starts from θ = 0 at the idle operating point (module docstring);
+        forgetting: constant λ, or None for λ growing towards 1 (ident.rpem)."""
+        from ident.polymodel import parameter_names
+        from ident.rpem import RPEM
+
+        def start(u0, y0):
+            return RPEM(structure, Ts, lam=forgetting, u0=u0, y0=y0)
+
+        return cls(start=start, Ts=Ts, names=parameter_names(structure), **kwargs)
+
+    def prepare(self) -> None:
+        """Load the estimator's compiled loop now (seconds on a first run), not with the first bin."""
+        est = self.est or self._start(np.zeros(2), 0.0)
+        est.update(np.empty((0, 2)), np.empty(0))
 
     def feed(self, topic: str, t: float, record: dict) -> list[tuple[str, float, dict]]:
         """One decoded record received at t [s]; returns the /ident/* records of the bins it closed."""
@@ -106,11 +169,11 @@ class LiveEstimator:
             self._t0, self._bin = t, 0
             self._next_parameters = t + self.parameters_every_s
             self._next_snapshot = t + self.snapshot_every_s
-        k = int((t - self._t0) // self.Ts)
+        k = int((t - self._t0) // self._step)
         if k > self._bin:
             out += self._close(self._bin)
-            if t - self._last_data_t > self.max_gap_s:  # silence: no bins in between, filters restart
-                self.est.reset()
+            if t - self._last_data_t > self._max_gap:  # silence: no bins in between, filters restart
+                self._restart()
             else:
                 for empty in range(self._bin + 1, k):
                     out += self._close(empty)
@@ -121,6 +184,11 @@ class LiveEstimator:
                 self._counts[channel] += 1
         self._last_data_t = max(self._last_data_t, t)
         return out
+
+    def _restart(self) -> None:
+        if self.est is not None:
+            self.est.reset()
+        self._idle_bins.clear()
 
     def _values(self, topic, record) -> list[tuple[int, float]]:
         """[(channel, value)] of a record: 0 speed [rpm], 1 torque [%], 2 fuel; EC1 sets the reference torque."""
@@ -148,8 +216,14 @@ class LiveEstimator:
             torque = pct
         else:
             torque = pct * self.ref_torque / 100.0 if self.ref_torque is not None else math.nan
-        trace = self.est.update(np.array([[speed, torque]]), np.array([fuel]))
-        t = self._t0 + (k + 1) * self.Ts
+        u = np.array([speed, torque])
+        if self.est is None and not self._watch_idle(u, fuel):
+            return []
+        trace = self.est.update(u[None, :], np.array([fuel]))
+        if np.isfinite(u).all():
+            self._du_sum = self._du_sum + (u - self.est.u0)
+            self._du_n += 1
+        t = self._t0 + (k + 1) * self._step
         out = [("/ident/prediction", t, {"t": t, "predicted": _num(trace.yhat[0]), "simulated": _num(trace.ysim[0]),
                                          "measured": _num(fuel), "unit": self.unit}),
                ("/ident/residual", t, {"t": t, "eps": _num(trace.eps[0]), "status": int(trace.status[0]),
@@ -162,21 +236,41 @@ class LiveEstimator:
             self.snapshot()
         return out
 
+    def _watch_idle(self, u, fuel) -> bool:
+        """From scratch: collect a lasting idle stretch; start the estimator at its mean. True once started."""
+        idle_rpm, tol, n = self._idle
+        if not (np.isfinite(u).all() and math.isfinite(fuel) and abs(u[0] - idle_rpm) <= tol):
+            self._idle_bins.clear()
+            return False
+        self._idle_bins.append(np.r_[u, fuel])
+        if len(self._idle_bins) < n:
+            return False
+        u0y0 = np.mean(self._idle_bins, axis=0)
+        self.est = self._start(u0y0[:2], float(u0y0[2]))
+        self._idle_bins.clear()
+        return True
+
     def parameters(self, t: float, dtheta: float = 0.0) -> dict:
-        """The /ident/parameters record: θ, DC gains B_i(1)/F_i(1), λ, trace(P), running fits."""
-        est, s = self.est, self.est.structure
+        """The /ident/parameters record: θ, DC gains B_i(1)/F_i(1), fuel change, λ, trace(P), running fits."""
+        est = self.est
         theta = est.theta
-        nb, nf = np.cumsum([0, *s.nb]), sum(s.nb) + np.cumsum([0, *s.nf])
-        dc = [theta[nb[i]:nb[i + 1]].sum() / (1.0 + theta[nf[i]:nf[i + 1]].sum()) for i in range(s.n_inputs)]
+        gains = dc_gains(theta, est.structure)
+        change = None
+        if self._gain0 is not None and self._du_n:
+            du = self._du_sum / self._du_n
+            change = _num(100.0 * (gains @ du / (self._gain0 @ du) - 1.0))
         rep = est.report()
-        return {"t": t, "names": self.names, "theta": [float(v) for v in theta], "dc_gain": [_num(g) for g in dc],
-                "lam": rep["lam"], "trace_P": rep["trace_P"], "dtheta": dtheta,
+        names = self.names or [f"theta{j}" for j in range(theta.size)]
+        return {"t": t, "names": names, "theta": [float(v) for v in theta], "dc_gain": [_num(g) for g in gains],
+                "fuel_change_pct": change, "lam": rep["lam"], "trace_P": rep["trace_P"], "dtheta": dtheta,
                 "fit_prediction_pct": _num(rep["running_fit_prediction_pct"]),
                 "fit_simulation_pct": _num(rep["running_fit_simulation_pct"]), "updates": rep["updates"],
                 "noise_variance": _num(rep["noise_variance"])}
 
-    def snapshot(self) -> None:
-        """Write the current model to snapshot_path (atomically)."""
+    def snapshot(self) -> bool:
+        """Write the current model to snapshot_path (atomically); False while there is none yet."""
+        if self.est is None or self.snapshot_path is None:
+            return False
         import dataclasses
 
         from ident.modelfile import save_model
@@ -188,3 +282,4 @@ class LiveEstimator:
                                         output_name="flowmeter.flow_kg_h" if self.fuel == "flowmeter"
                                         else "LFE1.EngFuelRate", output_unit=self.unit)
         save_model(model, self.snapshot_path)
+        return True

@@ -17,6 +17,9 @@ TOML_KEYS = {
     "output": {"dir": "output_dir", "rotate_s": "rotate_s", "rotate_mb": "rotate_mb", "min_free_mb": "min_free_mb",
                "status_file": "status_file"},
     "truck": {"name": "truck"},
+    "identify": {"enabled": "identify", "model": "identify_model", "orders": "identify_orders",
+                 "method": "identify_method", "forgetting": "identify_forgetting", "snapshot_s": "snapshot_s",
+                 "replay_speed": "replay_speed"},
     "sources": None,  # DBC message name (or "default") -> preferred source address
 }
 
@@ -39,12 +42,31 @@ class LoggerConfig:
     status_file: Path | None = None  # default: <output_dir>/status.json
     truck: str = "unknown"  # until a VIN is seen
     source_preference: dict = field(default_factory=lambda: dict(DEFAULT_SOURCE_PREFERENCE))
+    # online identification (ident.live) on the logged stream, /ident/* channels and <output_dir>/model.json
+    identify: bool = False
+    identify_model: Path | None = None  # prior model.json to start from; None: from scratch with identify_orders
+    identify_orders: str | None = None  # 'paper' or a SPEC (fuelid identify --orders); default paper
+    identify_method: str = "rpem"  # or 'kalman' (needs identify_model)
+    identify_forgetting: float | None = None  # constant λ; None: 0.9995 from a model, growing to 1 from scratch
+    snapshot_s: float = 300.0  # model.json written this often [s], and at shutdown
+    replay_speed: float = 1.0  # the bus is a replay played this many times faster than recorded
 
     def __post_init__(self):
         self.output_dir = Path(self.output_dir)
         self.status_file = Path(self.status_file) if self.status_file else self.output_dir / "status.json"
         if self.rotate_s <= 0 or self.rotate_mb <= 0:
             raise FuelidError("rotation limits must be > 0")
+        self.identify_model = Path(self.identify_model) if self.identify_model else None
+        if self.identify_method not in ("rpem", "kalman"):
+            raise FuelidError(f"identify method must be rpem or kalman, got {self.identify_method!r}")
+        if self.identify_model and self.identify_orders:
+            raise FuelidError("give the identify model or its orders, not both (the orders are the model's)")
+        if self.identify_method == "kalman" and not self.identify_model:
+            raise FuelidError("the kalman method needs a prior model (its drift covariance is scaled from it)")
+        if self.identify_forgetting is not None and not 0.0 < self.identify_forgetting <= 1.0:
+            raise FuelidError(f"forgetting factor must be in (0, 1], got {self.identify_forgetting}")
+        if self.snapshot_s <= 0 or self.replay_speed <= 0:
+            raise FuelidError("snapshot period and replay speed must be > 0")
 
     @classmethod
     def load(cls, path: str | Path | None = None, **overrides) -> LoggerConfig:

@@ -2,9 +2,12 @@
 unattended with the power cut without warning.
 
 The parts, each doing one thing:
-- `LogFiles`: the output folder: names, `.part` files while open, renaming on close, recovering orphans.
+- `LogFiles`: the output folder: names, `.part` files while open, renaming on close, recovering orphans, and
+  the `on_file_closed` callbacks run with every finished file (e.g. an upload queue).
 - `LogSink`: the python-can listener in front of the `Recorder`; rotates files without losing a frame and
   stops writing (dropping, counted) while the disk is full.
+- `IdentifyingRecorder`: with `identify` on, the Recorder that also feeds every decoded record to the online
+  estimator (ident.live, imported only then) and writes its /ident/* records into the same file.
 - `BusLink`: the `can.Bus` and its `can.Notifier`, reopened with backoff after an error (interface down,
   bus-off, adapter unplugged).
 - `FlowInput`: the serial flow meter in a thread (`SerialFlowMeter` reconnects by itself).
@@ -16,6 +19,7 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import math
 import os
 import shutil
 import subprocess
@@ -24,6 +28,7 @@ import time
 from collections import Counter
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Callable
 
 import can
 
@@ -78,11 +83,24 @@ class Faults:
 
 class LogFiles:
     """The output folder. A file is written as `NAME.mcap.part` and renamed to `NAME.mcap` once closed,
-    so a `.part` file found at start-up is an orphan of a crash or power cut, to recover."""
+    so a `.part` file found at start-up is an orphan of a crash or power cut, to recover.
 
-    def __init__(self, directory: Path):
+    Every callback in `on_file_closed` is called with the path of each file once it is final (closed and
+    renamed, or recovered); a callback that raises is counted as a "file_closed" fault, never stops logging."""
+
+    def __init__(self, directory: Path, faults: Faults | None = None):
         self.dir = directory
         self.dir.mkdir(parents=True, exist_ok=True)
+        self.faults = faults or Faults()
+        self.on_file_closed: list[Callable[[Path], None]] = []
+
+    def _closed(self, final: Path) -> None:
+        for callback in self.on_file_closed:
+            try:
+                callback(final)
+            except Exception as exc:  # a hook (upload queue, ...) must not stop the logging
+                self.faults.occur("file_closed", f"{getattr(callback, '__name__', callback)}({final.name}): "
+                                  f"{type(exc).__name__}: {exc}")
 
     def new_path(self) -> Path:
         # Names sort in time order: UTC to the millisecond, then _1, _2... (after ".") in the same millisecond.
@@ -99,6 +117,7 @@ class LogFiles:
         final = part.with_name(part.name[: -len(PART)])
         os.replace(part, final)
         _fsync_dir(self.dir)
+        self._closed(final)
         return final
 
     def recover_orphans(self) -> list[str]:
@@ -122,6 +141,7 @@ class LogFiles:
             _fsync_dir(self.dir)
             lost = "" if stats.complete else f", {stats.bytes_lost} trailing bytes lost"
             done.append(f"recovered {final.name}: {sum(stats.messages.values())} messages{lost}")
+            self._closed(final)
         return done
 
 
@@ -133,17 +153,71 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+class IdentifyingRecorder(Recorder):
+    """A Recorder that feeds every decoded record (/j1939/*, /flowmeter) to a LiveEstimator and writes the
+    /ident/* records it returns, with their schemas (registered in each new file, as every channel).
+
+    An exception from the estimator is counted in `errors` and as an "identify" fault (logged once); the
+    record that caused it is logged all the same and the estimator keeps getting the next ones."""
+
+    def __init__(self, writer, live, faults: Faults):
+        from ident.live import SCHEMAS
+
+        self.live, self.faults, self.errors = live, faults, 0
+        self._schemas = SCHEMAS
+        super().__init__(writer)
+
+    def _write(self, topic: str, schema: dict, log_time_ns: int, record: dict) -> None:
+        super()._write(topic, schema, log_time_ns, record)
+        if topic == "/can/raw" or topic in self._schemas:
+            return
+        try:
+            out = self.live.feed(topic, log_time_ns * 1e-9, record)
+        except Exception as exc:
+            self.errors += 1
+            self.faults.occur("identify", f"{type(exc).__name__}: {exc}")
+            return
+        for ident_topic, t, rec in out:
+            super()._write(ident_topic, self._schemas[ident_topic], int(t * 1e9), rec)
+
+
+def make_live_estimator(config: LoggerConfig):
+    """The ident.live.LiveEstimator the identify settings ask for (FuelidError for a bad model or orders)."""
+    from fuelid.commands.identify import parse_orders
+    from fuelid.errors import FuelidError
+    from ident.live import LiveEstimator
+    from ident.modelfile import load_model
+    from ident.polymodel import Structure
+
+    common = dict(snapshot_path=config.output_dir / "model.json", snapshot_every_s=config.snapshot_s,
+                  speed=config.replay_speed)
+    if config.identify_model:
+        model = load_model(config.identify_model)
+        s = model.structure
+        if s.na or s.n_inputs != 2 or model.effects:
+            raise FuelidError(f"{config.identify_model}: the online estimator takes a BJ/OE model of engine speed "
+                              "and torque without effects")
+        forgetting = 0.9995 if config.identify_forgetting is None else config.identify_forgetting
+        return LiveEstimator.from_model(model, method=config.identify_method, forgetting=forgetting, **common)
+    structure = Structure(**parse_orders(config.identify_orders or "paper"))
+    if structure.na:
+        raise FuelidError("the online estimator takes BJ/OE orders (na = 0)")
+    return LiveEstimator.from_scratch(structure, forgetting=config.identify_forgetting, **common)
+
+
 class LogSink(can.Listener):
     """Feeds frames and meter readings to a `Recorder`, from the notifier's and the meter's threads.
 
     While no file is open (disk full), everything is dropped and counted in `dropped`. A storage error
     abandons the current file (left as `.part`, recovered when space returns) instead of stopping the bus.
+    With a LiveEstimator `live`, the recorder is an IdentifyingRecorder.
     """
 
-    def __init__(self, config: LoggerConfig, files: LogFiles, faults: Faults):
+    def __init__(self, config: LoggerConfig, files: LogFiles, faults: Faults, live=None):
         self.config = config
         self.files = files
         self.faults = faults
+        self.live = live
         self.lock = threading.Lock()
         self.recorder: Recorder | None = None
         self.part: Path | None = None  # the file being written
@@ -193,7 +267,7 @@ class LogSink(can.Listener):
             return False
         with self.lock:
             if self.recorder is None:
-                self.recorder = Recorder(writer)
+                self.recorder = IdentifyingRecorder(writer, self.live, self.faults) if self.live else Recorder(writer)
             else:
                 self.recorder.rotate(writer)
             self.part, self.opened_at = part, time.monotonic()
@@ -395,8 +469,9 @@ class Daemon:
     def __init__(self, config: LoggerConfig):
         self.config = config
         self.faults = Faults()
-        self.files = LogFiles(config.output_dir)
-        self.sink = LogSink(config, self.files, self.faults)
+        self.files = LogFiles(config.output_dir, self.faults)
+        self.live = make_live_estimator(config) if config.identify else None
+        self.sink = LogSink(config, self.files, self.faults, self.live)
         self.bus: BusLink | None = None
         self.flow: FlowInput | None = None
         self._stop = threading.Event()
@@ -409,6 +484,8 @@ class Daemon:
     def run(self) -> None:
         for line in self.files.recover_orphans():
             log.info("%s", line)
+        if self.live:
+            self.live.prepare()  # compile or load the estimator's loop before frames arrive
         self.sink.open()
         self.bus = BusLink(self.config, self.sink, self.faults)
         if self.config.serial_port:
@@ -430,7 +507,18 @@ class Daemon:
             if self.flow:
                 self.flow.close()
             self.sink.stop_writing()
+            self._final_snapshot()
             self.write_status(state="stopped")
+
+    def _final_snapshot(self) -> None:
+        if not self.live:
+            return
+        try:
+            with self.sink.lock:
+                if self.live.snapshot():
+                    log.info("wrote %s", self.live.snapshot_path)
+        except Exception as exc:  # a failed snapshot must not hide the clean close of the log files
+            self.faults.occur("identify", f"model snapshot: {type(exc).__name__}: {exc}")
 
     def _check_disk(self) -> None:
         """Stop writing cleanly while free space is short; recover what a failed write left and resume once
@@ -497,9 +585,25 @@ class Daemon:
             },
             "vin": rec.vin if rec else None,
             "truck": (rec.vin if rec else None) or self.config.truck,
+            "identify": self._identify_status(),
             "faults": dict(self.faults.counts),
             "faults_active": dict(self.faults.active),
         }
+
+    def _identify_status(self) -> dict | None:
+        """The online estimator's state: waiting for the idle operating point (from scratch) or running."""
+        live = self.live
+        if live is None:
+            return None
+        rec = self.sink.recorder
+        out = {"state": "running" if live.est is not None else "waiting for idle",
+               "errors": rec.errors if isinstance(rec, IdentifyingRecorder) else 0,
+               "snapshot": str(live.snapshot_path)}
+        if live.est is not None:
+            rep = live.est.report()
+            out.update(updates=rep["updates"], lam=rep["lam"],
+                       fit_simulation_pct=_finite(rep["running_fit_simulation_pct"]))
+        return out
 
     def write_status(self, state: str = "running") -> None:
         """Replace the status file atomically, so a reader never sees half of it."""
@@ -510,6 +614,10 @@ class Daemon:
             os.replace(tmp, path)
         except OSError as exc:  # a full disk must not stop the logging of the bus
             self.faults.occur("status", f"writing {path}: {exc}")
+
+
+def _finite(x: float) -> float | None:
+    return round(x, 2) if math.isfinite(x) else None
 
 
 def read_status(path: str | Path) -> dict:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import IO, Iterable, Iterator
 
 import orjson
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
@@ -273,6 +274,7 @@ def _indexed_reader(f: IO[bytes]) -> SeekingReader | None:
     f.seek(-len(MAGIC), io.SEEK_END)
     if f.read(len(MAGIC)) != MAGIC:
         return None
+    f.seek(0)  # SeekingReader reads the leading magic from the current position
     reader = SeekingReader(f)
     summary = reader.get_summary()
     return reader if summary is not None and summary.chunk_indexes else None
@@ -292,15 +294,46 @@ def _open(path: str | Path) -> tuple[IO[bytes], SeekingReader | None]:
         raise
 
 
+_MESSAGE_HEAD = struct.Struct("<HIQ")  # Message record: channel id, sequence, log time (then publish time, data)
+
+
+def _chunk_messages(chunk: Chunk, topics: dict[int, str]) -> Iterator[tuple[str, int, bytes]]:
+    """(topic, log_time, data) of the chunk's messages on the channels `topics` (id → topic), in chunk order.
+
+    The records are walked by their length fields and only wanted messages are sliced out: mcap's
+    breakup_chunk builds an object for every record, which made reading a decoded topic cost as much as
+    reading the /can/raw frames interleaved with it in every chunk (5× slower on the 1.5 h trip)."""
+    data = zstandard.decompress(chunk.data, chunk.uncompressed_size) if chunk.compression == "zstd" else None
+    if data is None:  # other compressions: mcap's own parser
+        for record in breakup_chunk(chunk):
+            if isinstance(record, Message) and record.channel_id in topics:
+                yield topics[record.channel_id], record.log_time, record.data
+        return
+    pos, end = 0, len(data)
+    while pos < end:
+        opcode, (length,) = data[pos], struct.unpack_from("<Q", data, pos + 1)
+        body = pos + 9
+        if opcode == Opcode.MESSAGE:
+            channel, _, log_time = _MESSAGE_HEAD.unpack_from(data, body)
+            if channel in topics:
+                yield topics[channel], log_time, data[body + 22 : body + length]
+        pos = body + length
+
+
 def _raw_messages(path: str | Path, topics: Iterable[str] | None) -> Iterator[tuple[str, int, bytes]]:
     wanted = None if topics is None else set([topics] if isinstance(topics, str) else topics)
     f, reader = _open(path)
     with f:
         if reader is not None:
             try:
-                for _, channel, message in reader.iter_messages(topics=wanted, log_time_order=False):
-                    if channel.message_encoding == "json":
-                        yield channel.topic, message.log_time, message.data
+                summary = reader.get_summary()
+                ids = {i: c.topic for i, c in summary.channels.items()
+                       if c.message_encoding == "json" and (wanted is None or c.topic in wanted)}
+                for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+                    if index.message_index_offsets and not ids.keys() & index.message_index_offsets.keys():
+                        continue  # the chunk's message index says none of the wanted channels is in it
+                    f.seek(index.chunk_start_offset + 1 + 8)  # past the opcode and the record length
+                    yield from _chunk_messages(Chunk.read(ReadDataStream(f)), ids)
             except Exception as exc:  # mcap, zstd and struct errors alike: a damaged complete file
                 raise FuelidError(f"damaged MCAP file {path} ({exc}); try `fuelid recover`") from exc
             return

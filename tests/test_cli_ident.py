@@ -42,8 +42,9 @@ def trip(n=4000, seed=0):
     return speed, pct, y, v
 
 
-def write_mcap(path, n=4000, seed=0):
-    """EEC1, LFE1, CCVS1 every 100 ms (each grid value three times), EC1 every 5 s."""
+def write_mcap(path, n=4000, seed=0, gap=(0, 0)):
+    """EEC1, LFE1, CCVS1 every 100 ms (each grid value three times), EC1 every 5 s; nothing logged in the grid
+    samples range(*gap)."""
     from logger.mcap_log import McapLogWriter
 
     speed, pct, y, v = trip(n, seed)
@@ -52,6 +53,8 @@ def write_mcap(path, n=4000, seed=0):
             w.add_channel(topic, {"type": "object"})
         for i in range(3 * n):
             t, k = (i + 0.5) * 0.1, i // 3
+            if k in range(*gap):
+                continue
             ns = int(t * NS)
             base = {"t": t, "sa": 0, "da": 255}
             if i % 50 == 0:
@@ -110,12 +113,15 @@ def test_identify_and_compare(recording, tmp_path, capsys):
     assert set(res["whiteness"]["crosscorr_pass"]) == {"EEC1.EngSpeed", "EngTorque"}
     assert abs(res["cycle_fuel_error_percent"]["mean"]) < 2
     assert res["wall_time_s"]["total"] > 0
+    est = res["estimation"]  # the stopping rule's verdict, also in model.json's info
+    assert est["converged"] and est["stop_reason"] != "max_iterations" and est["segments"] == 1
+    assert json.loads(model.read_text())["info"]["stop_reason"] == est["stop_reason"]
 
     assert main(["compare", str(model), str(recording), "--json"]) == 0
     cmp = json.loads(capsys.readouterr().out)
     m = cmp["models"][0]
     assert m["fit_percent"]["simulation"] == pytest.approx(res["fit_percent"]["simulation"])
-    assert "rms" in cmp["baseline_map"]["cycle_fuel_error_percent"]
+    assert "rms" in cmp["baselines"]["map"]["cycle_fuel_error_percent"]
 
     assert main(["compare", str(model), str(recording)]) == 0
     assert "baseline map" in capsys.readouterr().out
@@ -124,6 +130,40 @@ def test_identify_and_compare(recording, tmp_path, capsys):
     broken.write_text("{")
     assert main(["compare", str(broken), str(recording)]) == 1
     assert "broken.json" in capsys.readouterr().err
+
+
+def test_compare_with_seed2_baselines(recording, tmp_path, capsys):
+    """--baselines adds paper 001's LWR models, each reported like a model, and its two sweeps; on this linear
+    truth the engine-coordinate models beat the vehicle-coordinate one."""
+    model = tmp_path / "m.json"
+    assert main(["identify", str(recording), "--orders", "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1", "-o", str(model)]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(model), str(recording), "--baselines", "map,vb,eb,ebstar", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    base = out["baselines"]
+    assert list(base) == ["map", "vb", "eb", "ebstar"]
+    for b in base.values():
+        assert {"fit_percent", "rmse", "cycle_fuel_error_percent"} <= set(b) and b["in_sample"]
+    assert base["eb"]["fit_percent"]["simulation"] > base["vb"]["fit_percent"]["simulation"]
+    sweeps = out["baseline_sweeps"]
+    assert len(sweeps["fuel_shift"]["shift_s"]) == 7 and sweeps["fuel_shift"]["best_shift_s"] in sweeps["fuel_shift"]["shift_s"]
+    assert sweeps["J1"]["best_J1"] in sweeps["J1"]["J1"]
+
+    assert main(["compare", str(model), str(recording), "--baselines", "eb"]) == 0
+    text = capsys.readouterr().out
+    assert "baseline EB (LWR)" in text and "best fuel shift" in text and "baseline map" not in text
+    assert main(["compare", str(model), str(recording), "--baselines", "map,lookup"]) == 1
+    assert "--baselines: unknown lookup" in capsys.readouterr().err
+
+
+def test_identify_across_a_gap(tmp_path, capsys):
+    """A recording with a 30 s hole is two segments, each with its own initial conditions in the estimation."""
+    rec = write_mcap(tmp_path / "gap.mcap", gap=(2000, 2100))
+    model = tmp_path / "m.json"
+    assert main(["identify", str(rec), "--orders", "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1", "-o", str(model), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["training"]["stretches"] == 2 and res["estimation"]["segments"] == 2
+    assert res["estimation"]["converged"] and res["fit_percent"]["simulation"] > 90
 
 
 def test_identify_rejects_bad_orders(recording, tmp_path, capsys):

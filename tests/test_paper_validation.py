@@ -43,7 +43,7 @@ def test_table_one_cycle_fuel_error(converted, model_path, capsys):
     cycles = result["models"][0]["cycle_fuel_error_percent"]  # per cycle id, plus "mean" and "rms"
     assert len(cycles) - 2 == 11
     assert cycles["rms"] <= 2.4  # the paper: 2.4 %
-    assert result["baseline_map"]["in_sample"] is False
+    assert result["baselines"]["map"]["in_sample"] is False
 
 
 def test_validation_trip_fit_is_the_papers(converted, model_path, capsys):

@@ -12,8 +12,11 @@ def add_arguments(p):
     p.add_argument("--alpha", type=float, default=0.05,
                    help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
     p.add_argument("--verify", type=int, default=3, metavar="N",
-                   help="refit with each of the N strongest candidates to measure the held-out error drop "
+                   help="refit with each of the first N effects found to measure the held-out error drop "
                         "(default 3; 0 skips)")
+    p.add_argument("--min-effect", type=float, default=1.0, metavar="PERCENT",
+                   help="smallest share of the simulation error [%%] an effect must explain to be named "
+                        "(default 1; smaller ones are detectable but not worth an input)")
     p.add_argument("--top", type=int, default=8, metavar="N", help="candidates shown in the report (default 8)")
     add_dataset_arguments(p)
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
@@ -37,11 +40,11 @@ def format_report(result: dict, top: int = 8) -> str:
         lines.append(f"  {s['t_start_s']:.0f}-{s['t_end_s']:.0f} s: RMS {s['rmse']:.2f} {unit}, bias {s['bias']:+.2f}, "
                      f"{s['speed_rpm']:.0f} rpm — {', '.join(s['context'])}")
     lines.append(f"candidate effects ({result['test']['candidates_tested']} tested, Holm α = {result['test']['alpha']:g}):")
-    lines.append(f"  {'effect':34s} {'LM':>9s} {'p':>9s} {'sig':>4s} {'RMS drop':>9s}")
+    lines.append(f"  {'effect':34s} {'LM':>9s} {'p':>9s} {'explains':>9s} {'sig':>4s} {'RMS drop':>9s}")
     for r in [r for r in result["candidates"] if r.get("testable")][:top]:
         drop = "" if r["rmse_drop_percent"] is None else f"{r['rmse_drop_percent']:.0f} %"
         lines.append(f"  {r['effect'][:34]:34s} {r['statistic']:9.1f} {r['p_value']:9.1e} "
-                     f"{'yes' if r['significant'] else 'no':>4s} {drop:>9s}")
+                     f"{r['estimated_drop_percent']:7.1f} % {'yes' if r['significant'] else 'no':>4s} {drop:>9s}")
     lines.append(result["verdict"])
     return "\n".join(lines)
 
@@ -66,7 +69,7 @@ def run(args) -> int:
     if abs(model.Ts - ds.Ts) > 1e-9:
         raise FuelidError(f"model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
     try:
-        result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify)
+        result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect)
     except ValueError as exc:
         raise FuelidError(str(exc)) from exc
     result["data"]["files"] = list(map(str, args.inputs))

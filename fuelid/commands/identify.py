@@ -19,6 +19,8 @@ def parse_orders(spec: str) -> dict:
 
     if spec == "paper":
         return dict(PAPER)
+    if spec == "auto":
+        raise FuelidError("--orders auto: the order search is not available yet; use paper or a SPEC")
     out = {}
     try:
         for part in filter(None, (p.strip() for p in spec.replace(" ", ";").split(";"))):
@@ -54,91 +56,42 @@ def add_arguments(p):
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
-def training_data(ds, u, y, min_s: float):
-    """(u, y) of the valid stretches of ds at least min_s [s] long where every column is finite, end to end.
-
-    The paper identifies on one contiguous record; pem takes one record, so the stretches are concatenated
-    (each junction costs a short transient, negligible against stretches of minutes)."""
-    import dataclasses
-
-    import numpy as np
-
-    finite = ds.valid & np.isfinite(u).all(axis=1) & np.isfinite(y)
-    segs = dataclasses.replace(ds, valid=finite).segments(min_s)
-    if not segs:
-        return None, None, segs
-    return np.concatenate([u[s] for s in segs]), np.concatenate([y[s] for s in segs]), segs
-
-
 def run(args) -> int:
     import dataclasses
-    import warnings
-
-    import numpy as np
 
     from fuelid.commands.dataset import build
-    from fuelid.errors import FuelidError
+    from ident.identify import identify_model
+    from ident.modelfile import save_model
     from ident.polymodel import Structure
 
     t_start = time.perf_counter()
-    if args.orders == "auto":
-        raise FuelidError("--orders auto: the order search is not available yet; use paper or a SPEC")
     structure = Structure(**parse_orders(args.orders))
-
-    from ident.effects import apply_effects
-    from ident.modelfile import save_model
-    from ident.pem import pem
-    from ident.validation import evaluate
-
     ds = build(args, args.inputs)
     t_data = time.perf_counter()
-
-    try:
-        fx = apply_effects(ds, args.effect, structure=structure)
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from exc
-    u, y = np.hstack([ds.u, fx.u]), fx.y
-    structure = fx.extend(structure)
-    u_train, y_train, segs = training_data(ds, u, y, args.min_segment)
-    if u_train is None or len(y_train) <= 2 * structure.n_params + structure.n_start:
-        raise FuelidError(f"too little valid data to identify {structure.n_params} parameters "
-                          f"({int(ds.valid.sum())} valid samples, {len(segs)} stretches ≥ {args.min_segment:g} s)")
-    u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
-    try:
-        with warnings.catch_warnings():  # pem records its warnings in model.info; they are printed below
-            warnings.simplefilter("ignore", UserWarning)
-            model = pem(u_train, y_train, structure, ds.Ts, u0=u0, y0=ds.y0)
-    except ValueError as exc:
-        raise FuelidError(f"identification failed: {exc}") from exc
-    t_pem = time.perf_counter()
-
-    model = dataclasses.replace(
-        model, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
-        output_name=ds.output_name, output_unit=ds.output_unit, effects=fx.effects,
-        info={**model.info, "effect_parameters": fx.parameters},
-        training={**ds.summary(), "files": list(map(str, args.inputs)),
-                  "identification_samples": int(len(y_train)), "identification_stretches": len(segs)})
-    metrics = evaluate(model, ds)
-    model = dataclasses.replace(model, validation=metrics)
+    model = identify_model(ds, structure, args.effect, min_segment_s=args.min_segment, files=args.inputs)
     save_model(model, args.output)
     t_end = time.perf_counter()
 
+    structure, metrics, n_train = model.structure, model.validation, model.training["identification_samples"]
+    n_segs = model.training["identification_stretches"]
     result = {
         "model": args.output,
         "orders": args.orders,
         "structure": dataclasses.asdict(structure),
-        "effects": list(fx.effects),
-        "training": {"samples": int(len(y_train)), "stretches": len(segs), "Ts": ds.Ts,
+        "effects": list(model.effects),
+        "training": {"samples": n_train, "stretches": n_segs, "Ts": ds.Ts,
                      "operating_point": {"u0": [float(v) for v in ds.u0], "y0": float(ds.y0)},
                      "warnings": ds.notes + list(model.info.get("warnings", []))},
+        "estimation": {key: model.info[key] for key in
+                       ("converged", "stop_reason", "iterations", "gauss_newton_step_se", "loss_V", "segments")},
         **metrics,
-        "wall_time_s": {"dataset": t_data - t_start, "pem": t_pem - t_data, "total": t_end - t_start},
+        "wall_time_s": {"dataset": t_data - t_start, "pem": model.info["wall_time_s"], "total": t_end - t_start},
     }
     if args.json:
         print_json(result)
     else:
         print(f"{args.output}: BJ {structure.nb}/{structure.nf}/{structure.nk} nc={structure.nc} nd={structure.nd}"
-              f" on {len(y_train) * ds.Ts / 60:.1f} min ({len(segs)} stretches), {t_end - t_start:.1f} s")
+              f" on {n_train * ds.Ts / 60:.1f} min ({n_segs} stretches), {t_end - t_start:.1f} s")
         print(format_table([(args.output, metrics)], ds.output_unit))
         for w in result["training"]["warnings"]:
             print(f"warning: {w}", file=sys.stderr)

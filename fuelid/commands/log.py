@@ -21,6 +21,24 @@ def add_arguments(p):
     p.add_argument("--min-free-mb", type=float, metavar="MB", help="stop writing below MB free, resume above twice that (default 32)")
     p.add_argument("--status-file", metavar="FILE", help="status JSON, replaced every second (default DIR/status.json)")
     p.add_argument("--truck", help="truck name until a VIN is seen on the bus")
+    p.add_argument("--identify", action="store_true", default=None,
+                   help="run the online estimator on the logged stream: /ident/prediction, /ident/residual and "
+                        "/ident/parameters channels, DIR/model.json snapshots")
+    p.add_argument("--model", dest="identify_model", metavar="PRIOR.json",
+                   help="--identify: model to start from (e.g. a fleet model); default from scratch")
+    p.add_argument("--orders", dest="identify_orders", metavar="paper|SPEC",
+                   help="--identify from scratch: model orders as for fuelid identify (default paper)")
+    p.add_argument("--method", dest="identify_method", choices=["rpem", "kalman"],
+                   help="--identify: recursive prediction error (default) or Kalman random-walk fuel gain "
+                        "(needs --model)")
+    p.add_argument("--forgetting", dest="identify_forgetting", type=float, metavar="LAMBDA",
+                   help="--identify: constant forgetting factor λ in (0, 1] (default 0.9995 from a model, "
+                        "growing to 1 from scratch)")
+    p.add_argument("--snapshot-s", type=float, metavar="S",
+                   help="--identify: write DIR/model.json every S seconds and at shutdown (default 300)")
+    p.add_argument("--replay-speed", type=float, metavar="X",
+                   help="--identify: the bus carries a replay at X times real time (fuelid replay --speed X); "
+                        "default 1")
     p.add_argument("-q", "--quiet", action="store_true", help="log warnings only")
 
 
@@ -30,7 +48,8 @@ def run(args) -> int:
 
     overrides = {k: getattr(args, k) for k in (
         "interface", "channel", "bitrate", "listen_only", "serial_port", "serial_baudrate", "flow_gain",
-        "flow_offset", "output_dir", "rotate_s", "rotate_mb", "min_free_mb", "status_file", "truck")}
+        "flow_offset", "output_dir", "rotate_s", "rotate_mb", "min_free_mb", "status_file", "truck", "identify",
+        "identify_model", "identify_orders", "identify_method", "identify_forgetting", "snapshot_s", "replay_speed")}
     config = LoggerConfig.load(args.config, **overrides)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(levelname)s %(message)s")

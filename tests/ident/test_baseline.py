@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from ident.baseline import (EngineMap, engine_map, fuel_shift_sweep, inertia_sweep, lwr, static_inputs,
-                            steady_points)
+from ident.baseline import (EngineMap, engine_map, fuel_shift_sweep, inertia_sweep, lwr, seed2_baselines,
+                            static_inputs, steady_points)
 from ident.dataset import VEHICLE_SPEED, Dataset
 
 TS = 0.3
@@ -112,3 +112,33 @@ def test_vb_inputs():
     ds.extra[VEHICLE_SPEED] = np.arange(len(ds)) * 0.3 * 3.6   # 1 m/s² in km/h
     X = static_inputs(ds, "VB")
     assert np.allclose(X[1:-1, 1], 1.0)
+
+
+def test_lwr_on_a_grid_is_close_to_exact():
+    rng = np.random.default_rng(3)
+    X = rng.uniform([0, -1], [3, 1], size=(3000, 2))
+    y = np.sin(X[:, 0]) + X[:, 1] ** 2 + 0.05 * rng.standard_normal(3000)
+    Xq = np.vstack([rng.uniform([0.3, -0.8], [2.7, 0.8], size=(500, 2)), [[np.nan, 0.0]]])
+    exact, gridded = lwr(X, y, Xq, span=0.03), lwr(X, y, Xq, span=0.03, grid=40)
+    assert np.sqrt(np.nanmean((gridded - exact) ** 2)) < 0.01 and np.isnan(gridded[-1])
+
+
+def test_seed2_baselines_pick_the_shift_and_predict_the_measured_fuel():
+    """Fuel lagging the inputs by 0.6 s: the sweep picks a 0.6 s advance, and the prediction, shifted back,
+    follows the fuel as measured (not the advanced one)."""
+    ds = sweep_drive(shift_samples=2)
+    res = seed2_baselines(ds, ds, ["EB", "EB*", "VB"], span=0.02, grid=None, J1_values=[0.0, 1.0],
+                          sweep_points=1500)
+    assert res["fuel_shift"]["best_shift_s"] == pytest.approx(-0.6) and not res["fuel_shift"]["best_at_edge"]
+    assert res["J1"]["best_J1"] == 0.0 and res["J1"]["best_at_edge"]
+    assert res["errors"] == {}
+    yhat = res["predictions"]["EB"]
+    ok = np.isfinite(yhat) & np.isfinite(ds.y)
+    assert ok.sum() > 2900 and np.sqrt(np.mean((yhat[ok] - ds.y[ok]) ** 2)) < 0.05 * ds.y[ok].std()
+
+
+def test_seed2_vb_without_vehicle_speed_is_an_error():
+    ds = sweep_drive()
+    del ds.extra[VEHICLE_SPEED]
+    res = seed2_baselines(ds, ds, ["VB", "EB"], span=0.02, grid=None, J1_values=[0.0], sweep_points=500)
+    assert "vehicle speed" in res["errors"]["VB"] and "EB" in res["predictions"]

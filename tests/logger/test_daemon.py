@@ -10,13 +10,15 @@ import threading
 import time
 
 import can
+import numpy as np
 import pytest
 
 from fuelid.cli import main
 from logger import daemon as daemon_mod
 from logger.config import LoggerConfig
 from logger.daemon import Daemon
-from logger.mcap_log import McapLogWriter, read_messages, read_metadata
+from logger.mcap_log import RAW_SCHEMA, McapLogWriter, raw_record, read_messages, read_metadata
+from logger.recorder import open_writer
 from logger.replay import replay
 from tests.logger import traffic
 
@@ -29,15 +31,17 @@ def _wait(cond, timeout=10.0):
 
 
 class Running:
-    """A Daemon in a thread on a virtual bus, with a sender on the same bus."""
+    """A Daemon in a thread on a virtual bus, with a sender on the same bus (keeping the frames' recorded
+    timestamps with preserve_timestamps=True)."""
 
-    def __init__(self, tmp_path, name, **config):
+    def __init__(self, tmp_path, name, preserve_timestamps=False, on_file_closed=(), **config):
         self.config = LoggerConfig(interface="virtual", channel=name, output_dir=tmp_path / "logs", **config)
         self.daemon = Daemon(self.config)
+        self.daemon.files.on_file_closed += on_file_closed
         self.thread = threading.Thread(target=self.daemon.run)
         self.thread.start()
-        _wait(lambda: self.daemon.bus is not None and self.daemon.bus.state == "up")
-        self.tx = can.Bus(interface="virtual", channel=name)
+        _wait(lambda: self.daemon.bus is not None and self.daemon.bus.state == "up", timeout=120)  # numba compile
+        self.tx = can.Bus(interface="virtual", channel=name, preserve_timestamps=preserve_timestamps)
 
     def status(self):
         return json.loads(self.config.status_file.read_text())
@@ -257,3 +261,102 @@ def test_config_file_and_overrides(tmp_path):
     assert str(c.status_file) == "/data/status.json" and c.source_preference["EEC1"] == 1 and c.source_preference["default"] == 0
     cfg.write_text("[bus]\nchanel = 'x'\n")
     assert main(["log", "--config", str(cfg)]) == 1
+
+
+def test_file_closed_callbacks_see_every_final_file(tmp_path, drive):
+    path, msgs = drive
+    orphan = tmp_path / "logs" / "fuelid-20260101T000000.000Z.mcap.part"  # left by a power cut
+    orphan.parent.mkdir()
+    writer = open_writer(orphan, truck="t")
+    writer.add_channel("/can/raw", RAW_SCHEMA)
+    writer.write("/can/raw", int(msgs[0].timestamp * 1e9), raw_record(msgs[0]))
+    writer.close()
+    closed = []
+    run = Running(tmp_path, "hook", on_file_closed=[closed.append, lambda p: 1 / 0], rotate_s=0.3)
+    replay([path], run.tx, speed=4)
+    run.stop()
+    final = sorted(run.config.output_dir.glob("*.mcap"))
+    assert sorted(closed) == final and len(final) >= 3  # the recovered orphan and every rotated file
+    assert closed[0] == orphan.with_suffix("")  # recovered before logging starts
+    assert run.status()["faults"]["file_closed"] == len(final)  # the failing hook: counted, nothing lost
+    assert len(run.raw()) == len(msgs) + 1
+
+
+@pytest.fixture(scope="module")
+def trip(tmp_path_factory):
+    """A simulated 10-minute urban trip of the diesel truck (starting at idle), candump -L."""
+    path = tmp_path_factory.mktemp("trip") / "trip.log.gz"
+    assert main(["simulate", "--truth", "diesel_p320", "--cycle", "urban", "--duration", "600", "--seed", "3",
+                 "-o", str(path)]) == 0
+    return path
+
+
+def _fit(measured, model) -> float:
+    ok = np.isfinite(measured) & np.isfinite(model)
+    m, p = measured[ok], model[ok]
+    return 100.0 * (1.0 - np.linalg.norm(m - p) / np.linalg.norm(m - m.mean()))
+
+
+def test_identify_from_scratch_converges_in_the_log(tmp_path, trip):
+    """The replayed trip (its recorded timestamps kept) makes /ident/* channels in every rotated file; the
+    model identified from scratch fits the later part of the trip better than the start; model.json loads."""
+    from ident.modelfile import load_model
+
+    run = Running(tmp_path, "identify", preserve_timestamps=True, identify=True, snapshot_s=60.0, rotate_s=2.0)
+    sent = replay([trip], run.tx, speed=200).frames
+    _wait(lambda: run.daemon.sink.recorder.stats.frames == sent, timeout=120)
+    _wait(lambda: (run.config.output_dir / "model.json").exists())  # a periodic snapshot
+    status = run.status()
+    run.stop()
+    assert status["identify"]["state"] == "running" and status["identify"]["errors"] == 0
+    files = sorted(run.config.output_dir.glob("*.mcap"))
+    with_ident = [f for f in files if any(True for _ in read_messages(f, "/ident/prediction"))]
+    assert len(with_ident) >= 2  # the channels are registered again in each new file
+    pred = [r for f in files for _, _, r in read_messages(f, "/ident/prediction")]
+    res = [r for f in files for _, _, r in read_messages(f, "/ident/residual")]
+    params = [r for f in files for _, _, r in read_messages(f, "/ident/parameters")]
+    assert len(pred) == len(res) > 1800  # one per 0.3 s bin from the first idle seconds on
+    assert len(params) >= 50 and len(params[-1]["theta"]) == 41 and params[-1]["updates"] > 1500
+    measured = np.array([np.nan if r["measured"] is None else r["measured"] for r in pred])
+    simulated = np.array([np.nan if r["simulated"] is None else r["simulated"] for r in pred])
+    third = len(pred) // 3
+    first, last = _fit(measured[:third], simulated[:third]), _fit(measured[-third:], simulated[-third:])
+    assert last > 75.0 and last > first + 20.0
+    model = load_model(run.config.output_dir / "model.json")  # the snapshot written at shutdown
+    assert model.structure.n_params == 41 and model.input_units == ("rpm", "Nm") and model.output_unit == "L/h"
+    assert model.info["updates"] == params[-1]["updates"] or model.info["updates"] > params[-1]["updates"]
+
+
+def test_identify_errors_never_stop_the_logging(tmp_path, drive, monkeypatch, caplog):
+    from ident.live import LiveEstimator
+
+    path, msgs = drive
+
+    def broken(self, topic, t, record):
+        raise FloatingPointError("estimator blew up (injected)")
+
+    monkeypatch.setattr(LiveEstimator, "feed", broken)
+    caplog.set_level(logging.INFO, logger="fuelid.log")
+    run = Running(tmp_path, "identify-broken", identify=True)
+    replay([path], run.tx, speed=4)
+    _wait(lambda: run.daemon.sink.recorder.stats.frames == len(msgs))
+    run.stop()
+    assert len(run.raw()) == len(msgs)
+    status = run.status()
+    assert status["faults"]["identify"] == status["identify"]["errors"] > 100
+    assert len([r for r in caplog.records if "injected" in r.getMessage()]) == 1
+
+
+def test_identify_settings(tmp_path, capsys):
+    cfg = tmp_path / "fuelid.toml"
+    cfg.write_text('[identify]\nenabled = true\norders = "paper"\nforgetting = 0.999\nsnapshot_s = 60\n'
+                   'replay_speed = 10\n')
+    c = LoggerConfig.load(cfg)
+    assert (c.identify, c.identify_orders, c.identify_forgetting, c.snapshot_s, c.replay_speed) == \
+        (True, "paper", 0.999, 60, 10)
+    for bad, says in [(["--method", "kalman"], "needs a prior model"), (["--forgetting", "1.5"], "(0, 1]"),
+                      (["--model", str(tmp_path / "none.json")], "cannot read model"),
+                      (["--orders", "nb=1"], "orders")]:
+        assert main(["log", "--identify", "--interface", "virtual", "--output-dir", str(tmp_path), *bad]) == 1
+        err = capsys.readouterr().err
+        assert says in err and len(err.strip().splitlines()) == 1, err

@@ -1,0 +1,36 @@
+"""fuelid refit: ask the fleet server to identify a truck's model again, or every truck's (Dask jobs)."""
+from fuelid.commands.upload import add_server_arguments, server_and_token
+from fuelid.output import print_json
+
+HELP = "start identification jobs on the fleet server for one truck or the whole fleet (--all)"
+
+
+def add_arguments(p):
+    which = p.add_mutually_exclusive_group(required=True)
+    which.add_argument("truck", nargs="?", metavar="TRUCK", help="truck id")
+    which.add_argument("--all", action="store_true", help="every truck with files")
+    p.add_argument("--wait", type=float, default=0.0, metavar="S",
+                   help="wait up to S seconds for the jobs to finish (default: return at once)")
+    add_server_arguments(p, "an engineer or admin token (default: $FUELID_TOKEN)")
+    p.add_argument("--json", action="store_true", help="print the jobs as JSON")
+
+
+def run(args) -> int:
+    import time
+
+    from fleet.client import FleetClient
+
+    client = FleetClient(*server_and_token(args))
+    jobs = client.refit(None if args.all else args.truck)
+    jobs = jobs if isinstance(jobs, list) else [jobs]
+    end = time.monotonic() + args.wait
+    while time.monotonic() < end and any(j["status"] in ("queued", "running") for j in jobs):
+        time.sleep(min(2.0, max(0.1, end - time.monotonic())))
+        jobs = [client.job(j["id"]) for j in jobs]
+    if args.json:
+        print_json(jobs)
+    else:
+        for j in jobs:
+            outcome = {"done": f"model version {j['model_version']}", "failed": j["error"]}.get(j["status"], "")
+            print(f"job {j['id']} {j['truck']}: {j['status']} {outcome}".rstrip())
+    return 1 if any(j["status"] == "failed" for j in jobs) else 0

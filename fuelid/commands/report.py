@@ -1,0 +1,82 @@
+"""fuelid report: the diagnosis of a model on recordings as one self-contained HTML file (ident.report)."""
+from pathlib import Path
+
+from fuelid.commands.dataset import add_dataset_arguments
+
+HELP = "write the diagnosis of a model (and the models refitted with effects) as one offline HTML report"
+
+
+def add_arguments(p):
+    p.add_argument("inputs", nargs="+", metavar="FILE",
+                   help="MODEL.json, then optional AFTER.json models (refitted with effects added), then the MCAP "
+                        "recordings: model files end in .json, anything else is a recording")
+    p.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="HTML file to write")
+    p.add_argument("--title", metavar="T", help="page title (default: 'fuelid diagnosis report — TRUCK')")
+    p.add_argument("--alpha", type=float, default=0.05,
+                   help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
+    p.add_argument("--verify", type=int, default=3, metavar="N",
+                   help="refit with each of the N strongest candidates to measure the held-out error drop "
+                        "(default 3; 0 skips)")
+    p.add_argument("--max-points", type=int, default=6000, metavar="N",
+                   help="points per curve before min/max decimation (default 6000)")
+    add_dataset_arguments(p)
+
+
+def _load(path):
+    from fuelid.errors import FuelidError
+    from ident.modelfile import load_model
+
+    try:
+        return load_model(path)
+    except FuelidError:
+        raise
+    except Exception as exc:
+        raise FuelidError(f"{path}: unreadable model ({exc})") from exc
+
+
+def truck_name(paths) -> str | None:
+    """The truck named in the recordings' fuelid MCAP metadata (VIN when seen), several joined by ', '."""
+    from logger.mcap_log import read_metadata
+
+    names = []
+    for p in paths:
+        try:
+            name = read_metadata(p).get("fuelid", {}).get("truck")
+        except Exception:  # noqa: BLE001 — a file without readable metadata just names no truck
+            name = None
+        if name and name not in names:
+            names.append(name)
+    return ", ".join(names) or None
+
+
+def run(args) -> int:
+    from fuelid.commands.dataset import build
+    from fuelid.errors import FuelidError
+    from ident.diagnosis import diagnose
+    from ident.report import write_report
+
+    model_paths = [p for p in args.inputs if p.endswith(".json")]
+    data_paths = [p for p in args.inputs if not p.endswith(".json")]
+    if not model_paths or not data_paths:
+        raise FuelidError("give a model file (.json), optionally AFTER models (.json), and recordings (.mcap)")
+    if args.max_points < 100:
+        raise FuelidError(f"--max-points must be at least 100, got {args.max_points}")
+    model, *after = [_load(p) for p in model_paths]
+    if args.ts is None:
+        args.ts = model.Ts
+    if args.fuel == "auto":
+        args.fuel = {"kg/h": "flowmeter", "L/h": "lfe1"}.get(model.output_unit, "auto")
+    ds = build(args, data_paths)
+    for path, m in zip(model_paths, [model, *after]):
+        if abs(m.Ts - ds.Ts) > 1e-9:
+            raise FuelidError(f"{path}: model Ts {m.Ts:g} s differs from the data's {ds.Ts:g} s")
+    try:
+        diagnosis = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify)
+        out = write_report(args.output, model, ds, diagnosis=diagnosis,
+                           after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],
+                           title=args.title, truck=truck_name(data_paths), files=data_paths,
+                           max_points=args.max_points)
+    except ValueError as exc:
+        raise FuelidError(str(exc)) from exc
+    print(f"{out}: {out.stat().st_size / 1e6:.1f} MB; {diagnosis['verdict']}")
+    return 0

@@ -1,0 +1,44 @@
+"""fuelid serve: the fleet server (uploads, model registry, identification jobs on Dask) under uvicorn."""
+
+HELP = "run the fleet server: truck uploads, per-truck model registry, identification jobs on Dask"
+
+
+def add_arguments(p):
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    p.add_argument("--data-dir", default="fleet-data", metavar="DIR",
+                   help="stored files, job scratch and (unless --database-url) the SQLite database "
+                        "(default ./fleet-data)")
+    p.add_argument("--database-url", metavar="URL",
+                   help="e.g. postgresql+psycopg://user:pass@host/fuelid (default: SQLite in --data-dir)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="Dask scheduler for identification jobs, e.g. tcp://10.0.0.5:8786 (default: a local "
+                        "cluster started on the first job; with a remote cluster --data-dir must be shared)")
+    p.add_argument("--workers", type=int, metavar="N", help="local cluster worker processes (default: Dask's)")
+    p.add_argument("--max-upload-mb", type=float, default=1024.0, metavar="MB",
+                   help="largest file accepted [MiB] (default 1024); larger → 413")
+    p.add_argument("--refit-after", type=float, default=600.0, metavar="S",
+                   help="identify a truck again S seconds after its last new file (default 600)")
+    p.add_argument("--no-auto-refit", action="store_true", help="identify only when asked (refit)")
+    p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    import uvicorn
+
+    from fleet.app import MiB, Settings, create_app
+    from fuelid.errors import FuelidError
+
+    if args.max_upload_mb <= 0:
+        raise FuelidError("--max-upload-mb must be positive")
+    settings = Settings(data_dir=Path(args.data_dir), database_url=args.database_url,
+                        max_upload_bytes=int(args.max_upload_mb * MiB), scheduler=args.scheduler,
+                        workers=args.workers, refit_after_s=None if args.no_auto_refit else args.refit_after)
+    try:
+        app = create_app(settings)
+    except Exception as exc:  # unreachable database, bad URL, unwritable data dir
+        raise FuelidError(f"cannot start: {' '.join(str(exc).split())[:300]}") from exc
+    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level)
+    return 0

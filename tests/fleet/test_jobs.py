@@ -1,0 +1,102 @@
+"""fleet.jobs: one truck's identification job, and fleet refits on a Dask LocalCluster, on simulated trips."""
+import json
+
+import pytest
+
+from fleet.jobs import JobError, JobRunner, identify_truck
+from fuelid.cli import main
+from ident.modelfile import load_model
+from logger.mcap_log import McapLogWriter
+
+SMALL = "nb=2,2;nf=1,1;nk=3,0;nc=1;nd=1"  # a cheap structure for the cluster test: its subject is the plumbing
+
+
+def simulated_mcap(folder, seed: int, duration_s: float = 900.0):
+    """A diesel truck's trip of duration_s [s] from the simulator, converted to MCAP as `fuelid convert` does."""
+    from sim.trip import TripConfig, simulate, write
+
+    log = folder / f"truck{seed}.log.gz"
+    write(simulate(TripConfig(duration_s=duration_s, seed=seed)), log)
+    mcap = folder / f"truck{seed}.mcap"
+    assert main(["convert", str(log), "-o", str(mcap), "--json"]) == 0
+    return mcap
+
+
+@pytest.fixture(scope="module")
+def trip(tmp_path_factory):
+    return simulated_mcap(tmp_path_factory.mktemp("trips"), seed=5)
+
+
+@pytest.fixture(scope="module")
+def no_fuel(tmp_path_factory):
+    """Engine speed and torque but no fuel signal."""
+    path = tmp_path_factory.mktemp("nofuel") / "nofuel.mcap"
+    with McapLogWriter(path, metadata={"truck": "nofuel"}, fsync=False) as w:
+        w.add_channel("/j1939/EEC1", {"type": "object"})
+        for k in range(600):
+            w.write("/j1939/EEC1", k * 10**8, {"t": k / 10, "sa": 0, "EngSpeed": 600.0 + k,
+                                               "ActualEngPercentTorque": 20.0})
+    return path
+
+
+def test_identify_truck_writes_model_diagnosis_and_returns_metrics(trip, tmp_path, capsys):
+    res = identify_truck("truck5", [str(trip)], str(tmp_path / "job"))
+    assert res["truck"] == "truck5"
+    model = load_model(res["model_path"])
+    # the simulator's fuel truth is the paper's BJ model: the paper's orders fit it as `fuelid identify` does
+    assert model.structure.nb == (4, 5) and model.training["files"] == [str(trip)]
+    assert res["metrics"]["fit_percent"]["simulation"] > 85
+    assert res["metrics"]["fit_percent"] == model.validation["fit_percent"]
+    assert res["metrics"]["unit"] == "L/h"
+    # the diagnosis' two-fold refits score unseen halves: about the in-sample error, not a multiple of it
+    held_out = res["metrics"]["rmse"]["held_out_simulation"]
+    assert 0.9 * res["metrics"]["rmse"]["simulation"] < held_out < 2 * res["metrics"]["rmse"]["simulation"]
+    assert res["n_samples"] == pytest.approx(900 / 0.3, rel=0.02)
+    assert res["duration_s"] == pytest.approx(900, rel=0.02)
+    diagnosis = json.loads(open(res["diagnosis_path"]).read())
+    assert diagnosis["data"]["files"] == [str(trip)] and diagnosis["candidates"]
+    assert res["top_effect"] in {None} | {c["effect"] for c in diagnosis["candidates"] if c["significant"]}
+    if res["report_path"]:
+        assert "<html" in open(res["report_path"], encoding="utf-8").read(2000).lower()
+    assert res["wall_s"] > 0 and set(res["phases_s"]) == {"dataset", "identify", "diagnose", "write"}
+    json.dumps(res, allow_nan=False)  # the server stores it as it is
+
+    # a refit from the previous version starts PEM there and says how the old model does on the same data
+    again = identify_truck("truck5", [str(trip)], str(tmp_path / "job2"), previous_model=res["model_path"])
+    assert load_model(again["model_path"]).info["initialisation"] == "given model"
+    assert again["previous_metrics"]["fit_percent"] == res["metrics"]["fit_percent"]
+    assert again["metrics"]["fit_percent"]["simulation"] == pytest.approx(res["metrics"]["fit_percent"]["simulation"],
+                                                                          abs=0.5)
+
+
+def test_unusable_data_raises_job_error_with_one_line(no_fuel, trip, tmp_path):
+    with pytest.raises(JobError, match=r"^nofuel: no fuel flow .* in the data$"):
+        identify_truck("nofuel", [str(no_fuel)], str(tmp_path / "a"))
+    with pytest.raises(JobError, match="no such recording"):
+        identify_truck("ghost", [str(tmp_path / "missing.mcap")], str(tmp_path / "b"))
+    with pytest.raises(JobError, match="no recordings"):
+        identify_truck("empty", [], str(tmp_path / "c"))
+    with pytest.raises(JobError, match="--orders"):
+        identify_truck("truck5", [str(trip)], str(tmp_path / "d"), orders="nb=4;zz=1")
+    assert not (tmp_path / "a" / "model.json").exists()
+
+
+def test_runner_refits_several_trucks_and_reports_a_failing_one(trip, no_fuel, tmp_path):
+    second = simulated_mcap(tmp_path, seed=6, duration_s=600.0)
+    tasks = [
+        {"truck": "truck5", "mcap_paths": [str(trip)], "out_dir": str(tmp_path / "t5"), "orders": SMALL},
+        {"truck": "nofuel", "mcap_paths": [str(no_fuel)], "out_dir": str(tmp_path / "nf"), "orders": SMALL},
+        {"truck": "truck6", "mcap_paths": [str(second)], "out_dir": str(tmp_path / "t6"), "orders": SMALL},
+    ]
+    with JobRunner(n_workers=2) as runner:
+        assert len(runner.client.scheduler_info()["workers"]) == 2
+        results = runner.refit_all(tasks)
+        # the server's way: a future per truck
+        future = runner.submit("truck6", [str(second)], str(tmp_path / "t6b"), orders=SMALL)
+        assert future.result()["metrics"] == results[2]["metrics"]  # same data, same model
+    assert [r["truck"] for r in results] == ["truck5", "nofuel", "truck6"]
+    assert results[1] == {"truck": "nofuel", "error": "nofuel: no fuel flow (LFE1.EngFuelRate) in the data"}
+    for r in (results[0], results[2]):
+        assert "error" not in r and load_model(r["model_path"]).structure.nb == (2, 2)
+        assert r["metrics"]["fit_percent"]["simulation"] > 80
+    assert results[0]["metrics"] != results[2]["metrics"]
