@@ -1,6 +1,9 @@
 """Logger daemon CPU use and frames lost at FMS load (~200 frames/s) and at a saturated 500 kbit/s bus
 (~3,600 frames/s), against python-can's own logger (`python -m can.logger`: a Notifier + can.Logger
-writing candump -L) on the same bus and traffic.
+writing candump -L) on the same bus and traffic; and the daemon with online identification on
+(`fuelid log --identify --model M`: the paper's diesel model, 41 parameters, RPEM on every 0.3 s bin; its
+first 10 s are the estimator's warm-up, so runs of --seconds 10 measure no updates), and the online estimator
+alone (CPU per decoded record and per bin, without bus or files).
 
     .venv/bin/python benchmarks/bench_daemon.py [--seconds 10] [--json]
 
@@ -59,8 +62,10 @@ def native_ids(*threads) -> list[int]:
     return [t.native_id for t in threads if t is not None]
 
 
-def run_fuelid(rate: float, seconds: float, out: Path) -> dict:
-    config = LoggerConfig(interface="virtual", channel="bench-fuelid", output_dir=out)
+def run_fuelid(rate: float, seconds: float, out: Path, model: Path | None = None) -> dict:
+    """The daemon on the virtual bus; with `model`, online identification from it (--identify --model)."""
+    config = LoggerConfig(interface="virtual", channel="bench-fuelid", output_dir=out, identify=model is not None,
+                          identify_model=model)
     daemon = Daemon(config)
     main = threading.Thread(target=daemon.run)
     main.start()
@@ -75,7 +80,52 @@ def run_fuelid(rate: float, seconds: float, out: Path) -> dict:
     received = daemon.sink.recorder.stats.frames
     daemon.stop()
     main.join()
-    return {"sent": sent, "logged": received, "lost": sent - received, "cpu_s": cpu, "cpu_pct_of_core": 100 * cpu / seconds}
+    result = {"sent": sent, "logged": received, "lost": sent - received, "cpu_s": cpu,
+              "cpu_pct_of_core": 100 * cpu / seconds}
+    if model is not None:
+        status = daemon.status()["identify"]
+        result.update(identify_samples=status["samples"], identify_updates=status["updates"],
+                      identify_rejected=status["rejected_steps"], identify_errors=status["errors"])
+    return result
+
+
+def estimator_cost(model: Path, seconds: float = 600.0) -> dict:
+    """The online estimator alone (ident.live, no bus, no files): µs of CPU per decoded record and per 0.3 s
+    bin over `seconds` of FMS-rate EEC1 (20 ms) and LFE1 (100 ms) records from a driving-like signal."""
+    import math
+
+    from ident.live import LiveEstimator
+    from ident.modelfile import load_model
+
+    live = LiveEstimator.from_model(load_model(model))
+    live.prepare()
+    records = []
+    for k in range(int(seconds / 0.02)):
+        t = 1000.0 + 0.02 * k
+        records.append(("/j1939/EEC1", t, {"sa": 0, "EngSpeed": 1200.0 + 500.0 * math.sin(t / 7.0),
+                                            "ActualEngPercentTorque": 40.0 + 30.0 * math.sin(t / 3.0)}))
+        if k % 5 == 0:
+            records.append(("/j1939/LFE1", t + 0.001, {"sa": 0, "EngFuelRate": 20.0 + 10.0 * math.sin(t / 3.0)}))
+    cpu = time.process_time()
+    for rec in records:
+        live.feed(*rec)
+    cpu = time.process_time() - cpu
+    bins = live.est.report()["samples"]
+    return {"records": len(records), "bins": bins, "updates": live.est.report()["updates"],
+            "us_per_record": 1e6 * cpu / len(records), "us_per_bin": 1e6 * cpu / bins}
+
+
+def paper_model(path: Path) -> Path:
+    """The paper's diesel model with its noise model stabilised (tests/ident/online_data.py), torque in % (the
+    traffic mix sends no EC1 reference torque), as model.json."""
+    import dataclasses
+
+    from ident.modelfile import save_model
+    from tests.ident.online_data import diesel_truth
+
+    model = diesel_truth()
+    save_model(dataclasses.replace(model, input_units=("rpm", "%"), output_unit="L/h", u0=(600.0, 0.0)), path)
+    return path
 
 
 def run_can_logger(rate: float, seconds: float, out: Path) -> dict:
@@ -101,21 +151,33 @@ def main() -> int:
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     results = {}
+    with tempfile.TemporaryDirectory() as d:
+        results["estimator_alone"] = estimator_cost(paper_model(Path(d) / "prior.json"))
     for load, rate in LOADS.items():
         with tempfile.TemporaryDirectory() as d:
+            model = paper_model(Path(d) / "prior.json")
             results[load] = {"frames_per_s": rate,
                              "fuelid_log": run_fuelid(rate, args.seconds, Path(d) / "fuelid"),
+                             "fuelid_log_identify": run_fuelid(rate, args.seconds, Path(d) / "identify", model),
                              "can_logger": run_can_logger(rate, args.seconds, Path(d))}
         r = results[load]
         r["cpu_ratio_fuelid_over_can_logger"] = r["fuelid_log"]["cpu_s"] / max(r["can_logger"]["cpu_s"], 1e-9)
     if args.json:
         print(json.dumps(results, indent=2))
         return 0
-    print(f"{'load':<16}{'frames/s':>9}  {'fuelid log: CPU % core, lost':<30}{'can.logger: CPU % core, lost':<30}{'ratio':>6}")
+    print(f"{'load':<16}{'frames/s':>9}  {'fuelid log: CPU % core, lost':<30}{'--identify: CPU %, lost, bins':<36}"
+          f"{'can.logger: CPU % core, lost':<30}{'ratio':>6}")
     for load, r in results.items():
-        f, c = r["fuelid_log"], r["can_logger"]
+        if load == "estimator_alone":
+            continue
+        f, i, c = r["fuelid_log"], r["fuelid_log_identify"], r["can_logger"]
         print(f"{load:<16}{r['frames_per_s']:>9}  {f['cpu_pct_of_core']:>6.1f} %, {f['lost']:>3} of {f['sent']:<13}"
+              f"{i['cpu_pct_of_core']:>6.1f} %, {i['lost']:>3} lost, {i['identify_samples']:>5} bins{'':<6}"
               f"{c['cpu_pct_of_core']:>6.1f} %, {c['lost']:>3} of {c['sent']:<13}{r['cpu_ratio_fuelid_over_can_logger']:>6.2f}")
+    e = results["estimator_alone"]
+    print(f"online estimator alone (paper orders): {e['us_per_record']:.1f} µs CPU per decoded record, "
+          f"{e['us_per_bin']:.0f} µs per 0.3 s bin ({e['updates']} updates in {e['bins']} bins): "
+          f"{0.3e6 / e['us_per_bin']:,.0f}x real time")
     return 0
 
 

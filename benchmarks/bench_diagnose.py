@@ -25,7 +25,7 @@ EFFECTS = ["dpf_regeneration", "inertia", "power_nonlinearity", "overrun_cutoff"
 
 
 def timing():
-    print("trip     samples  candidates  diagnose [s]  (of which refits [s])")
+    print("trip     samples  candidates  diagnose [s]  (of which verification [s])")
     for minutes in (15, 30, 60, 90):
         ds, _, _ = hidden.simulated("dpf_regeneration", 7, minutes * 60.0)
         model = hidden.identify(ds)
@@ -45,7 +45,13 @@ def timing():
 
 
 def acceptance(seeds: int, null_seeds: int):
-    print("effect               seed  top candidate                       named  held-out drop  RMSE/floor")
+    """Issue 7's criteria per trip (tests/ident/test_hidden_effects.py checks the same on fewer seeds): found —
+    the top candidate is significant and names the hidden effect (its id or an SPN the simulator shows it on);
+    verified — besides, the held-out RMS error falls by ≥ 25 % or to within 5 % of the noise floor; all — besides,
+    the cycle fuel error falls (RMS over the cycles, 0.1 percentage point tolerance). Then the false-alarm rate
+    on trips with nothing hidden."""
+    print("effect               seed  top candidate                       named  held-out drop  RMSE/floor  cycle err %  pass")
+    counts = {}
     for effect in EFFECTS:
         for seed in range(3000, 3000 + seeds):
             ds, truth, summary = hidden.simulated(effect, seed)
@@ -56,14 +62,27 @@ def acceptance(seeds: int, null_seeds: int):
             spns = {p for e in summary["effects"] for p in e["spns"]} - {190, 513}
             named = top["significant"] and (top["effect"] == effect or bool(spns & set(top["spns"])))
             drop = v.get("rmse_drop_percent")
+            cyc = [abs(v.get(f"cycle_fuel_error_percent_{k}", {}).get("rms", np.nan)) for k in ("without", "with")]
+            verified = named and drop is not None and (drop >= 25 or v["rmse_with"] <= 1.05 * floor)
+            ok = verified and cyc[1] <= cyc[0] + 0.1
+            counts.setdefault(effect, []).append((named, verified, ok))
             print(f"{effect:20s} {seed:5d}  {top['effect'][:34]:34s}  {'yes' if named else 'no':>5s}  "
-                  f"{'-' if drop is None else f'{drop:6.1f} %':>13s}  {v.get('rmse_with', np.nan) / floor:10.2f}",
-                  flush=True)
+                  f"{'-' if drop is None else f'{drop:6.1f} %':>13s}  {v.get('rmse_with', np.nan) / floor:10.2f}"
+                  f"  {cyc[0]:5.2f}->{cyc[1]:5.2f}  {'yes' if ok else 'no'}", flush=True)
+    for effect, rows in counts.items():
+        found, verified, ok = (sum(col) for col in zip(*rows))
+        print(f"{effect:20s} found {found}/{len(rows)}, verified {verified}/{len(rows)}, all criteria {ok}/{len(rows)}")
     alarms = 0
-    for seed in range(null_seeds):
-        ds, _, _ = hidden.simulated(None, 100 + seed)
-        alarms += any(r["significant"] for r in dg.diagnose(hidden.identify(ds), ds)["candidates"])
-    print(f"no hidden effect: a significant candidate in {alarms} of {null_seeds} trips")
+    for seed in range(100, 100 + null_seeds):
+        ds, _, _ = hidden.simulated(None, seed)
+        out = dg.diagnose(hidden.identify(ds), ds)
+        top = out["candidates"][0]
+        alarm = top["significant"]
+        alarms += alarm
+        print(f"null seed {seed}: " + (f"ALARM {top['effect']} ({top['rmse_drop_percent'] or np.nan:.1f} % held-out drop)"
+                                       if alarm else "no significant candidate"), flush=True)
+    print(f"no hidden effect: a significant candidate in {alarms} of {null_seeds} trips "
+          f"({100.0 * alarms / max(null_seeds, 1):.0f} % false alarms)")
 
 
 if __name__ == "__main__":

@@ -11,9 +11,11 @@ For each worker count a fresh fleet.jobs.JobRunner is started (start-up and the 
 apart) and `refit_all` runs every truck; the refit wall time is what counts (the fastest of --repeat). The
 speed-up goal with 2 workers on a 2-core machine is ≥ 1.7×. Also printed: the ideal 2-worker time from the
 1-worker job times (max of half the total and the longest job — the imbalance bound), the CPU use (job CPU
-seconds / (workers × refit wall time): below 100 % the workers waited for a core other work held), CPU seconds
-per hour of data, peak worker memory, MCAP bytes per hour — the inputs of docs/fleet-scaling.md — and the
-load average before and after (other work on the machine makes the figures noisy).
+seconds / (workers × refit wall time): below 100 % the workers waited for a core other work held), the
+control speed-up (as many tasks of fixed pure-Python work as trucks, run right after each refit on the same
+workers: the parallelism the machine itself gave at that moment), CPU seconds per hour of data, peak worker
+memory, MCAP bytes per hour — the inputs of docs/fleet-scaling.md — and the load average before and after
+(other work on the machine makes the figures noisy).
 """
 import argparse
 import json
@@ -67,7 +69,12 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def refit(fleet: list[dict], workers: int, work: Path, orders: str) -> dict:
+def spin(n: int) -> int:
+    """Fixed pure-Python CPU work (no I/O, no memory traffic): the control task."""
+    return sum(i * i for i in range(n))
+
+
+def refit(fleet: list[dict], workers: int, work: Path, orders: str, spin_n: int) -> dict:
     t0 = time.perf_counter()
     with JobRunner(n_workers=workers) as runner:
         t_start = time.perf_counter() - t0
@@ -77,10 +84,13 @@ def refit(fleet: list[dict], workers: int, work: Path, orders: str) -> dict:
         results = runner.refit_all(tasks)
         wall = time.perf_counter() - t1
         rss = runner.client.run(peak_rss_mb)
+        t2 = time.perf_counter()  # the control: as many fixed-work tasks as trucks, on the same workers
+        runner.client.gather([runner.client.submit(spin, spin_n, pure=False) for _ in fleet])
+        control = time.perf_counter() - t2
     failed = [r for r in results if "error" in r]
     if failed:
         raise SystemExit(f"bench_fleet_refit: {len(failed)} trucks failed, first: {failed[0]['error']}")
-    return {"workers": workers, "startup_s": t_start, "refit_wall_s": wall,
+    return {"workers": workers, "startup_s": t_start, "refit_wall_s": wall, "control_wall_s": control,
             "job_wall_s": [r["wall_s"] for r in results], "job_cpu_s": [r["cpu_s"] for r in results],
             "phases_s": {k: sum(r["phases_s"][k] for r in results) for k in results[0]["phases_s"]},
             "peak_worker_rss_mb": max(rss.values()),
@@ -95,6 +105,7 @@ def main():
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--orders", default="paper")
     ap.add_argument("--repeat", type=int, default=1, help="refits per worker count; the fastest counts")
+    ap.add_argument("--spin", type=int, default=20_000_000, help="loop length of each control task (about 1 CPU s)")
     ap.add_argument("--cache", default=str(REPO / "benchmarks" / ".cache" / "fleet"))
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
@@ -106,7 +117,7 @@ def main():
     with tempfile.TemporaryDirectory() as work:
         for _ in range(args.repeat):  # interleaved, so a burst of other work hits every worker count alike
             for w in args.workers:
-                r = refit(fleet, w, Path(work), args.orders)
+                r = refit(fleet, w, Path(work), args.orders, args.spin)
                 print(f"{w} worker(s): refit {r['refit_wall_s']:.1f} s (start-up {r['startup_s']:.1f} s), jobs "
                       f"{sum(r['job_wall_s']):.1f} s wall / {sum(r['job_cpu_s']):.1f} s CPU", file=sys.stderr)
                 if w not in best or r["refit_wall_s"] < best[w]["refit_wall_s"]:
@@ -130,17 +141,18 @@ def main():
         r["speedup"] = base["refit_wall_s"] / r["refit_wall_s"]
         r["ideal_s"] = max(sum(jobs) / w, max(jobs))  # perfect packing of the 1-worker job times
         r["job_slowdown"] = sum(r["job_wall_s"]) / sum(jobs)  # same jobs, slower when sharing the machine
+        r["control_speedup"] = base["control_wall_s"] / r["control_wall_s"]  # what the machine gave right then
     if args.json:
         print(json.dumps(summary, indent=1))
         return
     print(f"{len(fleet)} trucks, {hours:.1f} h of data ({summary['mcap_mb_per_hour']:.0f} MB MCAP per hour), "
           f"orders {args.orders}, {os.cpu_count()} cores, load average before {load_before[0]:.2f}")
     print(f"{'workers':>7} {'refit s':>8} {'speed-up':>8} {'ideal s':>8} {'job slowdown':>12} {'CPU use':>7} "
-          f"{'start-up s':>10} {'peak RSS MB':>11}")
+          f"{'control speed-up':>16} {'start-up s':>10} {'peak RSS MB':>11}")
     for r in runs:
         print(f"{r['workers']:>7} {r['refit_wall_s']:>8.1f} {r.get('speedup', 1.0):>7.2f}× "
               f"{r.get('ideal_s', r['refit_wall_s']):>8.1f} {r.get('job_slowdown', 1.0):>11.2f}× "
-              f"{100 * r['cpu_utilisation']:>6.0f}% "
+              f"{100 * r['cpu_utilisation']:>6.0f}% {r.get('control_speedup', 1.0):>15.2f}× "
               f"{r['startup_s']:>10.1f} {r['peak_worker_rss_mb']:>11.0f}")
     share = ", ".join(f"{k} {100 * v:.0f} %" for k, v in summary["phase_share"].items())
     print(f"per hour of data: {summary['cpu_s_per_data_hour']:.1f} CPU s ({share}); mean fit "

@@ -153,6 +153,7 @@ def main():
             model = pem(u, y, paper.structure, 0.3)
             times.append(time.perf_counter() - t0)
     results["fuelid"] = {"status": "ok", "wall_time_s": float(np.median(times)), "iterations": model.info["iterations"],
+                         "converged": model.info["converged"], "stop_reason": model.info["stop_reason"],
                          **assess({"B": model.B, "F": model.F, "C": model.C, "D": model.D}, u_val, y_val, y0_val)}
     results["truth"] = {"status": "reference", **assess({"B": truth.B, "F": truth.F, "C": truth.C, "D": truth.D},
                                                         u_val, y_val, y0_val)}
@@ -182,6 +183,9 @@ def main():
         else:
             tail = ""
         print(f"{name:8} {r['status'][:22]:22} {t} {ratio} {tail}")
+    f = results["fuelid"]
+    print(f"fuelid {'converged' if f['converged'] else 'did NOT converge'} ({f['stop_reason']}) after "
+          f"{f['iterations']} iterations")
 
 
 if __name__ == "__main__":

@@ -6,10 +6,10 @@ model.json, diagnosis.json (and report.html when ident.report is installed) in o
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
 Held-out evidence: the model is fitted on all the truck's data (the newest file included) and the diagnosis
-runs on the same data, because its score test is by construction a test at the fitted model; what needs
-unseen data is measured by diagnose's own two-fold verification (refits on interleaved 5-minute halves,
-errors on the other half). Its held-out simulation RMSE of the model structure is reported next to the
-in-sample metrics as `metrics["rmse"]["held_out_simulation"]`.
+runs on the same data, because its score tests are by construction tests at the fitted model; what needs
+unseen data is measured by refits: diagnose verifies candidate effects by a linearised refit scored on each
+60-s block left out of the fit, and the job scores the model structure itself the same way
+(ident.diagnosis.cross_validate), reported as metrics["held_out"] next to the in-sample metrics.
 
 `JobRunner` runs jobs on a Dask LocalCluster of worker processes (the default: one single-threaded worker per
 core) or on an existing cluster through its scheduler address. Each job limits BLAS/OpenMP to one thread, so
@@ -19,6 +19,8 @@ readable by the workers (same host, or storage shared with the cluster).
 """
 from __future__ import annotations
 
+import contextlib
+import importlib
 import json
 import os
 import time
@@ -33,21 +35,17 @@ class JobError(FuelidError):
     """A truck's data cannot give a model (no files, no fuel signal, too little valid data...): one line why."""
 
 
-def _strict_json(obj) -> str:
+def _write_json(path: Path, obj) -> None:
+    """obj as strict JSON (NaN → null) through a temporary file renamed over path: no reader sees half a file."""
     from fuelid.output import json_safe
 
-    return json.dumps(json_safe(obj), indent=1, allow_nan=False) + "\n"
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """Write text to path through a temporary file renamed over it: a reader never sees half a file."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
+    tmp.write_text(json.dumps(json_safe(obj), indent=1, allow_nan=False) + "\n", encoding="utf-8")
     os.replace(tmp, path)
 
 
 def _report(out: Path, model, diagnosis: dict, ds, truck: str, files: list[str]) -> tuple[str | None, str | None]:
-    """(report.html path, None) by ident.report.write_report; (None, why) when that module is not installed or
+    """(report.html path, None) by ident.report.write_report; (None, None) without that module; (None, why) when
     the report fails: the model and diagnosis are the job's product, the report only shows them."""
     try:
         from ident.report import write_report
@@ -61,12 +59,17 @@ def _report(out: Path, model, diagnosis: dict, ds, truck: str, files: list[str])
     return str(path), None
 
 
-def _held_out_rmse(diagnosis: dict) -> float | None:
-    """The two-fold held-out simulation RMSE [output unit] of the model structure from diagnose's verification."""
-    for row in diagnosis["candidates"]:
-        if (row.get("verification") or {}).get("rmse_without") is not None:
-            return row["verification"]["rmse_without"]
-    return None
+def _held_out(model, ds) -> dict | None:
+    """Simulation RMSE [output unit] and cycle fuel errors [%] of the model's structure refitted (linearised)
+    without each 60-s block of ds and simulated on it (cross-validation in time, as diagnose verifies); None
+    when no segment of ds outlasts the model's settling time."""
+    from ident.diagnosis import cross_validate, held_out_scores, run_model
+
+    try:
+        scores = held_out_scores(cross_validate(model, ds, run_model(model, ds)), ds)
+    except ValueError:
+        return None
+    return {"rmse_simulation": scores["rmse"], "cycle_fuel_error_percent": scores["cycle_fuel_error_percent"]}
 
 
 def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: str = "paper",
@@ -78,12 +81,14 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     PEM starts from it when it has the same structure (a refit then needs fewer iterations) and its metrics on
     the same data are returned as previous_metrics (is the new version better?).
     Returns (JSON-ready) {"truck", "model_path", "diagnosis_path", "report_path" (None without ident.report),
-    "metrics": {"fit_percent": {simulation, prediction} [%], "rmse": {simulation, prediction,
-    held_out_simulation} [unit], "cycle_fuel_error_percent": {cycle id: E, mean, rms} [%], "unit"},
-    "previous_metrics" (same keys, or None), "n_samples" (identification samples, Ts = 0.3 s), "duration_s"
-    (valid data [s]), "wall_s" and "cpu_s" (this job's wall and CPU time [s]), "phases_s" (wall time [s] of
-    dataset, identify, diagnose, write = files and report), "top_effect" (the id of the significant missing
-    effect, or None), "warnings"}. Raises JobError for unusable data, with a one-line message.
+    "metrics": {"fit_percent": {simulation, prediction} [%], "rmse": {simulation, prediction} [unit],
+    "cycle_fuel_error_percent": {cycle id: E, mean, rms} [%], "unit", "held_out": {"rmse_simulation" [unit],
+    "cycle_fuel_error_percent": {mean, rms} [%]} or None},
+    "previous_metrics" (same keys but held_out, or None), "n_samples" (identification samples, Ts = 0.3 s),
+    "duration_s" (valid data [s]), "wall_s" and "cpu_s" (this job's wall and CPU time [s]), "phases_s" (wall time
+    [s] of dataset, identify, diagnose with the held-out refits, write of the files and report), "top_effect"
+    (the id of the significant missing effect, or None), "warnings"}. Raises JobError for unusable data, with a
+    one-line message.
     """
     from threadpoolctl import threadpool_limits
 
@@ -122,6 +127,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             model = identify_model(ds, structure, files=paths, init=previous)
             lap("identify")
             diagnosis = diagnose(model, ds)
+            held_out = _held_out(model, ds)
             lap("diagnose")
         except (FuelidError, ValueError) as exc:  # diagnose raises ValueError when no segment is long enough
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None
@@ -134,7 +140,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         save_model(model, model_path)
         diagnosis["data"]["files"] = paths
         diagnosis["model"]["file"] = str(model_path)
-        _write_atomic(diagnosis_path, _strict_json(diagnosis))
+        _write_json(diagnosis_path, diagnosis)
         report_path, report_error = _report(out, model, diagnosis, ds, truck, paths)
         lap("write")
 
@@ -148,8 +154,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         "model_path": str(model_path),
         "diagnosis_path": str(diagnosis_path),
         "report_path": report_path,
-        "metrics": {**metrics(model.validation),
-                    "rmse": {**model.validation["rmse"], "held_out_simulation": _held_out_rmse(diagnosis)}},
+        "metrics": {**metrics(model.validation), "held_out": held_out},
         "previous_metrics": previous_metrics and metrics(previous_metrics),
         "n_samples": model.training["identification_samples"],
         "duration_s": model.training["valid_duration_s"],
@@ -162,12 +167,11 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
 
 
 def _warm_up() -> None:
-    """Import the identification stack once per worker process, so no job pays for it."""
-    import fleet.jobs  # noqa: F401
-    import ident.diagnosis  # noqa: F401
-    import ident.identify  # noqa: F401
-    import ident.modelfile  # noqa: F401
-    import logger.mcap_log  # noqa: F401
+    """Import the identification stack once per worker process (a second or more with plotly), so no job pays
+    for it; ident.report is optional. Nothing on this path is numba-compiled (only the online RPEM is)."""
+    for name in ("ident.dataset", "ident.identify", "ident.diagnosis", "ident.modelfile", "ident.report"):
+        with contextlib.suppress(ImportError):
+            importlib.import_module(name)
 
 
 def _one_line(exc: BaseException) -> str:

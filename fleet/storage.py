@@ -89,7 +89,7 @@ def inspect_mcap(path: str | Path) -> McapInfo:
     """Check an uploaded file is a complete fuelid MCAP log and read what the registry keeps.
 
     The rule: MCAP magic at both ends, a footer and summary that mcap's reader parses with a chunk index and
-    statistics, and a `fuelid` metadata record naming the truck. A file cut before its footer (a power cut
+    statistics (a chunk index when it holds messages: a log of a silent bus has none), and a `fuelid` metadata record naming the truck. A file cut before its footer (a power cut
     the daemon did not recover) is refused: `fuelid recover` turns it into a complete file to upload. The
     bytes themselves are vouched for by the sha256 the client sent and the server recomputed."""
     from mcap.reader import SeekingReader
@@ -110,8 +110,10 @@ def inspect_mcap(path: str | Path) -> McapInfo:
             fuelid = [dict(m.metadata) for m in reader.iter_metadata() if m.name == METADATA_NAME]
         except Exception as exc:  # mcap, struct and decoding errors alike: a damaged summary
             raise UploadRefused(422, f"damaged MCAP summary or metadata ({type(exc).__name__})") from exc
-    if summary is None or summary.statistics is None or not summary.chunk_indexes:
-        raise UploadRefused(422, "MCAP file without a chunk index and statistics")
+    if summary is None or summary.statistics is None:
+        raise UploadRefused(422, "MCAP file without statistics in its summary")
+    if summary.statistics.message_count and not summary.chunk_indexes:  # empty logs (bus silent) have none
+        raise UploadRefused(422, "MCAP file with messages but no chunk index")
     truck = fuelid[-1].get("truck") if fuelid else None
     if not truck:
         raise UploadRefused(422, "the MCAP file names no truck (metadata 'fuelid' has no 'truck')")

@@ -12,7 +12,9 @@
      VB   fuel = f(vehicle speed v [km/h], acceleration dv/dt [m/s²])   (no wheel torque on the FMS bus)
      EB   fuel = f(engine speed n [rpm], engine torque T [Nm])
      EB*  fuel = f(n, T + J1 dω/dt),  ω = 2π n / 60 [rad/s], J1 [kg·m²]  (paper 001, eq. 2)
-   with the fuel-shift sensitivity sweep (fuel advanced/delayed within ±1 s) and the J1 sweep.
+   with the fuel-shift sensitivity sweep (fuel advanced/delayed within ±1 s) and the J1 sweep, run in the
+   paper's order by `seed2_baselines` (shift first, then J1 for EB* at that shift). Inputs outside the
+   calibration range are clamped to it (`static_model`), as a lookup table holds its edge.
 
 LWR is written here (`lwr`) because the libraries at hand do not have it in two dimensions: statsmodels'
 lowess is 1-D only and scikit-learn has no local linear regression. It reproduces MATLAB's 2-D 'lowess'
@@ -191,15 +193,28 @@ def static_model(train: Dataset, test: Dataset, kind: str = "EB", J1: float = 0.
                  span: float = 0.05, grid: int | None = None, rows=None) -> np.ndarray:
     """Fuel predicted on `test` [output unit] by the LWR model `kind` calibrated on `train` with the fuel
     shifted by shift_s [s] (so it predicts the shifted fuel y(t − shift_s)); NaN on test's invalid samples
-    and, when rows (indices) is given, everywhere else. span, grid: as in `lwr`."""
+    and, when rows (indices) is given, everywhere else. span, grid: as in `lwr`.
+
+    Inputs outside the range of the calibration data are clamped to it, input by input, as a lookup table
+    holds its edge values: a local linear fit extrapolates without bound (VB calibrated on the 1.5 h trip,
+    whose top speed is 85 km/h, gave −120 % cycle fuel on a motorway cycle driven at 87–89 km/h)."""
     keep = test.valid.copy()
     if rows is not None:
         keep &= np.isin(np.arange(len(test)), rows)
-    X = static_inputs(train, kind, J1)
+    X = static_inputs(train, kind, J1)[train.valid]
+    Xq = np.clip(static_inputs(test, kind, J1)[keep], np.nanmin(X, axis=0), np.nanmax(X, axis=0))
     out = np.full(len(test), np.nan)
-    out[keep] = lwr(X[train.valid], shifted_output(train, shift_s)[train.valid], static_inputs(test, kind, J1)[keep],
-                    span, grid)
+    out[keep] = lwr(X, shifted_output(train, shift_s)[train.valid], Xq, span, grid)
     return out
+
+
+def outside_share(train: Dataset, test: Dataset, kind: str, J1: float = 0.0) -> float:
+    """Share of test's valid samples with an input of `kind` outside the calibration range of train (where
+    `static_model` clamps)."""
+    X, Xq = static_inputs(train, kind, J1)[train.valid], static_inputs(test, kind, J1)[test.valid]
+    with np.errstate(invalid="ignore"):
+        out = (Xq < np.nanmin(X, axis=0)) | (Xq > np.nanmax(X, axis=0))
+    return float(out.any(axis=1).mean()) if len(Xq) else float("nan")
 
 
 def _spread(ds: Dataset, max_points: int | None) -> np.ndarray | None:
@@ -226,8 +241,9 @@ def fuel_shift_sweep(ds: Dataset, kind: str = "EB", shifts_s=None, J1: float = 0
                      max_points: int | None = None) -> dict:
     """Paper 001's fuel-shift sensitivity: for each shift [s] (default every sample within ±1 s) calibrate
     and evaluate `kind` on ds with the shifted fuel; returns {'shift_s', 'rmse' [output unit], 'r2'} lists
-    and 'best_shift_s', the shift of least RMSE ('best_at_edge': it is the first or last tried). max_points: score on at most this many valid samples, evenly
-    spread (every shift on the same ones; the calibration always uses all)."""
+    and 'best_shift_s', the shift of least RMSE ('best_at_edge': it is the first or last tried). max_points:
+    score on at most this many valid samples, evenly spread (every shift on the same ones; the calibration
+    always uses all)."""
     if shifts_s is None:
         n = int(np.floor(1.0 / ds.Ts + 1e-9))
         shifts_s = np.arange(-n, n + 1) * ds.Ts
@@ -262,19 +278,22 @@ def seed2_baselines(train: Dataset, test: Dataset, kinds=STATIC_KINDS, *, span: 
     J1 sweep at τ picks J1 [kg·m²]; each model of `kinds` is then calibrated on train with the fuel shifted
     by τ and predicts test's measured fuel as ŷ(t) = f(x(t + τ)) (the model maps inputs to the fuel τ later).
 
-    Returns {'predictions': {kind: ŷ (N) [output unit]}, 'fuel_shift': sweep, 'J1': sweep or None, 'errors':
-    {kind: message}} (a kind whose signals are missing, e.g. VB without vehicle speed, is an error, not a
-    prediction). The sweeps score on sweep_points evenly spread samples; grid: as in `lwr`, for the predictions.
+    Returns {'predictions': {kind: ŷ (N) [output unit]}, 'outside': {kind: `outside_share`}, 'fuel_shift':
+    sweep, 'J1': sweep or None, 'errors': {kind: message}} (a kind whose signals are missing, e.g. VB without
+    vehicle speed, is an error, not a prediction). The sweeps score on sweep_points evenly spread samples;
+    grid: as in `lwr`, for the predictions.
     """
     shift = fuel_shift_sweep(train, "EB", span=span, max_points=sweep_points)
     tau = shift["best_shift_s"]
     inertia = inertia_sweep(train, J1_values, tau, span, sweep_points) if "EB*" in kinds else None
-    out = {"predictions": {}, "fuel_shift": shift, "J1": inertia, "errors": {}}
+    out = {"predictions": {}, "outside": {}, "fuel_shift": shift, "J1": inertia, "errors": {}}
     for kind in kinds:
+        J1 = inertia["best_J1"] if kind == "EB*" else 0.0
         try:
-            f = static_model(train, test, kind, inertia["best_J1"] if kind == "EB*" else 0.0, tau, span, grid)
+            f = static_model(train, test, kind, J1, tau, span, grid)
         except (FuelidError, ValueError) as exc:
             out["errors"][kind] = str(exc)
             continue
         out["predictions"][kind] = _shift(test, f, -tau)
+        out["outside"][kind] = outside_share(train, test, kind, J1)
     return out

@@ -60,6 +60,7 @@ VEHICLE_SPEED = "CCVS1.WheelBasedVehicleSpeed"
 FUEL_SIGNALS = {"flowmeter": ("flowmeter.flow_kg_h", "kg/h"), "lfe1": ("LFE1.EngFuelRate", "L/h")}
 AVERAGED = {SPEED, TORQUE_PCT, VEHICLE_SPEED, *(name for name, _ in FUEL_SIGNALS.values())}
 NOT_SIGNALS = {"t", "pgn", "sa", "da", "invalid", "tp", "device_t", "raw", "status"}
+NUMBER_OR_NULL = {int, float, type(None)}
 
 
 @dataclass
@@ -145,8 +146,13 @@ def _records(sources):
             topics = ["/flowmeter"] + [f"/j1939/{m}" for m in Decoder().message_names()]  # not /can/raw
             first = last = None
             for record in progress(read_messages(p, topics), desc=p.name, unit="msg"):
-                first = record[1] if first is None else min(first, record[1])
-                last = record[1] if last is None else max(last, record[1])
+                t = record[1]
+                if first is None:
+                    first = last = t
+                elif t < first:  # comparisons, not min()/max(): this runs once per message
+                    first = t
+                elif t > last:
+                    last = t
                 yield record
             for other, (a, b) in spans.items():
                 if first is not None and a is not None and first <= b and a <= last:
@@ -160,32 +166,45 @@ def _records(sources):
 
 
 def _collect(records) -> dict[str, dict]:
-    """signal name → source address → ([log time ns], [value]) of the valid (numeric) samples.
+    """signal name → source address → (log times [ns] int64 array, values float array) of the valid
+    (numeric) samples; signals and addresses in the order their first valid sample arrived.
 
-    Records are grouped by message and source address first, then each signal is pulled out of a group's
-    records by one list comprehension (a per-value dict walk was the slowest step after reading the file)."""
-    groups: dict[tuple, tuple[list, list]] = {}
-    for topic, log_ns, rec in records:
+    Records are grouped by topic and source address, then each signal becomes one column of its group:
+    JSON null (not available) is NaN in a float array and dropped, booleans and strings are no samples. (A
+    per-value dict walk here was the slowest step after reading the file.)"""
+    by_topic: dict[str, tuple[list, list, list]] = {}
+    for n, (topic, log_ns, rec) in enumerate(records):  # once per message: as little work as possible
+        group = by_topic.get(topic)
+        if group is None:
+            group = by_topic[topic] = ([], [], [])
+        group[0].append(n)
+        group[1].append(log_ns)
+        group[2].append(rec)
+    found = []  # (arrival of the first valid sample, its key position in the record, name, sa, times, values)
+    for topic, (order, times, recs) in by_topic.items():
         if topic == "/flowmeter":
-            key = ("flowmeter", None)
+            msg, sas = "flowmeter", [None] * len(recs)
         elif topic.startswith("/j1939/"):
-            key = (topic[7:], rec.get("sa"))
+            msg, sas = topic[7:], [r.get("sa") for r in recs]
         else:
             continue
-        group = groups.get(key)
-        if group is None:
-            group = groups[key] = ([], [])
-        group[0].append(log_ns)
-        group[1].append(rec)
+        for sa in dict.fromkeys(sas):
+            idx = [i for i, a in enumerate(sas) if a == sa]
+            group, group_times = [recs[i] for i in idx], np.asarray(times, np.int64)[idx]
+            for name in set().union(*group) - NOT_SIGNALS:
+                col = [r.get(name) for r in group]
+                if set(map(type, col)) <= NUMBER_OR_NULL:  # the usual case: numpy makes None NaN
+                    values = np.array(col, dtype=float)
+                else:
+                    values = np.array([v if type(v) in (int, float) else np.nan for v in col], dtype=float)
+                keep = ~np.isnan(values)  # JSON has no NaN: NaN here is exactly "no sample"
+                if keep.any():
+                    first = idx[int(np.argmax(keep))]
+                    found.append((order[first], list(recs[first]).index(name), f"{msg}.{name}", sa,
+                                  group_times[keep], values[keep]))
     sig: dict[str, dict] = {}
-    for (msg, sa), (times, recs) in groups.items():
-        for name in sorted(set().union(*recs) - NOT_SIGNALS):
-            values = [r.get(name) for r in recs]
-            # JSON numbers only: None (not available), booleans and strings are no samples
-            keep = [i for i, v in enumerate(values) if type(v) is float or type(v) is int]
-            if keep:
-                sig.setdefault(f"{msg}.{name}", {})[sa] = ([int(times[i]) for i in keep],
-                                                          [float(values[i]) for i in keep])
+    for _, _, name, sa, ts, vs in sorted(found, key=lambda f: f[:2]):
+        sig.setdefault(name, {})[sa] = (ts, vs)
     return sig
 
 
@@ -196,7 +215,7 @@ def _choose(sig: dict, preference: dict) -> tuple[dict[str, tuple[np.ndarray, np
         msg = name.split(".", 1)[0]
         pref = None if msg == "flowmeter" else preferred_source(msg, preference)
         sa = pref if pref in by_sa else max(by_sa, key=lambda a: len(by_sa[a][0]))
-        ts, vs = np.asarray(by_sa[sa][0], np.int64), np.asarray(by_sa[sa][1], float)
+        ts, vs = by_sa[sa]
         order = np.argsort(ts, kind="stable")
         chosen[name], used[name] = (ts[order], vs[order]), sa
     return chosen, used

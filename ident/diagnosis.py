@@ -37,42 +37,65 @@ missing, y would contain Σ_l β_l x(t − l).
    strongly dependent: coolant and oil temperature, torque-like signals); Benjamini–Hochberg controls the
    false-discovery proportion instead, which needs positive dependence.
 
-4. Verification (practical relevance). With many samples a test detects effects too small to matter: a
-   sub-sample timing offset between the fuel and the torque signals, or a torque-like bus signal sampled at
-   the end of each 0.3 s bin where the model's torque is the bin mean, is "significant" on a 20-minute trip
-   and lowers the error by a fraction of a percent. So the test-significant candidates with the largest
-   estimated drop (default 3) are each added to the model (ident.effects.apply_effects) and refitted by PEM
-   on one half of the data — the model without it likewise — and the simulation RMSE of both is measured on
-   the other half; then the halves swap (two-fold cross-validation in time; the halves are interleaved
-   5-minute blocks, so an effect that happens once is in both). rmse_drop_percent =
-   100 (1 − RMSE_with / RMSE_without) over both held-out halves.
+4. Verification (practical relevance) by a linearised refit scored on held-out blocks. With many samples a
+   test detects effects too small to matter: a sub-sample timing offset between the fuel and the torque
+   signals, or a torque-like bus signal sampled at the end of each 0.3 s bin where the model's torque is the bin
+   mean, is "significant" on a 20-minute trip and lowers the error by a fraction of a percent. So each accepted
+   candidate (the first n_verify, default 3) is added to the model and the RMS simulation error of the model
+   with and without it is measured on data not used for fitting.
+   The refit is one Gauss–Newton step from the fitted θ̂ rather than PEM from scratch: with the effect entering
+   as ŷ(t) + Σ_l β_l x(t − l), the simulation-domain error w (Run) of the extended model is, to first order in
+   (δ, β) around (θ̂, 0),
+       w(t; θ̂ + δ, β) ≈ w(t) − G(t) δ − X(t) β,
+   G = [∂ŷ_sim/∂θ_G, 1] the simulation gradient of the model's own parameters and an offset (QG spans it), X the
+   candidate's lagged columns in the same domain (A x; for a regressor in the torque unit also its image
+   through the model's torque path, B_T/F_T x, the gradient of a torque T + κ x the fuel burns for and the bus
+   does not report). (δ, β) minimise Σ w² over the fitting samples — linear least squares, exact for the
+   linearised model, nothing re-estimated from scratch. The error is scored by leave-one-block-out
+   cross-validation in time over blocks of BLOCK_S = 60 s: with Q an orthonormal basis of [G, X] and e = w − Q Qᵀ w
+   the full-data residual, the error on block b of the fit without b is exactly
+       e_(b) = e_b + Q_b (I − Q_bᵀ Q_b)⁺ Q_bᵀ e_b        (block deletion, Woodbury)
+   so every sample is held out once and no least-squares problem is solved more than once (cost N p² + K p³
+   for N samples, p columns, K blocks: milliseconds). The held-out simulation is ŷ = y − e_(b) (through 1/A
+   when A ≠ 1), scored by its RMS error and cycle fuel error (eq. 20): rmse_drop_percent = 100 (1 − RMSE_with /
+   RMSE_without). Short blocks are possible because nothing is refitted per block, so an effect that lasts
+   minutes (a cold engine warming in 2.5 min, a regeneration) is in many fitting blocks and scored on its own.
+   Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
+   refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
+   since a refit of the 30+ parameters on half the data adds its own noise to the comparison. A full refit is
+   done only where the effect is finally added: `fuelid identify --effect` (PEM with the effect's own dynamics
+   B_x/F_x and noise model), which `fuelid compare` and the report then score.
 
 5. Sequential conditional check. Slow bus signals (cab temperature, a slowly drifting ambient) can follow the
-   level shift a real effect leaves in the error by chance. The verified candidate with the largest drop is
-   accepted first; each other verified candidate is refitted again *together with it* and must lower the
-   held-out error further by min_drop_percent (conditional_drop_percent), else it is "explained by" the
-   accepted one.
+   level shift a real effect leaves in the error by chance. The candidate with the largest estimated drop
+   (`_priority`) is accepted first; each other test-significant candidate is re-tested by the simulation-error
+   test with the accepted candidates' columns among the nuisance columns and must still reject (Bonferroni
+   over the candidates) and explain min_effect_percent, else it is "explained by" the accepted one
+   (`accept_sequentially`).
 
 A candidate is `significant` — a missing effect the diagnosis names — when the Holm-corrected test rejects
-AND the refit lowers the held-out RMS error by at least min_drop_percent (default 2 %) AND (after the first)
-it survives the conditional check. The conjunction can only remove rejections, so the family-wise false-alarm
-rate stays ≤ α. Significant candidates are listed first, by their held-out drop; then the rest by p-value.
+AND it explains at least min_effect_percent (default 1 %) of the simulation error AND (after the first) it
+survives the conditional check AND, when verified, the linearised refit lowers the held-out RMS error by at
+least min_drop_percent (default 2 %: on 20 simulated trips with nothing hidden, seeds 100–119, the candidates
+that pass the tests lower it by 0.2–2.8 %, 9 of them by > 0; the hidden effects by 2.2–25 %, bar ambient air and
+overrun cut-off at 0.5–0.7 %). The
+conjunction can only remove rejections, so the family-wise false-alarm rate stays ≤ α. Significant
+candidates are listed first, in the order accepted; then the rest by p-value.
 """
 from __future__ import annotations
 
 import contextlib
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import qr, solve_toeplitz, svd
+from scipy.linalg import lstsq, qr, solve_toeplitz, svd
 from scipy.signal import lfilter
 from scipy.stats import chi2
 
 from ident import effects as fx
-from ident.pem import pem, prediction_errors
-from ident.polymodel import PolyModel, Structure, input_responses, predict, simulate
+from ident.pem import prediction_errors
+from ident.polymodel import PolyModel, Structure, predict, residuals, simulate
 from ident.validation import autocorr_test, crosscorr_test, cycle_fuel_error, error_table, evaluate
 
 try:  # BLAS threads only cost time on N × k problems this narrow (as in ident.pem)
@@ -225,8 +248,9 @@ def _one_blas_thread():
 @dataclass
 class Run:
     """A model run over the valid segments of a dataset: u, y the model's inputs and (shifted) fuel; ysim, ypred
-    (1-step), eps (prediction errors, NaN during each segment's first `warm` samples) — all N long, NaN
-    outside the segments used; segs the slices used; after each segment's warm-up, stacked: e the prediction
+    (1-step) — N long, NaN outside the segments used; eps the prediction errors exactly as
+    ident.validation.evaluate computes them for its whiteness verdict (every segment, NaN during each one's
+    first n_start samples), so the diagnosis and the compare table never disagree on it; segs the slices used; after each segment's warm-up, stacked: e the prediction
     errors and Q a basis of their nuisance gradient (test 1), r the errors w = A ỹ − Σ B_i/F_i ũ_i before the
     noise filter (the simulation errors when A = 1) with the basis QG of their gradient projected out (test 2)."""
 
@@ -274,7 +298,6 @@ def run_model(model: PolyModel, ds) -> Run:
         e, psi = prediction_errors(model.theta, s, us, ys, jacobian=True)
         w, psi_g = prediction_errors(theta_g, no_noise, us, ys, jacobian=True)
         ones = np.ones(len(ys))
-        eps[seg.start + warm: seg.stop] = e[warm:]
         Zs.append(np.column_stack([psi, lfilter(model.D, model.C, ones)])[warm:])
         ZGs.append(np.column_stack([psi_g, ones])[warm:])
         es.append(e[warm:])
@@ -282,6 +305,9 @@ def run_model(model: PolyModel, ds) -> Run:
         segs.append(seg)
     if not segs:
         raise ValueError(f"no valid segment of the data is longer than the model's settling time ({warm} samples)")
+    for seg in ds.segments():  # the whiteness rule of ident.validation.evaluate: skip n_start, keep short segments
+        eps[seg] = residuals(model, u[seg], y[seg])
+        eps[seg.start: seg.start + s.n_start] = np.nan
     with _one_blas_thread():
         Q, QG = nuisance_basis(np.vstack(Zs)), nuisance_basis(np.vstack(ZGs))
     w = np.concatenate(ws)
@@ -452,97 +478,75 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
     return f"{effect.name} ({sig}) explains {rms:.2f} {unit} RMS of the fuel beyond speed and torque; {act}", size
 
 
-# ---- verification by refitting -----------------------------------------------------------------------
+# ---- verification: a linearised refit scored on held-out blocks ----------------------------------------
 
-def blocks(ds, run: Run, block_s: float = 300.0) -> list[list[tuple[int, int]]]:
-    """Two interleaved halves of the run's segments: alternate blocks of block_s [s] within each segment,
-    [even blocks, odd blocks] as (start, stop) index ranges. Interleaving (rather than first half / second
-    half) keeps an effect that happens once — a cold start, one regeneration — in both halves."""
-    w = max(int(round(block_s / ds.Ts)), 1)
-    halves = [[], []]
-    for seg in run.segs:
-        for k, a in enumerate(range(seg.start, seg.stop, w)):
-            halves[k % 2].append((a, min(a + w, seg.stop)))
-    return halves
+BLOCK_S = 60.0  # [s] the blocks left out one at a time when scoring the linearised refit
 
 
-@dataclass
-class Fold:
-    """A PEM fit on one half and its simulation [output unit] over the other (held-out) half, NaN elsewhere."""
-
-    model: PolyModel
-    ysim: np.ndarray
-
-
-def fit_and_test(u, y, fit_spans, test_spans, run: Run, structure, model: PolyModel, init: PolyModel,
-                 max_iter: int = 30) -> Fold:
-    """PEM on the blocks fit_spans (each filtered from rest), then the fitted model simulated over every segment
-    of the run and kept on the blocks test_spans after each segment's warm-up."""
-    u0 = tuple(model.u0) + (0.0,) * (structure.n_inputs - len(model.u0))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        m = pem(u, y, structure, model.Ts, segments=fit_spans, init=init, u0=u0, y0=model.y0, max_iter=max_iter)
-    ysim = np.full(len(y), np.nan)
-    for seg in run.segs:
-        ysim[seg] = simulate(m, u[seg])
-    held = np.zeros(len(y), bool)
-    for a, b in test_spans:
-        held[a:b] = True
-    held[~np.isin(np.arange(len(y)), run.index)] = False
-    return Fold(m, np.where(held, ysim, np.nan))
+def block_cv(r: np.ndarray, Q: np.ndarray, block: int) -> np.ndarray:
+    """Leave-one-block-out errors of the least-squares fit of r (N) on the orthonormal columns Q (N × p): for
+    each block b of `block` consecutive samples, r − Q δ_(−b) on b, δ_(−b) fitted without b. Exact, without
+    refitting (module docstring, 4): e_(b) = e_b + Q_b (I − Q_bᵀ Q_b)⁺ Q_bᵀ e_b, e = r − Q Qᵀ r."""
+    e = r - Q @ (Q.T @ r)
+    out = e.copy()
+    eye = np.eye(Q.shape[1])
+    for a in range(0, r.size, max(block, 1)):
+        Qb, eb = Q[a:a + block], e[a:a + block]
+        out[a:a + block] = eb + Qb @ lstsq(eye - Qb.T @ Qb, Qb.T @ eb, cond=1e-10, check_finite=False)[0]
+    return out
 
 
-def _extended_init(model: PolyModel, orders) -> PolyModel:
-    """model with one more input per entry of orders (nb, nf, nk): B = 0, F = 1 (PEM's starting point)."""
-    k = len(orders)
-    return PolyModel(A=model.A, B=list(model.B) + [np.zeros(o[2] + o[0]) for o in orders],
-                     F=list(model.F) + [np.r_[1.0, np.zeros(o[1])] for o in orders], C=model.C, D=model.D,
-                     Ts=model.Ts, nk=tuple(model.nk) + tuple(o[2] for o in orders),
-                     u0=tuple(model.u0) + (0.0,) * k, y0=model.y0)
+def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S) -> dict:
+    """The linearised refit of `model` with the extra columns X (w domain, stacked like run.r; none: N × 0),
+    scored block by block on data it was not fitted on (block_cv, blocks of block_s [s]): ysim (N on the dataset
+    grid, the held-out simulation, NaN outside the run), y (the fuel it is scored against) and beta (X's
+    coefficients fitted on all the data, for the size of the effect)."""
+    with _one_blas_thread():
+        Xt = X - run.QG @ (run.QG.T @ X)
+        U, sig, _ = svd(Xt / np.maximum(np.linalg.norm(X, axis=0), 1e-300), full_matrices=False, check_finite=False)
+        Q = np.column_stack([run.QG, U[:, sig > 1e-4]])  # the same rank rule as the tests
+        err = block_cv(run.r, Q, round(block_s / model.Ts))
+        beta = lstsq(Xt, run.r, cond=1e-10, check_finite=False)[0] if X.shape[1] else np.zeros(0)
+    if model.A.size > 1:  # the step is linear in w = A·(simulation error): back through 1/A, segment by segment
+        ends = np.cumsum(run.lens)
+        err = np.concatenate([lfilter([1.0], model.A, err[a:b]) for a, b in zip(ends - run.lens, ends)])
+    ysim = np.full(len(run.y), np.nan)
+    ysim[run.index] = run.y[run.index] - err
+    return {"ysim": ysim, "y": run.y, "beta": beta}
 
 
-def cross_validate(model: PolyModel, ds, run: Run, effect_ids=(), parameters: dict | None = None) -> dict:
-    """The model with the effects effect_ids added (none: the model as it is) refitted on each interleaved half
-    and simulated on the other: the two folds, their held-out simulation pieced together (ysim, N, NaN outside
-    the run), the fuel it is scored against (y: shifted when fuel_delay is among the effects), the inputs u and
-    the effect parameters."""
-    new = fx.apply_effects(fx.at_operating_point(ds, model), list(effect_ids), parameters)
-    u = np.hstack([run.u, new.u])
-    y = new.y if "fuel_delay" in new.parameters else run.y
-    init = _extended_init(model, new.orders)
-    halves = blocks(ds, run)
-    folds = [fit_and_test(u, y, halves[a], halves[1 - a], run, new.extend(model.structure), model, init)
-             for a in (0, 1)]
-    ysim = np.where(np.isfinite(folds[0].ysim), folds[0].ysim, folds[1].ysim)
-    return {"folds": folds, "ysim": ysim, "y": y, "u": u, "parameters": new.parameters}
+def cross_validate(model: PolyModel, ds, run: Run, effect_ids=(), block_s: float = BLOCK_S) -> dict:
+    """held_out() of the model with the effects effect_ids (ids or `level:SIG`-style; none: the model as it is)
+    added as linearised columns (module docstring, 4)."""
+    dsm = fx.at_operating_point(ds, model)
+    X = np.zeros((run.r.size, 0))
+    for eid in effect_ids:
+        cols = candidate_columns(model, dsm, run, fx.get_effect(fx.parse_effect(eid)[0], ds))
+        if cols is None:
+            raise ValueError(f"effect {eid}: its bus signals are not in the data")
+        X = np.column_stack([X, lfilter(model.A, [1.0], cols[2], axis=0)])  # w has A x (as in the tests)
+    return held_out(model, run, X, block_s)
 
 
 def held_out_scores(cv: dict, ds) -> dict:
     """RMS simulation error [output unit] and cycle fuel errors [%] (eq. 20; mean and RMS over the cycles) of a
-    cross_validate result on its held-out halves."""
+    cross_validate result on its held-out blocks."""
     y, ysim = cv["y"], cv["ysim"]
     ok = np.isfinite(ysim) & np.isfinite(y)
     return {"rmse": float(np.sqrt(np.mean((ysim[ok] - y[ok]) ** 2))),
             "cycle_fuel_error_percent": error_table(cycle_fuel_error(np.where(ok, y, np.nan), ysim, ds.cycle, ds.Ts))}
 
 
-def verify(model: PolyModel, ds, run: Run, effect_ids, parameters: dict | None, base: dict) -> dict:
-    """Refit with the effects effect_ids on each interleaved half, test on the other (module docstring, 4–5);
-    base: the cross_validate result to compare with (the model as it is, or with the accepted effect).
-    Held-out RMS simulation error [output unit] and cycle fuel error [%] without and with, and the drop [%];
-    the fitted contribution of the last effect [output unit, N] and its steady-state gains (for explain)."""
-    cv = cross_validate(model, ds, run, effect_ids, parameters)
+def verify(run: Run, X: np.ndarray, model: PolyModel, ds, base: dict) -> dict:
+    """The held-out scores with the candidate columns X (w domain) against base (held_out of the model as it
+    is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%], and β the
+    candidate's coefficients fitted on all the data."""
+    cv = held_out(model, run, X)
     before, after = held_out_scores(base, ds), held_out_scores(cv, ds)
-    m_base = len(base["folds"][0].model.B)
-    m_all = len(cv["folds"][0].model.B)
-    contribution = np.mean([input_responses(f.model, cv["u"])[:, m_base:].sum(axis=1) for f in cv["folds"]], axis=0)
-    gains = np.mean([[static_gain(f.model, j) for j in range(m_base, m_all)] for f in cv["folds"]], axis=0)
     return {"rmse_without": before["rmse"], "rmse_with": after["rmse"],
             "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / before["rmse"]),
             "cycle_fuel_error_percent_without": before["cycle_fuel_error_percent"],
-            "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"],
-            "parameters": cv["parameters"], "_cv": cv, "_contribution": contribution, "_gains": gains,
-            "_torque_models": [f.model for f in cv["folds"]]}
+            "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"], "_beta": cv["beta"]}
 
 
 # ---- the diagnosis ---------------------------------------------------------------------------------------
@@ -555,7 +559,6 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
     included = {fx.parse_effect(e)[0] for e in model.effects}
     dsm = fx.at_operating_point(ds, model)
     rows, untestable = [], []
-    idx = run.index
     for effect in candidates:
         if effect.id in included:
             continue
@@ -572,11 +575,9 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
             pred = score_test(run.e, psi, run.Q)
             level, left = level_test(run.r, lfilter(model.A, [1.0], raw, axis=0), run.lens, run.QG)  # w has A x
         log_p = min(0.0, math.log(2.0) + min(pred.log_p, level.log_p))  # Bonferroni over the two tests
-        contribution = np.full(len(ds.t), np.nan)
-        c = raw @ pred.coef
-        contribution[idx] = c if effect.form == "regime" else c - c.mean()  # the model's offset absorbs a level's mean
         gains = pred.coef.reshape(len(effect.lags), -1).sum(axis=0)
-        text, size = explain(effect, reg, contribution, gains, [model], dsm, run)
+        text, size = explain(effect, reg, contribution_on_grid(effect.form, raw, pred.coef, run), gains, [model], dsm,
+                             run)
         rows.append({"effect": effect.id, "name": effect.name, "form": effect.form, "signals": list(effect.signals),
                      "spns": list(effect.spns), "statistic": max(pred.statistic, level.statistic),
                      "df": max(pred.df, level.df), "p_value": math.exp(log_p), "log10_p": log_p / math.log(10),
@@ -586,7 +587,7 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
                                "simulation_error": {"statistic": level.statistic, "df": level.df,
                                                     "p_value": level.p_value}},
                      "estimated_drop_percent": 100.0 * (1.0 - left), "size": size,
-                     "explanation": text, "physics": effect.physics, "_reg": reg, "_effect": effect,
+                     "explanation": text, "physics": effect.physics, "_reg": reg, "_effect": effect, "_x": raw,
                      "_raw": lfilter(model.A, [1.0], raw, axis=0)})
     adj, sig = holm([r["p_value"] for r in rows], alpha) if rows else (np.zeros(0), np.zeros(0, bool))
     for r, a, s in zip(rows, adj, sig):
@@ -598,15 +599,41 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
     return rows + untestable
 
 
+def contribution_on_grid(form: str, columns: np.ndarray, coef: np.ndarray, run: Run) -> np.ndarray:
+    """The fuel contribution X β [output unit] of an effect's columns X (stacked like run.r) on the dataset grid:
+    NaN outside the run, a level's mean removed (the model's offset absorbs it), a regime's kept."""
+    contribution = np.full(len(run.y), np.nan)
+    c = columns @ coef
+    contribution[run.index] = c if form == "regime" else c - c.mean()
+    return contribution
+
+
+def torque_path_columns(model: PolyModel, run: Run, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A torque-like regressor x (N, the model's torque unit) through the model's torque path, stacked like run.r:
+    (B_T/F_T x, the column of the w domain; B_T/(A F_T) x, its fuel [output unit]) — ∂w/∂κ and ∂ŷ/∂κ when the
+    torque the fuel burns for is T + κ x (module docstring, 4)."""
+    x = np.nan_to_num(x)
+    B, F = model.B[1], model.F[1]
+    cols = [(lfilter(B, F, x[s])[run.warm:], lfilter(B, np.convolve(model.A, F), x[s])[run.warm:]) for s in run.segs]
+    return np.concatenate([c[0] for c in cols]), np.concatenate([c[1] for c in cols])
+
+
 def _verify_row(r: dict, model: PolyModel, ds, run: Run, base: dict) -> dict:
-    """verify() the candidate of row r against the model as it is; its explanation re-made from the refit."""
-    params = {"fuel_delay": r["size"]["delay_s"]} if r["form"] == "shift" else None
-    v = verify(model, ds, run, [r["effect"]], params, base)
-    v.pop("_cv")
-    contribution, gains, models = (v.pop(k) for k in ("_contribution", "_gains", "_torque_models"))
-    if v["rmse_drop_percent"] > 0 and r["form"] != "shift":  # the refit measures the size better
-        r["explanation"], r["size"] = explain(r["_effect"], r["_reg"], contribution, gains, models,
-                                              fx.at_operating_point(ds, model), run)
+    """verify() the candidate of row r against the model as it is (with its torque-path column when its regressor
+    is a torque); its explanation re-made from the refit's β."""
+    effect, X, Xy = r["_effect"], r["_raw"], r["_x"]
+    through_torque = effect.form == "input" and r["_reg"].units == (ds.input_units[1],)
+    if through_torque:
+        X, Xy = (np.column_stack(c) for c in zip((X, Xy), torque_path_columns(model, run, r["_reg"].x[:, 0])))
+    v = verify(run, X, model, ds, base)
+    beta = v.pop("_beta")
+    if v["rmse_drop_percent"] > 0 and effect.form != "shift":  # the held-out-checked refit measures it better
+        n_lagged = r["_x"].shape[1]
+        gains = beta[:n_lagged].reshape(len(effect.lags), -1).sum(axis=0)
+        if through_torque:
+            gains = gains + beta[-1] * static_gain(model, 1)
+        r["explanation"], r["size"] = explain(effect, r["_reg"], contribution_on_grid(effect.form, Xy, beta, run),
+                                              gains, [model], fx.at_operating_point(ds, model), run)
     return v
 
 
@@ -643,7 +670,7 @@ def accept_sequentially(rows: list[dict], run: Run, alpha: float, min_effect_per
 
 
 def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_effect_percent: float = 1.0,
-             candidates=None) -> dict:
+             candidates=None, min_drop_percent: float = 2.0) -> dict:
     """The whole diagnosis of `model` on dataset ds (module docstring); JSON-ready.
 
     Returns {model, data, compare (ident.validation.evaluate), where_it_fails, test, candidates, verdict}.
@@ -651,16 +678,16 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
     names), spns, statistic (the larger LM of its two tests), df, p_value (Bonferroni over the two tests),
     p_holm, test_significant (Holm at alpha), estimated_drop_percent (share of the simulation error its
     least-squares fit explains), conditional (its re-test given the effects accepted before it), explained_by,
-    rmse_drop_percent (held-out RMS simulation error drop when refitted with it, None unless verified),
+    rmse_drop_percent (held-out RMS simulation error drop with it, linearised refit, None unless verified),
     verification (held-out RMSE and cycle fuel errors without/with), significant (a missing effect: accepted
-    by `accept_sequentially` and, when verified, a held-out drop > 0), size, explanation, physics, tests.
-    The first n_verify accepted candidates are refitted."""
+    by `accept_sequentially` and, when verified, a held-out drop ≥ min_drop_percent), size, explanation,
+    physics, tests. The first n_verify accepted candidates are verified."""
     run = run_model(model, ds)
     rows = rank_candidates(model, ds, run, candidates, alpha)
     for r in rows:
         r.update(rmse_drop_percent=None, verification=None, conditional=None, explained_by=None)
     accepted = accept_sequentially([r for r in rows if r["testable"]], run, alpha, min_effect_percent)
-    base = cross_validate(model, ds, run) if accepted and n_verify else None
+    base = held_out(model, run, np.zeros((run.r.size, 0))) if accepted and n_verify else None
     for k, r in enumerate(accepted):
         r["significant"] = True
         if k >= n_verify:
@@ -671,10 +698,10 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
         except (ValueError, np.linalg.LinAlgError) as exc:
             r["verification"] = {"error": str(exc)}
             continue
-        if v["rmse_drop_percent"] <= 0:
+        if v["rmse_drop_percent"] < min_drop_percent:
             r["significant"] = False
-            r["explanation"] += f" — but refitting with it raises the held-out error by {-v['rmse_drop_percent']:.1f} " \
-                                "%: not confirmed"
+            r["explanation"] += f" — but adding it changes the held-out RMS error by {-v['rmse_drop_percent']:+.1f} " \
+                                f"% (a fall of {min_drop_percent:g} % is needed): not confirmed"
     for r in rows:
         if r["explained_by"]:
             r["explanation"] += f" — explained by {r['explained_by']} (not significant given it)"
@@ -684,7 +711,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
     order = {id(r): k for k, r in enumerate(accepted)}
     rows.sort(key=lambda r: (not r["significant"], order.get(id(r), 0), r.get("log10_p", 0.0)))
     for r in rows:
-        for key in ("_reg", "_effect", "_raw"):
+        for key in ("_reg", "_effect", "_x", "_raw"):
             r.pop(key, None)
     testable = [r for r in rows if r["testable"]]
     best = rows[0] if rows and rows[0]["significant"] else None
@@ -694,8 +721,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
         verdict = f"Missing effect: {best['explanation']}{drop}."
     else:
         verdict = f"No significant candidate: none of the {len(testable)} candidate effects explains the residual " \
-                  f"(Holm-corrected, family-wise α = {alpha:g}, and at least {min_effect_percent:g} % of the " \
-                  "simulation error); the model is not missing any effect the bus reveals."
+                  f"(Holm-corrected, family-wise α = {alpha:g}, at least {min_effect_percent:g} % of the " \
+                  f"simulation error, and a held-out RMS error drop of at least {min_drop_percent:g} %); the model " \
+                  "is not missing any effect the bus reveals."
     return {
         "model": {"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         "data": ds.summary() if hasattr(ds, "summary") else {},
@@ -704,8 +732,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
         "test": {"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "
                            "the simulation errors; Newey-West robust, chi2(k); Bonferroni over the two, Holm "
                            "step-down over all candidates; relevance, sequential conditional re-tests, and "
-                           "two-fold interleaved refits",
-                 "alpha": alpha, "min_effect_percent": min_effect_percent, "candidates_tested": len(testable),
+                           "a linearised refit scored leaving out one 60-s block at a time",
+                 "alpha": alpha, "min_effect_percent": min_effect_percent, "min_drop_percent": min_drop_percent,
+                 "candidates_tested": len(testable),
                  "samples": int(run.e.size)},
         "candidates": rows,
         "verdict": verdict,

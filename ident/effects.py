@@ -191,21 +191,22 @@ def _idle(ds):
     return regime(ds, on, "idle")
 
 
-def _gear_shift(ds, after_s: float = 2.0):
-    """On while the transmission shifts (selected ≠ current gear) and for after_s [s] after each change of the
-    current gear, when the clutch closes and torque ramps up with low boost."""
+def _gear_shift(ds, after_s: float = 1.5):
+    """Two states of a gear change (ETC2): during the shift (selected ≠ current gear: torque ramped down, clutch
+    open, engine synchronised) an offset; for after_s [s] after the clutch closes into the new gear (the current
+    gear changes to a non-zero one), when torque ramps up with low boost, a regime (offset and gain changes)."""
     gear = _signal(ds, "ETC2.TransCurrentGear")
     if gear is None:
         return None
-    changes = np.flatnonzero(np.diff(gear) != 0) + 1
-    on = np.zeros(len(gear), bool)
-    after = max(int(round(after_s / ds.Ts)), 1)
-    for k in changes:
-        on[k: k + after] = True
+    closes = np.flatnonzero((np.diff(gear) != 0) & (gear[1:] > 0)) + 1
+    after = np.zeros(len(gear), bool)
+    width = max(int(round(after_s / ds.Ts)), 1)
+    for k in closes:
+        after[k: k + width] = True
     selected = _signal(ds, "ETC2.TransSelectedGear")
-    if selected is not None:
-        on |= selected != gear
-    return regime(ds, on, "gear shift")
+    during = (selected != gear) if selected is not None else (gear == 0) & (ds.u[:, 0] > _idle_speed(ds) + 100.0)
+    reg = regime(ds, after & ~during, "after a shift")
+    return Regressors(np.column_stack([reg.x, during]), reg.names + ("shifting",), reg.units + ("1",))
 
 
 def _state(name, active: Callable, label: str):
@@ -215,26 +216,39 @@ def _state(name, active: Callable, label: str):
     return build
 
 
-def _cold(ds, warm_c: float = 80.0):
+def _warm_coolant_c(theta: np.ndarray) -> float:
+    """The coolant temperature the thermostat holds once warm [°C]: the 90th percentile of the trip's coolant
+    temperature, at least 80 °C (thermostats open at 80–90 °C; a trip that never warms up still has a deficit)."""
+    return max(80.0, float(np.percentile(theta, 90)))
+
+
+def _cold(ds):
+    """Deficit Δθ = max(θ_warm − θ, 0) [K] of the coolant below its warm level (`_warm_coolant_c`) and, since
+    friction and enrichment scale the fuel, Δθ·ñ and Δθ·T̃."""
     theta = _signal(ds, "ET1.EngCoolantTemp")
     if theta is None:
         return None
-    deficit = np.maximum(warm_c - theta, 0.0)
-    _, T = deviations(ds)
-    return Regressors(np.column_stack([deficit, deficit * T]), ("coolant deficit", "coolant deficit x torque"),
-                      ("K", f"K.{ds.input_units[1]}"))
+    deficit = np.maximum(_warm_coolant_c(theta[ds.valid]) - theta, 0.0)
+    n, T = deviations(ds)
+    return Regressors(np.column_stack([deficit, deficit * n, deficit * T]),
+                      ("coolant deficit", "coolant deficit x speed", "coolant deficit x torque"),
+                      ("K", f"K.{ds.input_units[0]}", f"K.{ds.input_units[1]}"))
 
 
 def _ambient(ds):
-    cols, names, units = [], [], []
-    for sig, ref, label, unit in [("AMB.AmbientAirTemp", 20.0, "ambient temperature − 20 °C", "K"),
-                                  ("AMB.BarometricPress", 101.3, "barometric pressure − 101.3 kPa", "kPa")]:
-        x = _signal(ds, sig)
-        if x is not None:
-            cols.append(x - ref)
-            names.append(label)
-            units.append(unit)
-    return Regressors(np.column_stack(cols), tuple(names), tuple(units)) if cols else None
+    """Relative air-density deficit δ = 1 − ρ/ρ_ref, ρ = p/(R T) from barometric pressure [kPa] and ambient
+    temperature [°C] (ρ_ref at 15 °C and 101.325 kPa; a missing one held at its reference), and δ·ñ, δ·T̃:
+    thin air changes the fuel in proportion to the fuel itself."""
+    temp, press = _signal(ds, "AMB.AmbientAirTemp"), _signal(ds, "AMB.BarometricPress")
+    if temp is None and press is None:
+        return None
+    temp = np.full(len(ds.t), 15.0) if temp is None else temp
+    press = np.full(len(ds.t), 101.325) if press is None else press
+    delta = 1.0 - (press / 101.325) * (288.15 / (temp + 273.15))
+    n, T = deviations(ds)
+    return Regressors(np.column_stack([delta, delta * n, delta * T]),
+                      ("air-density deficit", "air-density deficit x speed", "air-density deficit x torque"),
+                      ("1", ds.input_units[0], ds.input_units[1]))
 
 
 def _fan(ds):
@@ -280,8 +294,9 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            ("EEC1.EngSpeed", "CCVS1.WheelBasedVehicleSpeed", "EEC2.AccelPedalPos1", "EC1.EngSpeedAtIdlePoint1"),
            (190, 84, 91, 188), "regime", _idle, lags=(0,)),
     Effect("gear_shift", "gear-shift transients",
-           "Around a gear change (ETC2 current gear changes, or differs from the selected gear) traction is "
-           "interrupted and the engine speed is synchronised: torque and fuel do not follow the steady relation.",
+           "During a gear change (ETC2 selected ≠ current gear) traction is interrupted and the engine speed "
+           "synchronised; for a moment after the clutch closes into the new gear the torque ramps up with low "
+           "boost: more fuel per torque. Torque and fuel do not follow the steady relation in either.",
            ("ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (523, 524), "regime", _gear_shift, lags=(0,)),
     Effect("dpf_regeneration", "DPF active regeneration",
            "While the diesel particulate filter regenerates actively (DPFC1 SPN 3700 = 1) the engine injects "
@@ -289,11 +304,12 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            ("DPFC1.DPFActiveRegenStatus",), (3700,), "regime",
            _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,)),
     Effect("cold_engine", "cold engine (coolant temperature)",
-           "Below operating temperature (≈ 80 °C coolant) friction is higher and the ECU enriches: extra fuel "
-           "grows with the coolant-temperature deficit and with load.",
+           "Below operating temperature (the coolant's warm level, 80–90 °C) friction is higher and the ECU "
+           "enriches: extra fuel grows with the coolant-temperature deficit and with the fuel itself.",
            ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,)),
     Effect("ambient", "ambient temperature and pressure",
-           "Air density (ambient temperature, barometric pressure) changes charge air and pumping work.",
+           "Air density ρ = p/(R T) (ambient temperature, barometric pressure) changes charge air, boost and "
+           "pumping work: thin (warm, high) air changes the fuel in proportion to the fuel.",
            ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,)),
     Effect("engine_fan", "engine fan",
            "A viscous or clutched engine fan takes power ∝ (fan speed)³ from the crankshaft that the reported "

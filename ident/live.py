@@ -104,7 +104,9 @@ class LiveEstimator:
         self.names = list(names) if names is not None else None
         self.snapshot_path, self.snapshot_every_s = snapshot_path, snapshot_every_s
         self.parameters_every_s = parameters_every_s
-        self._step, self._max_gap = self.Ts / speed, max_gap_s / speed  # on the receive-time axis [s]
+        # the grid on the receive-time axis in integer ns (log times are ns): a record on a bin edge is never
+        # put in the bin before by float rounding
+        self._step_ns, self._max_gap = round(self.Ts / speed * 1e9), max_gap_s / speed
         self._idle = (idle_rpm, idle_tol_rpm, max(1, math.ceil(idle_min_s / self.Ts)))
         self._idle_bins: list[np.ndarray] = []  # [speed, torque, fuel] of the current idle stretch (from scratch)
         self._gain0 = None  # the prior's G_i(1), the reference of fuel_change_pct
@@ -113,7 +115,7 @@ class LiveEstimator:
         self._du_sum, self._du_n = 0.0, 0  # Σ ũ and its count, for the mean operating point ū
         self.ref_torque = None  # [Nm], from EC1
         self._bin = None  # index k of the open bin
-        self._t0 = None
+        self._t0_ns = None
         self._sums = np.zeros(3)  # speed, torque %, fuel
         self._counts = np.zeros(3)
         self._last_data_t = -math.inf
@@ -165,11 +167,11 @@ class LiveEstimator:
         if not values:
             return []
         out = []
-        if self._t0 is None:
-            self._t0, self._bin = t, 0
+        if self._t0_ns is None:
+            self._t0_ns, self._bin = round(t * 1e9), 0
             self._next_parameters = t + self.parameters_every_s
             self._next_snapshot = t + self.snapshot_every_s
-        k = int((t - self._t0) // self._step)
+        k = (round(t * 1e9) - self._t0_ns) // self._step_ns
         if k > self._bin:
             out += self._close(self._bin)
             if t - self._last_data_t > self._max_gap:  # silence: no bins in between, filters restart
@@ -223,7 +225,7 @@ class LiveEstimator:
         if np.isfinite(u).all():
             self._du_sum = self._du_sum + (u - self.est.u0)
             self._du_n += 1
-        t = self._t0 + (k + 1) * self._step
+        t = (self._t0_ns + (k + 1) * self._step_ns) * 1e-9
         out = [("/ident/prediction", t, {"t": t, "predicted": _num(trace.yhat[0]), "simulated": _num(trace.ysim[0]),
                                          "measured": _num(fuel), "unit": self.unit}),
                ("/ident/residual", t, {"t": t, "eps": _num(trace.eps[0]), "status": int(trace.status[0]),

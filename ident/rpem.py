@@ -55,7 +55,8 @@ the time axis).
 
 Convergence reports (per sample in `Trace`, running in `report()`): the relative parameter change
 ‖θ(t) − θ(t−1)‖/‖θ(t)‖, trace(P), λ(t), and running fits over an exponential window of `fit_window`
-samples: the one-step prediction fit 100 (1 − ‖ε‖/‖ỹ − mean‖) and the simulation fit with v in place of ε.
+samples: the one-step prediction fit 100 (1 − ‖ε‖/‖ỹ − mean‖) and the simulation fit with v in place of ε
+(restarted when the output-error phase ends: its errors from θ = 0 would dominate the window for hours).
 
 The per-sample loop is compiled with numba (`_run`); this module imports numpy and numba only, so the in-cab
 live estimator stays light (ident.polymodel, which imports SciPy, is imported when a PolyModel is made).
@@ -303,7 +304,12 @@ def _run(u, y, valid, theta, P, Q, hist, orders, nc, nd, oc, od, cfg, st, every,
             if u_ok and y_ok and st[S_WARM] > 0:
                 st[S_WARM] -= 1.0
             elif u_ok and y_ok:
-                # running fits and noise variance over an exponential window
+                # running fits and noise variance over an exponential window, restarted when the noise model is
+                # released: the output-error phase's errors from θ = 0 are orders of magnitude larger and would
+                # dominate the window for hours
+                if st[S_UPDATES] == cfg[C_OE_UPDATES] and cfg[C_OE_UPDATES] > 0:
+                    for j in (S_SW, S_SY, S_SYY, S_SEE, S_SVV):
+                        st[j] = 0.0
                 st[S_SW] = gamma * st[S_SW] + 1.0
                 st[S_SY] = gamma * st[S_SY] + y[t]
                 st[S_SYY] = gamma * st[S_SYY] + y[t] * y[t]
@@ -399,13 +405,20 @@ class RPEM:
                 updates (default 600 s from scratch, 0 from a prior). From θ = 0 the noise model would
                 otherwise explain the output as an AR process (D/C y ≈ e) before B_i/F_i has moved, a
                 local minimum with a good one-step prediction and a poor simulation.
+    adapt       'all' (default), or 'gain' (needs a prior): only the common relative fuel gain g of the
+                numerators adapts, θ_b = g θ_b(0), with F_i, C and D held at the prior's: P0 = σ_g² β βᵀ with
+                β = [θ_b(0); 0; …; 0] and σ_g² = P0 (a scalar, default 0.1²: 10 %), so K ∝ β and every update
+                moves θ along β only (Q should be along β too: ident.kalman.gain_drift_Q). For tracking a
+                prior's fuel gain: with everything free the noise model (D near an integrator) absorbs a slow
+                gain change, and the B_i alone wander along the near pole–zero cancellations of the paper's
+                orders, where B_i(1)/F_i(1) is poorly determined.
     """
 
     def __init__(self, structure=None, Ts: float | None = None, *, prior=None, lam: float | None = None,
                  lam_start: float | None = None, lam0: float = 0.9995, P0=None, R: float | None = None, Q=0.0,
                  u0=None, y0: float | None = None, trace_max: float | None = None, radius: float = RADIUS,
                  max_gap_s: float = 1.0, warmup_s: float = 10.0, fit_window_s: float = 600.0,
-                 noise_after_s: float | None = None):
+                 noise_after_s: float | None = None, adapt: str = "all"):
         if structure is None:
             if prior is None:
                 raise ValueError("give a structure or a prior model")
@@ -432,7 +445,12 @@ class RPEM:
         cov = prior.covariance if prior is not None else None
         noise_var = (prior.info or {}).get("noise_variance") if prior is not None else None
         self.R = float(R if R is not None else noise_var or 1.0)
-        if P0 is None and cov is not None:
+        if adapt not in ("all", "gain") or (adapt == "gain" and prior is None):
+            raise ValueError(f"adapt must be 'all' or 'gain' (with a prior), got {adapt!r}")
+        if adapt == "gain":
+            beta = np.where(np.arange(d) < sum(s.nb), self.theta, 0.0)
+            P0 = float(0.1**2 if P0 is None else P0) * np.outer(beta, beta)
+        elif P0 is None and cov is not None:
             P0 = cov * (self.R / noise_var) if noise_var else cov
         elif P0 is None:
             P0 = (0.1 * self.theta) ** 2 + 1e-10 if prior is not None else 100.0

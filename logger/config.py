@@ -1,6 +1,7 @@
 """The logger daemon's configuration: a TOML file (example in docs/raspberry-pi.md), command-line overrides."""
 from __future__ import annotations
 
+import os
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -20,6 +21,8 @@ TOML_KEYS = {
     "identify": {"enabled": "identify", "model": "identify_model", "orders": "identify_orders",
                  "method": "identify_method", "forgetting": "identify_forgetting", "snapshot_s": "snapshot_s",
                  "replay_speed": "replay_speed"},
+    "upload": {"server": "upload_server", "token_file": "upload_token_file",
+               "delete_after_upload": "delete_after_upload"},
     "sources": None,  # DBC message name (or "default") -> preferred source address
 }
 
@@ -50,6 +53,10 @@ class LoggerConfig:
     identify_forgetting: float | None = None  # constant λ; None: 0.9995 from a model, growing to 1 from scratch
     snapshot_s: float = 300.0  # model.json written this often [s], and at shutdown
     replay_speed: float = 1.0  # the bus is a replay played this many times faster than recorded
+    # upload of every closed file to the fleet server (logger.upload.UploadQueue, journal in output_dir)
+    upload_server: str | None = None  # e.g. https://fleet.example.com; None: no upload
+    upload_token_file: Path | None = None  # the truck's token; default: $FUELID_TOKEN
+    delete_after_upload: bool = False  # delete a local file once the server confirmed its sha256 and size
 
     def __post_init__(self):
         self.output_dir = Path(self.output_dir)
@@ -67,6 +74,23 @@ class LoggerConfig:
             raise FuelidError(f"forgetting factor must be in (0, 1], got {self.identify_forgetting}")
         if self.snapshot_s <= 0 or self.replay_speed <= 0:
             raise FuelidError("snapshot period and replay speed must be > 0")
+        self.upload_token_file = Path(self.upload_token_file) if self.upload_token_file else None
+        if self.delete_after_upload and not self.upload_server:
+            raise FuelidError("delete_after_upload needs an upload server")
+
+    def upload_token(self) -> str:
+        """The truck's fleet token: from the token file, else $FUELID_TOKEN (never a command-line argument,
+        which every user of the box could read in the process list)."""
+        if self.upload_token_file is None:
+            token = os.environ.get("FUELID_TOKEN", "")
+        else:
+            try:
+                token = self.upload_token_file.read_text().strip()
+            except OSError as exc:
+                raise FuelidError(f"cannot read upload token file {self.upload_token_file}: {exc.strerror}") from None
+        if not token:
+            raise FuelidError("uploading needs the truck's token: set the upload token file or $FUELID_TOKEN")
+        return token
 
     @classmethod
     def load(cls, path: str | Path | None = None, **overrides) -> LoggerConfig:

@@ -471,6 +471,13 @@ class Daemon:
         self.faults = Faults()
         self.files = LogFiles(config.output_dir, self.faults)
         self.live = make_live_estimator(config) if config.identify else None
+        self.uploads = None
+        if config.upload_server:
+            from logger.upload import UploadQueue
+
+            self.uploads = UploadQueue(config.output_dir, config.upload_server, config.upload_token(), None,
+                                       delete_after_upload=config.delete_after_upload)
+            self.files.on_file_closed.append(self.uploads.enqueue)
         self.sink = LogSink(config, self.files, self.faults, self.live)
         self.bus: BusLink | None = None
         self.flow: FlowInput | None = None
@@ -508,6 +515,8 @@ class Daemon:
                 self.flow.close()
             self.sink.stop_writing()
             self._final_snapshot()
+            if self.uploads:
+                self.uploads.stop()  # what is still queued stays in the journal for the next start
             self.write_status(state="stopped")
 
     def _final_snapshot(self) -> None:
@@ -586,6 +595,7 @@ class Daemon:
             "vin": rec.vin if rec else None,
             "truck": (rec.vin if rec else None) or self.config.truck,
             "identify": self._identify_status(),
+            "upload": self.uploads.status() if self.uploads else None,
             "faults": dict(self.faults.counts),
             "faults_active": dict(self.faults.active),
         }
@@ -601,7 +611,8 @@ class Daemon:
                "snapshot": str(live.snapshot_path)}
         if live.est is not None:
             rep = live.est.report()
-            out.update(updates=rep["updates"], lam=rep["lam"],
+            out.update(samples=rep["samples"], updates=rep["updates"], rejected_steps=rep["rejected_steps"],
+                       lam=rep["lam"],
                        fit_simulation_pct=_finite(rep["running_fit_simulation_pct"]))
         return out
 

@@ -146,7 +146,8 @@ def test_compare_with_seed2_baselines(recording, tmp_path, capsys):
         assert {"fit_percent", "rmse", "cycle_fuel_error_percent"} <= set(b) and b["in_sample"]
     assert base["eb"]["fit_percent"]["simulation"] > base["vb"]["fit_percent"]["simulation"]
     sweeps = out["baseline_sweeps"]
-    assert len(sweeps["fuel_shift"]["shift_s"]) == 7 and sweeps["fuel_shift"]["best_shift_s"] in sweeps["fuel_shift"]["shift_s"]
+    shift = sweeps["fuel_shift"]
+    assert len(shift["shift_s"]) == 7 and shift["best_shift_s"] in shift["shift_s"]
     assert sweeps["J1"]["best_J1"] in sweeps["J1"]["J1"]
 
     assert main(["compare", str(model), str(recording), "--baselines", "eb"]) == 0
@@ -166,6 +167,33 @@ def test_identify_across_a_gap(tmp_path, capsys):
     assert res["estimation"]["converged"] and res["fit_percent"]["simulation"] > 90
 
 
+def test_identify_searches_the_orders(recording, tmp_path, capsys):
+    """--orders auto: the lowest orders whose residuals pass the paper's tests (the truth has nb 2/2, nk 1/0)."""
+    model = tmp_path / "auto.json"
+    assert main(["identify", str(recording), "--orders", "auto", "-o", str(model), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    search = res["order_search"]
+    assert search["passed"] and search["trials"][-1]["nb"] == res["structure"]["nb"]
+    assert res["structure"]["nk"] == [1, 0] and res["whiteness"]["autocorr_pass"]
+    assert res["fit_percent"]["simulation"] > 90
+
+
 def test_identify_rejects_bad_orders(recording, tmp_path, capsys):
     assert main(["identify", str(recording), "--orders", "nb=4;zz=1", "-o", str(tmp_path / "m.json")]) == 1
     assert "--orders" in capsys.readouterr().err
+
+
+def test_identify_adds_the_effects_a_diagnosis_named(recording, tmp_path, capsys):
+    diagnosis = tmp_path / "diagnosis.json"  # as `fuelid diagnose --json` writes it, cut to what identify reads
+    diagnosis.write_text(json.dumps({"candidates": [{"effect": "power_nonlinearity", "significant": True},
+                                                    {"effect": "idle_fuelling", "significant": False}]}))
+    model = tmp_path / "after.json"
+    spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
+    assert main(["identify", str(recording), "--orders", spec, "--effects-from", str(diagnosis),
+                 "-o", str(model), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["effects"] == ["power_nonlinearity"]
+
+    diagnosis.write_text('{"verdict": "no candidates here"}')
+    assert main(["identify", str(recording), "--effects-from", str(diagnosis), "-o", str(model)]) == 1
+    err = capsys.readouterr().err
+    assert "not a `fuelid diagnose --json` result" in err and len(err.strip().splitlines()) == 1

@@ -38,12 +38,31 @@ def model_path(converted):
 
 
 def test_table_one_cycle_fuel_error(converted, model_path, capsys):
+    """Table I: fuelid's cycle fuel error RMS within the paper's 2.4 % and below the engine map's. The paper's
+    map scored 8.1 %; here the gap is small (measured 0.65 % vs 0.81 %, ratio 0.80) because the simulated
+    engine is the paper's linear model, whose static map integrates like the model itself (next test)."""
     result = run_json(capsys, "compare", model_path, *[converted / f"{c}.mcap" for c in CYCLES],
                       "--map-from", converted / "diesel_ident_90min.mcap")
     cycles = result["models"][0]["cycle_fuel_error_percent"]  # per cycle id, plus "mean" and "rms"
-    assert len(cycles) - 2 == 11
+    fmap = result["baselines"]["map"]
+    assert len(cycles) - 2 == 11 and fmap["in_sample"] is False
     assert cycles["rms"] <= 2.4  # the paper: 2.4 %
-    assert result["baselines"]["map"]["in_sample"] is False
+    assert cycles["rms"] < 0.9 * fmap["cycle_fuel_error_percent"]["rms"]
+
+
+def test_the_static_map_of_a_linear_engine_integrates_like_the_engine():
+    """Why the map comes close here: the truth is the paper's linear model y = y0 + G(q) u + H e, and over a
+    30-min cycle ∫ G(q) u dt = G(1) ∫ u dt up to a transient, so the perfect steady-state map of it — the plane
+    y0 + G(1) u — makes the same cycle fuel error as the true dynamic model (to 0.01 percentage points)."""
+    for name in CYCLES:
+        truth = json.loads((LOGS / f"{name}.truth.json").read_text())["fuel_truth"]
+        z = np.load(LOGS / f"{name}.truth.npz")
+        gain = {k: np.sum(truth[k]["B"]) / np.sum(truth[k]["F"]) for k in ("Gw", "GT")}
+        plane = (truth["output"]["operating_point"]
+                 + gain["Gw"] * (z["engine_speed_rpm"] - truth["inputs"]["W"]["operating_point"])
+                 + gain["GT"] * (z["torque_true_pct"] - truth["inputs"]["T"]["operating_point"]))
+        error = lambda f: 100 * (f.sum() - z["fuel_measured"].sum()) / z["fuel_measured"].sum()  # noqa: E731, eq. 20
+        assert abs(error(plane) - error(z["fuel_model"])) < 0.01, name
 
 
 def test_validation_trip_fit_is_the_papers(converted, model_path, capsys):
@@ -65,3 +84,46 @@ def test_identified_model_simulates_the_noise_free_truth(converted, model_path):
     fit_model = fit_percent(fuel_true[skip:], simulate(model, ds.u[seg])[skip:])
     fit_measured = fit_percent(fuel_true[skip:], ds.y[seg][skip:])
     assert fit_model >= 94.0 and fit_model > fit_measured + 3.0
+
+
+EFFECTS = (("inertia", 3.2), ("overrun_cutoff", 1.0), ("gear_shift", 0.3), ("fuel_delay", 0.4))
+
+
+def simulated_dataset(cycle: str, duration_s: float, seed: int):
+    """A trip of the simulator with EFFECTS, as the dataset of its 0.3 s truth series (reported torque, measured
+    fuel, vehicle speed; no bus in between, which keeps this test fast)."""
+    from sim.trip import TripConfig, simulate
+
+    z = simulate(TripConfig(cycle=cycle, duration_s=duration_s, seed=seed, effects=EFFECTS)).truth
+    ns = (z["t_s"] * 1e9).round().astype(np.int64) + 1000
+    records = [("/j1939/EC1", int(ns[0]), {"sa": 0, "EngReferenceTorque": 1600.0})]
+    for i in range(len(ns)):
+        records += [("/j1939/EEC1", int(ns[i]), {"sa": 0, "EngSpeed": float(z["engine_speed_rpm"][i]),
+                                                 "ActualEngPercentTorque": float(z["torque_reported_pct"][i])}),
+                    ("/j1939/LFE1", int(ns[i]), {"sa": 0, "EngFuelRate": float(z["fuel_measured"][i])}),
+                    ("/j1939/CCVS1", int(ns[i]), {"sa": 0, "WheelBasedVehicleSpeed": float(z["speed_kmh"][i])})]
+    return build_dataset(records)
+
+
+def test_physical_effects_do_not_open_the_papers_map_gap():
+    """With the effects a real engine has and the two-input model lacks (inertia hidden from the reported
+    torque, overrun fuel cut-off, gear-shift fuelling, a 0.4 s fuel-signal delay), identified on a simulated
+    1.5 h trip and tested on four 30-min cycles: fuelid stays within the paper's 2.4 %, and the map stays as
+    close (measured: fuelid 0.72 %, map 0.63 % RMS) — these effects barely move integrated fuel, so the paper's
+    8.1 % must come from what the simulator does not have (see README, Accuracy on the shipped data)."""
+    from ident.baseline import engine_map
+    from ident.identify import identify_model
+    from ident.polymodel import Structure
+    from ident.validation import error_table, evaluate, evaluate_static
+
+    ident = simulated_dataset("mixed", 5400, 101)
+    model = identify_model(ident, Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11))
+    fmap = engine_map(ident)
+    errors = {"model": {}, "map": {}}
+    for j, cycle in enumerate(["urban", "rural", "motorway", "mixed"]):
+        ds = simulated_dataset(cycle, 1800, 1001 + j)
+        errors["model"][j] = evaluate(model, ds)["cycle_fuel_error_percent"]["mean"]  # one cycle per trip
+        errors["map"][j] = evaluate_static(fmap(ds.u), ds)["cycle_fuel_error_percent"]["mean"]
+    rms = {k: error_table(v)["rms"] for k, v in errors.items()}
+    assert rms["model"] <= 2.4
+    assert abs(rms["map"] - rms["model"]) < 1.0, rms

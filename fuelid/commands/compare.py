@@ -84,7 +84,8 @@ def run(args) -> int:
             if b in STATIC:
                 kind = STATIC[b]
                 baselines[b] = ({"error": s2["errors"][kind]} if kind in s2["errors"] else
-                                {**built, **evaluate_static(s2["predictions"][kind], ds)})
+                                {**built, "outside_calibration_share": s2["outside"][kind],
+                                 **evaluate_static(s2["predictions"][kind], ds)})
 
     out = {"data": {"files": data_paths, **ds.summary()}, "models": results, "baselines": baselines,
            "baseline_sweeps": sweeps}
@@ -94,7 +95,8 @@ def run(args) -> int:
         rows = [(r["model"], r) for r in results]
         for b, res in baselines.items():
             if "error" not in res:
-                rows.append((f"baseline map ({res['points']} pts)" if b == "map" else f"baseline {STATIC[b]} (LWR)", res))
+                label = f"baseline map ({res['points']} pts)" if b == "map" else f"baseline {STATIC[b]} (LWR)"
+                rows.append((label, res))
         print(f"{len(ds.segments())} segments, {ds.valid.sum() * ds.Ts / 60:.1f} min valid, "
               f"{len(out['data']['cycles'])} drive cycles")
         print(format_table(rows, ds.output_unit))

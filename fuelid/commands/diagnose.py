@@ -12,8 +12,10 @@ def add_arguments(p):
     p.add_argument("--alpha", type=float, default=0.05,
                    help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
     p.add_argument("--verify", type=int, default=3, metavar="N",
-                   help="refit with each of the first N effects found to measure the held-out error drop "
-                        "(default 3; 0 skips)")
+                   help="verify each of the first N effects found: the held-out error drop of a linearised "
+                        "refit, scored on 60-s blocks left out of it (default 3; 0 skips)")
+    p.add_argument("--min-drop", type=float, default=2.0, metavar="PERCENT",
+                   help="smallest fall of the held-out RMS error [%%] that confirms a verified effect (default 2)")
     p.add_argument("--min-effect", type=float, default=1.0, metavar="PERCENT",
                    help="smallest share of the simulation error [%%] an effect must explain to be named "
                         "(default 1; smaller ones are detectable but not worth an input)")
@@ -69,7 +71,8 @@ def run(args) -> int:
     if abs(model.Ts - ds.Ts) > 1e-9:
         raise FuelidError(f"model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
     try:
-        result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect)
+        result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect,
+                          min_drop_percent=args.min_drop)
     except ValueError as exc:
         raise FuelidError(str(exc)) from exc
     result["data"]["files"] = list(map(str, args.inputs))

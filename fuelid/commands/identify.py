@@ -1,8 +1,11 @@
 """fuelid identify: a Box-Jenkins fuel-flow model from MCAP recordings by prediction-error identification."""
+import json
 import sys
 import time
+from pathlib import Path
 
 from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.errors import FuelidError
 from fuelid.output import print_json
 
 HELP = "identify a Box-Jenkins fuel-flow model (engine speed, torque -> fuel) from MCAP recordings"
@@ -15,12 +18,10 @@ PAPER = dict(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11)
 
 def parse_orders(spec: str) -> dict:
     """'paper' or 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11[;na=0]' → Structure keyword arguments."""
-    from fuelid.errors import FuelidError
-
     if spec == "paper":
         return dict(PAPER)
     if spec == "auto":
-        raise FuelidError("--orders auto: the order search is not available yet; use paper or a SPEC")
+        raise FuelidError("--orders auto is an offline search (fuelid identify); here give paper or a SPEC")
     out = {}
     try:
         for part in filter(None, (p.strip() for p in spec.replace(" ", ";").split(";"))):
@@ -50,10 +51,21 @@ def add_arguments(p):
     p.add_argument("--effect", action="append", default=[], metavar="ID",
                    help="add a physical effect as extra input (ids as in `fuelid diagnose`; fuel_delay=SECONDS); "
                         "repeatable")
+    p.add_argument("--effects-from", metavar="DIAGNOSIS.json",
+                   help="also add every effect named significant in a saved `fuelid diagnose --json` result")
     p.add_argument("--min-segment", type=float, default=30.0, metavar="S",
                    help="leave out valid stretches shorter than this [s] (default 30)")
     add_dataset_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def significant_effects(path: str) -> list[str]:
+    """The effect ids a saved `fuelid diagnose --json` result names as missing, strongest first."""
+    try:
+        candidates = json.loads(Path(path).read_text())["candidates"]
+        return [c["effect"] for c in candidates if c["significant"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise FuelidError(f"--effects-from {path}: not a `fuelid diagnose --json` result ({exc})") from exc
 
 
 def run(args) -> int:
@@ -65,9 +77,17 @@ def run(args) -> int:
     from ident.polymodel import Structure
 
     t_start = time.perf_counter()
-    structure = Structure(**parse_orders(args.orders))
+    if args.effects_from:
+        args.effect += [e for e in significant_effects(args.effects_from) if e not in args.effect]
+    structure = None if args.orders == "auto" else Structure(**parse_orders(args.orders))
     ds = build(args, args.inputs)
     t_data = time.perf_counter()
+    search = None
+    if structure is None:  # the lowest orders passing the paper's residual tests, then the fit with effects
+        from ident.orders import search_dataset_orders
+
+        search = search_dataset_orders(ds, args.min_segment)
+        structure = search.structure
     model = identify_model(ds, structure, args.effect, min_segment_s=args.min_segment, files=args.inputs)
     save_model(model, args.output)
     t_end = time.perf_counter()
@@ -81,7 +101,14 @@ def run(args) -> int:
         "effects": list(model.effects),
         "training": {"samples": n_train, "stretches": n_segs, "Ts": ds.Ts,
                      "operating_point": {"u0": [float(v) for v in ds.u0], "y0": float(ds.y0)},
-                     "warnings": ds.notes + list(model.info.get("warnings", []))},
+                     "warnings": ds.notes + list(model.info.get("warnings", [])) + (
+                         [] if search is None or search.passed else
+                         [f"--orders auto: none of {len(search.trials)} candidates passed the residual tests; "
+                          "the last one tried is used"])},
+        "order_search": None if search is None else {
+            "passed": search.passed,
+            "trials": [{**dataclasses.asdict(t.structure), "loss_V": t.loss_V, "autocorr_pass": t.autocorr_pass,
+                        "crosscorr_pass": list(t.crosscorr_pass)} for t in search.trials]},
         "estimation": {key: model.info[key] for key in
                        ("converged", "stop_reason", "iterations", "gauss_newton_step_se", "loss_V", "segments")},
         **metrics,

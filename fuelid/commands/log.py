@@ -39,6 +39,11 @@ def add_arguments(p):
     p.add_argument("--replay-speed", type=float, metavar="X",
                    help="--identify: the bus carries a replay at X times real time (fuelid replay --speed X); "
                         "default 1")
+    p.add_argument("--upload-server", metavar="URL",
+                   help="upload every closed file to this fleet server (fuelid serve), queued across restarts")
+    p.add_argument("--upload-token-file", metavar="FILE", help="the truck's fleet token (default: $FUELID_TOKEN)")
+    p.add_argument("--delete-after-upload", action="store_true", default=None,
+                   help="delete a local file once the server has confirmed it (sha256 and size)")
     p.add_argument("-q", "--quiet", action="store_true", help="log warnings only")
 
 
@@ -49,7 +54,8 @@ def run(args) -> int:
     overrides = {k: getattr(args, k) for k in (
         "interface", "channel", "bitrate", "listen_only", "serial_port", "serial_baudrate", "flow_gain",
         "flow_offset", "output_dir", "rotate_s", "rotate_mb", "min_free_mb", "status_file", "truck", "identify",
-        "identify_model", "identify_orders", "identify_method", "identify_forgetting", "snapshot_s", "replay_speed")}
+        "identify_model", "identify_orders", "identify_method", "identify_forgetting", "snapshot_s", "replay_speed",
+        "upload_server", "upload_token_file", "delete_after_upload")}
     config = LoggerConfig.load(args.config, **overrides)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(levelname)s %(message)s")

@@ -21,7 +21,7 @@ def add_arguments(p):
                         "(tracks a drifting fuel gain; needs --prior)")
     p.add_argument("--forgetting", type=float, metavar="LAMBDA",
                    help="rpem: constant forgetting factor λ in (0, 1], e.g. 0.9995 (memory ≈ Ts/(1−λ) = 10 min); "
-                        "default λ growing from 0.95 to 1 (1 with a prior)")
+                        "default λ growing from 0.99 towards 1 (1 with a prior)")
     p.add_argument("--drift", type=float, default=3e-4, metavar="RATE",
                    help="kalman: relative fuel-gain drift per sample (default 3e-4)")
     add_dataset_arguments(p)

@@ -43,6 +43,15 @@ def run(args) -> int:
     lines.append("serial:     none" if serial is None else
                  f"serial:     {serial['port']} {serial['state']}, {serial['lines']} lines, {serial['invalid']} invalid, {serial['disconnects']} disconnects")
     lines.append(f"truck:      {s['truck']}" + ("" if s["vin"] else " (no VIN seen)"))
+    ident = s.get("identify")
+    if ident:
+        fit = ident.get("fit_simulation_pct")
+        lines.append(f"identify:   {ident['state']}, {ident.get('updates', 0)} updates, {ident['errors']} errors"
+                     + ("" if fit is None else f", running fit {fit:.1f} %") + f"; snapshot {ident['snapshot']}")
+    upload = s.get("upload")
+    if upload:
+        lines.append(f"upload:     {upload['queued']} queued, {upload['uploaded']} uploaded, {upload['rejected']} refused"
+                     + (f"; last error: {upload['last_error']}" if upload["last_error"] else ""))
     if s["faults"]:
         lines.append("faults:     " + ", ".join(f"{k} {v}" for k, v in s["faults"].items())
                      + "".join(f"\n  now: {k}: {v}" for k, v in s["faults_active"].items()))

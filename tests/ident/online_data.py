@@ -23,6 +23,18 @@ def diesel_truth() -> PolyModel:
     return true_model(paper)
 
 
+def fleet_prior(truth: PolyModel) -> PolyModel:
+    """The offline PEM model (with its covariance) of independent data (seed 2): the fleet model to start from."""
+    import warnings
+
+    from ident.pem import pem
+
+    u, y, _ = paper_data(truth, n=12000, seed=2, sigma_e=SIGMA_E)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # near pole-zero cancellations of the paper's orders
+        return pem(u, y, truth.structure, 0.3)
+
+
 def drifting_data(truth: PolyModel, n: int, step: float = 0.05, seed: int = 1):
     """(u, y): the truth's output with its fuel gain raised by `step` from sample n/2 on (injector drift)."""
     u, y, y_clean = paper_data(truth, n=n, seed=seed, sigma_e=SIGMA_E)

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from ident.baseline import (EngineMap, engine_map, fuel_shift_sweep, inertia_sweep, lwr, seed2_baselines,
-                            static_inputs, steady_points)
+from ident.baseline import (EngineMap, engine_map, fuel_shift_sweep, inertia_sweep, lwr, outside_share, seed2_baselines,
+                            static_inputs, static_model, steady_points)
 from ident.dataset import VEHICLE_SPEED, Dataset
 
 TS = 0.3
@@ -142,3 +142,17 @@ def test_seed2_vb_without_vehicle_speed_is_an_error():
     del ds.extra[VEHICLE_SPEED]
     res = seed2_baselines(ds, ds, ["VB", "EB"], span=0.02, grid=None, J1_values=[0.0], sweep_points=500)
     assert "vehicle speed" in res["errors"]["VB"] and "EB" in res["predictions"]
+
+
+def test_static_model_holds_its_edge_outside_the_calibration_range():
+    """A local linear fit would extrapolate without bound; like a lookup table, the model holds the value at
+    the edge of the calibration data, and the share of samples that needed it is reported."""
+    train = sweep_drive()
+    test = sweep_drive(seed=5)
+    test.u[:, 0] = test.u[:, 0] * 2.0  # engine speeds up to twice the calibrated ones
+    assert outside_share(train, test, "EB") > 0.3
+    edge = train.u[train.valid, 0].max()
+    held = static_model(train, test, "EB", span=0.02)
+    clamped = make_ds(np.minimum(test.u[:, 0], edge), test.u[:, 1], test.y, v=np.full(len(test), 50.0))
+    at_edge = static_model(train, clamped, "EB", span=0.02)
+    np.testing.assert_allclose(held[test.valid], at_edge[test.valid])

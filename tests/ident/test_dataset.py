@@ -189,3 +189,26 @@ def test_files_join_into_one_timeline_but_overlapping_recordings_are_refused(tmp
     assert len(ds.segments()) == 2 and ds.valid.sum() * ds.Ts == pytest.approx(120.0, abs=1.0)
     with pytest.raises(FuelidError, match="overlap in time"):
         build_dataset([first, same_time])
+
+
+def test_a_recording_gives_the_dataset_of_its_records(tmp_path):
+    """Reading the MCAP (only the decoded topics, skipping the /can/raw frames between them) gives exactly the
+    dataset of the same records handed over in memory: every column, the extras and their order. Nulls,
+    booleans and text are no samples."""
+    recs = trip(40.0)
+    recs += [("/j1939/ETC2", int(round(i * 0.1 * NS)), {"t": i * 0.1, "sa": 3, "CurrentGear": None if i % 7 else 4,
+                                                         "TransSelectedGear": 5, "Mode": "drive", "Shift": i % 2 == 0})
+             for i in range(400)]
+    raw = [("/can/raw", ns + 1, {"t": 0.0, "id": 0x0CF00400, "extended": True, "data": "00" * 8})
+           for _, ns, _ in recs[::3]]
+    path = tmp_path / "trip.mcap"
+    _write_mcap(path, sorted(recs + raw, key=lambda r: r[1]))
+    from_file, in_memory = build_dataset(path), build_dataset(sorted(recs, key=lambda r: r[1]))
+    for name in ("t", "u", "y", "valid", "cycle", "u0"):
+        np.testing.assert_array_equal(getattr(from_file, name), getattr(in_memory, name))
+    assert list(from_file.extra) == list(in_memory.extra) and from_file.sources == in_memory.sources
+    for name, col in in_memory.extra.items():
+        np.testing.assert_array_equal(from_file.extra[name], col)
+    assert "ETC2.Mode" not in in_memory.extra and "ETC2.Shift" not in in_memory.extra
+    gear = in_memory.extra["ETC2.CurrentGear"]
+    assert np.nanmax(gear) == 4 and in_memory.sources["ETC2.CurrentGear"] == 3

@@ -1,13 +1,11 @@
 """Kalman variant: one step equals filterpy's KalmanFilter; tracks a fuel-gain drift."""
-import warnings
-
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
 from ident.kalman import ParameterKalman, gain_drift_Q
 from ident.rpem import covariance_update, gain
-from tests.ident.online_data import SIGMA_E, dc_gains, diesel_truth, drifting_data
+from tests.ident.online_data import SIGMA_E, dc_gains, diesel_truth, drifting_data, fleet_prior, sim_fit
 from tests.ident.synthetic import paper_data
 
 
@@ -29,14 +27,13 @@ def test_step_equals_filterpy():
     assert np.allclose(P, kf.P)
 
 
-def test_kalman_tracks_fuel_gain_drift():
-    from ident.pem import pem
+@pytest.fixture(scope="module")
+def prior():
+    return fleet_prior(diesel_truth())
 
+
+def test_kalman_tracks_fuel_gain_drift(prior):
     truth = diesel_truth()
-    u_p, y_p, _ = paper_data(truth, n=12000, seed=2, sigma_e=SIGMA_E)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        prior = pem(u_p, y_p, truth.structure, 0.3)
     n = 16000
     u, y = drifting_data(truth, n, step=0.05)
     est = ParameterKalman(prior=prior, rate=1e-3)
@@ -53,3 +50,28 @@ def test_kalman_tracks_fuel_gain_drift():
 def test_needs_q_or_prior():
     with pytest.raises(ValueError):
         ParameterKalman(diesel_truth().structure, 0.3)
+
+
+def test_kalman_stable_under_bursts_and_restarts(prior):
+    truth = diesel_truth()
+    u, y, _ = paper_data(truth, n=8000, seed=6, sigma_e=SIGMA_E)
+    clean_u, clean_y = u.copy(), y.copy()
+    rng = np.random.default_rng(7)
+    valid = np.ones(len(y), bool)
+    for start in rng.integers(200, len(y) - 400, 30):  # not-available bursts of 1–300 samples
+        stop = start + int(rng.integers(1, 300))
+        which = rng.integers(3)
+        if which == 0:
+            u[start:stop, 0] = np.nan
+        elif which == 1:
+            y[start:stop] = np.nan
+        else:
+            valid[start:stop] = False
+    est = ParameterKalman(prior=prior, rate=1e-3)
+    for k, idx in enumerate(np.array_split(np.arange(len(y)), 5)):
+        if k == 2:
+            est.reset()
+        trace = est.update(u[idx], y[idx], valid[idx])
+        assert np.all(np.isfinite(trace.yhat[trace.status >= 0]))
+    assert np.all(np.isfinite(est.theta)) and np.all(np.isfinite(est.P))
+    assert sim_fit(est.model(), clean_u, clean_y) > sim_fit(prior, clean_u, clean_y) - 2.0

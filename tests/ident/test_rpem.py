@@ -6,7 +6,7 @@ import pytest
 
 from ident.polymodel import Structure
 from ident.rpem import NO_STATE, NO_UPDATE, RPEM, _stable
-from tests.ident.online_data import SIGMA_E, dc_gains, diesel_truth, drifting_data, sim_fit
+from tests.ident.online_data import SIGMA_E, dc_gains, diesel_truth, drifting_data, fleet_prior, sim_fit
 from tests.ident.synthetic import paper_data
 
 
@@ -24,12 +24,7 @@ def data(truth):
 @pytest.fixture(scope="module")
 def prior(truth):
     """An offline PEM model (with its covariance) from independent data: the 'fleet model' to start from."""
-    from ident.pem import pem
-
-    u, y, _ = paper_data(truth, n=12000, seed=2, sigma_e=SIGMA_E)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # near pole-zero cancellations of the paper's orders
-        return pem(u, y, truth.structure, 0.3)
+    return fleet_prior(truth)
 
 
 def test_schur_cohn_matches_roots():
@@ -41,10 +36,11 @@ def test_schur_cohn_matches_roots():
         assert _stable(a[1:], 0, 6, 0.9999, work) == bool(np.all(np.abs(roots) < 0.9999))
 
 
-def test_converges_to_offline_pem_from_scratch(truth, data):
+@pytest.mark.parametrize("seed", [0, 5])  # seed 5: 69 % with the earlier λ0 = 0.999 (ident.rpem docstring)
+def test_converges_to_offline_pem_from_scratch(truth, seed):
     from ident.pem import pem
 
-    u, y = data
+    u, y, _ = paper_data(truth, n=12000, seed=seed, sigma_e=SIGMA_E)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         offline = pem(u, y, truth.structure, 0.3)
@@ -57,7 +53,8 @@ def test_converges_to_offline_pem_from_scratch(truth, data):
     assert rep["rejected_steps"] < 0.01 * rep["updates"]
     assert rep["noise_variance"] == pytest.approx(SIGMA_E**2, rel=0.2)
     assert abs(rep["running_fit_simulation_pct"] - sim_fit(offline, u, y)) < 3.0
-    assert trace.dtheta[-1000:].max() < 1e-2  # settled: per-update relative change small
+    # settled: per-update relative change small (λ is still growing towards 1, so not zero)
+    assert np.median(trace.dtheta[-1000:]) < 5e-3 and trace.dtheta[-1000:].max() < 5e-2
     for poly in online.F + [online.C, online.D]:
         assert np.abs(np.roots(poly)).max() < 1.0
 

@@ -59,3 +59,51 @@ def test_queue_keeps_files_without_delete_after_upload(tmp_path):
         assert f.exists()
     finally:
         server.stop()
+
+
+def test_daemon_uploads_every_closed_file(tmp_path, capsys):
+    from fuelid.cli import main
+    from logger.replay import replay
+    from tests.logger import traffic
+    from tests.logger.test_daemon import Running
+
+    server = Server(tmp_path / "data").start()
+    try:
+        token_file = tmp_path / "truck.token"
+        token_file.write_text(server.token("truck", traffic.VIN) + "\n")  # the truck is named by its VIN
+        settings = dict(truck=traffic.VIN, rotate_s=0.5, upload_server=server.url, upload_token_file=token_file,
+                        delete_after_upload=True)
+        drive = tmp_path / "drive.log"
+        traffic.write_candump(drive, 3.0)
+        run = Running(tmp_path, "upload", **settings)
+        replay([drive], run.tx, speed=4)
+        wait_for(lambda: run.daemon.sink.closed_files >= 2 and run.daemon.uploads.status()["queued"] == 0)
+        uploaded = run.daemon.uploads.status()["uploaded"]
+        run.stop()  # closes the last file; the stopped queue keeps it in its journal
+        logs = run.config.output_dir
+        journal = json.loads((logs / "upload-queue.json").read_text())
+        assert journal["pending"] == [str(p) for p in logs.glob("*.mcap")] and len(journal["pending"]) == 1
+        assert run.status()["upload"]["uploaded"] == uploaded
+        main(["status", "--status-file", str(run.config.status_file)])  # stopped: exit 1, still shows the queue
+        assert f"upload:     1 queued, {uploaded} uploaded, 0 refused" in capsys.readouterr().out
+
+        again = Running(tmp_path, "upload2", **settings)  # the next start sends what was left
+        wait_for(lambda: again.daemon.uploads.status()["queued"] == 0)
+        again.stop()
+        with server.engine.connect() as conn:
+            stored = conn.exec_driver_sql("SELECT count(*) FROM files").scalar()
+        assert stored == uploaded + 1 and not journal["rejected"]
+        journal = json.loads((logs / "upload-queue.json").read_text())  # now only the second run's own file
+        assert journal["pending"] == [str(p) for p in logs.glob("*.mcap")] and len(journal["pending"]) == 1
+    finally:
+        server.stop()
+
+
+def test_upload_needs_a_token(tmp_path, monkeypatch, capsys):
+    from fuelid.cli import main
+
+    monkeypatch.delenv("FUELID_TOKEN", raising=False)
+    assert main(["log", "--interface", "virtual", "--output-dir", str(tmp_path), "--upload-server",
+                 "http://127.0.0.1:9"]) == 1
+    err = capsys.readouterr().err
+    assert "token" in err and len(err.strip().splitlines()) == 1

@@ -1,0 +1,82 @@
+"""fuelid online end to end on a converted simulated trip: from scratch, from a prior, Kalman, bad input."""
+import contextlib
+import io
+import json
+
+import pytest
+
+from fuelid.cli import main
+from ident.modelfile import load_model
+
+
+@pytest.fixture(scope="module")
+def trip(tmp_path_factory):
+    """A simulated 10-minute urban trip of the diesel truck, converted to MCAP."""
+    d = tmp_path_factory.mktemp("online")
+    log = d / "trip.log.gz"
+    assert main(["simulate", "--truth", "diesel_p320", "--cycle", "urban", "--duration", "600", "--seed", "3",
+                 "-o", str(log)]) == 0
+    assert main(["convert", str(log), "-o", str(d / "trip.mcap")]) == 0
+    return d / "trip.mcap"
+
+
+def _online(capsys, *args) -> dict:
+    capsys.readouterr()
+    assert main(["online", *map(str, args), "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.fixture(scope="module")
+def scratch(trip, tmp_path_factory):
+    """The model identified from scratch (paper orders) and the --json result."""
+    out = tmp_path_factory.mktemp("scratch") / "model.json"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main(["online", str(trip), "-o", str(out), "--json"]) == 0
+    return out, json.loads(buf.getvalue())
+
+
+def test_from_scratch(scratch, trip):
+    out, r = scratch
+    assert r["model"] == str(out) and r["method"] == "rpem" and r["restarts"] == 0
+    assert r["structure"]["nb"] == [4, 5] and r["samples"] > 1900 and r["updates"] > 0.95 * r["samples"]
+    assert r["update_rate_samples_per_s"] > 5000 and r["final_lambda"] < 1.0  # λ still growing towards 1
+    # 600 s: all in the output-error phase (C = D = 1), so the prediction is the simulation
+    assert r["fit_percent"]["simulation"] > 75.0 and r["fit_percent"]["prediction"] >= r["fit_percent"]["simulation"]
+    assert set(r["running_fit_percent"]) == {"prediction", "simulation"}
+    model = load_model(out)  # loads back, with the data's names and units and the run's report
+    assert model.structure.n_params == 41 and model.input_units == ("rpm", "Nm") and model.output_unit == "L/h"
+    assert model.info["updates"] == r["updates"] and model.validation["fit_percent"] == r["fit_percent"]
+
+
+def test_from_prior_rpem_and_kalman(scratch, trip, tmp_path, capsys):
+    prior, first = scratch
+    r = _online(capsys, trip, "--prior", prior, "--forgetting", "0.9995", "-o", tmp_path / "rpem.json")
+    assert r["final_lambda"] == 0.9995
+    assert r["fit_percent"]["simulation"] > first["fit_percent"]["simulation"] - 2.0  # a second pass keeps it
+    k = _online(capsys, trip, "--prior", prior, "--method", "kalman", "-o", tmp_path / "kalman.json")
+    assert k["method"] == "kalman" and load_model(tmp_path / "kalman.json").info["method"].startswith("Kalman")
+    assert k["fit_percent"]["simulation"] > first["fit_percent"]["simulation"] - 2.0
+
+
+def test_text_output(scratch, trip, tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["online", str(trip), "--prior", str(scratch[0]), "-o", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "final model fit: simulation" in out and "samples/s" in out
+
+
+@pytest.mark.parametrize("args, says", [
+    (["missing.mcap"], "missing.mcap"),
+    (["@trip", "--forgetting", "1.5"], "--forgetting must be in (0, 1]"),
+    (["@trip", "--method", "kalman"], "needs --prior"),
+    (["@trip", "--orders", "nb=2,2;nf=1,1;nk=1,0", "--prior", "@prior"], "differ from the prior"),
+    (["@trip", "--prior", "@trip"], "not valid JSON"),
+])
+def test_bad_input_is_one_line(args, says, trip, scratch, tmp_path, capsys):
+    args = [str(trip) if a == "@trip" else str(scratch[0]) if a == "@prior" else a for a in args]
+    capsys.readouterr()
+    assert main(["online", *args, "-o", str(tmp_path / "m.json")]) != 0
+    err = capsys.readouterr().err
+    assert says in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "m.json").exists()
