@@ -155,7 +155,7 @@ def main():
               f"{100 * r['cpu_utilisation']:>6.0f}% {r.get('control_speedup', 1.0):>15.2f}× "
               f"{r['startup_s']:>10.1f} {r['peak_worker_rss_mb']:>11.0f}")
     share = ", ".join(f"{k} {100 * v:.0f} %" for k, v in summary["phase_share"].items())
-    print(f"per hour of data: {summary['cpu_s_per_data_hour']:.1f} CPU s ({share}); mean fit "
+    print(f"per hour of data: {summary['cpu_s_per_data_hour']:.1f} CPU s (job wall time: {share}); mean fit "
           f"{sum(base['fit_percent']) / len(fleet):.1f} %; load average after {summary['load_average_after'][0]:.2f}")
 
 

@@ -34,7 +34,8 @@ MiB = 1 << 20
 class Settings:
     """Server configuration: `data_dir` (blobs, job scratch, the SQLite database unless `database_url`),
     upload size limit [bytes], Dask scheduler address (None: a LocalCluster of `workers` processes), and
-    the debounce after new data before a truck's refit [s] (None: no refits on new data)."""
+    the debounce after new data before a truck's refit [s] (None: no refits on new data), and how much of a
+    truck's newest recorded time a refit uses [s]."""
 
     data_dir: Path
     database_url: str | None = None
@@ -42,6 +43,7 @@ class Settings:
     scheduler: str | None = None
     workers: int | None = None
     refit_after_s: float | None = 600.0
+    refit_window_s: float = 24 * 3600.0
 
 
 # --- response models (the OpenAPI description, checked by the schemathesis tests) ---
@@ -159,7 +161,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         log.warning("startup: removed %d unregistered blobs, marked %d interrupted jobs failed", swept, interrupted)
     refits = RefitManager(engine, store, data_dir / "jobs",
                           runner_factory or dask_runner_factory(settings.scheduler, settings.workers),
-                          settings.refit_after_s)
+                          settings.refit_after_s, settings.refit_window_s)
     upload_locks: dict[Path, asyncio.Lock] = {}
 
     @asynccontextmanager

@@ -34,6 +34,19 @@ def dask_runner_factory(scheduler: str | None, n_workers: int | None) -> Callabl
     return make
 
 
+def newest_files(files: list[dict], window_s: float) -> list[dict]:
+    """The newest of `files` (ordered by start time) holding at most `window_s` [s] of recorded time, in time
+    order: a job's memory grows with its data (about 0.4 GB per hour), so a truck's history is not all refitted
+    at once, and the model follows the truck as it is now. The newest file is always taken."""
+    chosen, total_s = [], 0.0
+    for f in reversed([f for f in files if f["start_ns"] is not None]):
+        total_s += (f["end_ns"] - f["start_ns"]) / 1e9
+        if chosen and total_s > window_s:
+            break
+        chosen.append(f)
+    return chosen[::-1]
+
+
 class RefitManager:
     """Submits identification jobs and records their outcome.
 
@@ -42,9 +55,9 @@ class RefitManager:
     `refit_after_s` None turns off refits on new data."""
 
     def __init__(self, engine: sa.Engine, store: BlobStore, work_dir: Path, runner_factory: Callable[[], object],
-                 refit_after_s: float | None = None):
+                 refit_after_s: float | None = None, window_s: float = 24 * 3600.0):
         self.engine, self.store, self.work_dir = engine, store, Path(work_dir)
-        self.refit_after_s = refit_after_s
+        self.refit_after_s, self.window_s = refit_after_s, window_s
         self._runner_factory = runner_factory
         self._runner = None
         self._lock = threading.Lock()
@@ -90,7 +103,8 @@ class RefitManager:
 
     def _submit(self, job: dict) -> None:
         truck = job["truck"]
-        paths = [str(self.store.path(f["sha256"])) for f in db.list_files(self.engine, truck)]
+        files = newest_files(db.list_files(self.engine, truck), self.window_s)
+        paths = [str(self.store.path(f["sha256"])) for f in files]
         latest = db.get_model(self.engine, truck, None)
         previous = str(self.store.path(latest["model_sha256"])) if latest else None
         out_dir = self.work_dir / f"job-{job['id']}"

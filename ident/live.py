@@ -24,13 +24,16 @@ Every closed bin once the estimator runs gives records for the daemon to write (
                        measured fuel [output unit] (null when not available)
     /ident/residual    {t, eps, status, unit}                       ε = measured − predicted; status as
                        ident.rpem.Trace (−1 no state, 0 no update, 1 updated, 2 shrunk step, 3 rejected)
-    /ident/parameters  {t, names, theta, dc_gain, fuel_change_pct, lam, trace_P, dtheta, fit_prediction_pct,
-                        fit_simulation_pct, updates, noise_variance}   every parameters_every_s
+    /ident/parameters  {t, names, theta, dc_gain, fuel_change_pct, fuel_change_ci95_pct, lam, trace_P, dtheta,
+                        fit_prediction_pct, fit_simulation_pct, updates, noise_variance}   every parameters_every_s
 
 dc_gain G_i(1) = B_i(1)/F_i(1) [output unit per input unit]; fuel_change_pct how much the steady-state fuel
 at the mean operating point has moved since the prior, 100 (Σ_i G_i(1) ū_i / Σ_i G⁰_i(1) ū_i − 1) with ū the
 mean deviation inputs so far and G⁰ the prior's gains (null from scratch): the drift of the fuel system
-(injector wear, fuel quality, meter calibration) the forgetting or Kalman estimator tracks.
+(injector wear, fuel quality, meter calibration) the estimator tracks; fuel_change_ci95_pct its 95 %
+confidence half-width from the estimator's parameter covariance (`fuel_change`). From a prior the default
+estimator (`from_model`, adapt='gain') is ident.kalman.GainTracker: only the common fuel gain adapts, so
+fuel_change_pct = 100 (g − 1) at any operating point.
 
 Every snapshot_every_s (receive time) the current model is written to snapshot_path (model.json, atomically);
 `snapshot()` writes it on demand (the daemon at shutdown). This module imports numpy only; ident.rpem (numba)
@@ -52,7 +55,7 @@ PARAMETERS_SCHEMA = {"type": "object", "properties": {
     "t": {"type": "number"}, "names": {"type": "array", "items": {"type": "string"}},
     "theta": {"type": "array", "items": {"type": "number"}},
     "dc_gain": {"type": "array", "items": {"type": ["number", "null"]}},
-    "fuel_change_pct": {"type": ["number", "null"]},
+    "fuel_change_pct": {"type": ["number", "null"]}, "fuel_change_ci95_pct": {"type": ["number", "null"]},
     "lam": {"type": "number"}, "trace_P": {"type": "number"}, "dtheta": {"type": "number"},
     "fit_prediction_pct": {"type": ["number", "null"]}, "fit_simulation_pct": {"type": ["number", "null"]},
     "updates": {"type": "integer"}, "noise_variance": {"type": ["number", "null"]}}}
@@ -66,18 +69,36 @@ def _num(x):
     return x if math.isfinite(x) else None
 
 
-def dc_gains(theta, structure) -> np.ndarray:
-    """G_i(1) = B_i(1)/F_i(1) per input from θ (order of ident.polymodel.parameter_names, na = 0)."""
+def _blocks(structure):
+    """Index ranges of the B_i and F_i coefficients in θ (order of ident.polymodel.parameter_names, na = 0)."""
     nb = np.cumsum([0, *structure.nb])
     nf = nb[-1] + np.cumsum([0, *structure.nf])
-    return np.array([theta[nb[i]:nb[i + 1]].sum() / (1.0 + theta[nf[i]:nf[i + 1]].sum())
-                     for i in range(structure.n_inputs)])
+    return [(slice(nb[i], nb[i + 1]), slice(nf[i], nf[i + 1])) for i in range(structure.n_inputs)]
+
+
+def dc_gains(theta, structure) -> np.ndarray:
+    """G_i(1) = B_i(1)/F_i(1) per input from θ [output unit per input unit]."""
+    return np.array([theta[b].sum() / (1.0 + theta[f].sum()) for b, f in _blocks(structure)])
+
+
+def fuel_change(theta, cov, structure, gain0, du) -> tuple[float, float]:
+    """The steady-state fuel change c = Σ_i G_i(1) ū_i / Σ_i G⁰_i(1) ū_i − 1 [%] at mean deviation inputs ū,
+    and its 95 % confidence half-width 1.96 √(∇cᵀ Σ_θ ∇c) [%] (delta method, Σ_θ = cov the θ covariance):
+    ∂c/∂b_i,l = ū_i / (F_i(1) S⁰),  ∂c/∂f_i,k = −G_i(1) ū_i / (F_i(1) S⁰),  S⁰ = Σ_i G⁰_i(1) ū_i."""
+    gains = dc_gains(theta, structure)
+    s0 = gain0 @ du
+    grad = np.zeros(len(theta))
+    for (b, f), g, u in zip(_blocks(structure), gains, du):
+        f1 = 1.0 + theta[f].sum()
+        grad[b], grad[f] = u / (f1 * s0), -g * u / (f1 * s0)
+    return 100.0 * (gains @ du / s0 - 1.0), 196.0 * math.sqrt(max(grad @ cov @ grad, 0.0))
 
 
 class LiveEstimator:
     """Resample decoded records to Ts and run an ident.rpem estimator on them (module docstring).
 
-    estimator       an ident.rpem.RPEM or ident.kalman.ParameterKalman (its Ts is the grid step); or None with
+    estimator       an ident.rpem.RPEM, ident.kalman.ParameterKalman or ident.kalman.GainTracker (its Ts is the
+                    grid step); or None with
     start           a function (u0 [input units], y0 [output unit]) -> estimator, called once the idle
                     operating point is known (from scratch), and Ts [s]
     torque_unit     'Nm' or '%': the unit of the model's torque input
@@ -123,23 +144,23 @@ class LiveEstimator:
 
     @classmethod
     def from_model(cls, model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
-                   **kwargs):
+                   adapt: str = "gain", **kwargs):
         """A LiveEstimator starting from a PolyModel (e.g. load_model('fleet.json')), units from the model.
 
         method 'rpem' (constant forgetting λ = forgetting; None: λ = 1) or 'kalman' (random-walk fuel gain,
-        relative drift per sample `drift`)."""
+        relative drift per sample `drift`); adapt 'gain' (ident.kalman.GainTracker: only the common fuel gain,
+        the model's dynamics and noise model held) or 'all' (every parameter: ident.rpem.RPEM or
+        ident.kalman.ParameterKalman)."""
+        from ident.kalman import GainTracker, ParameterKalman
         from ident.polymodel import parameter_names
+        from ident.rpem import RPEM
 
-        if method == "kalman":
-            from ident.kalman import ParameterKalman
-
-            est = ParameterKalman(prior=model, rate=drift)
-        elif method == "rpem":
-            from ident.rpem import RPEM
-
-            est = RPEM(prior=model, lam=forgetting)
+        if method not in ("rpem", "kalman") or adapt not in ("gain", "all"):
+            raise ValueError(f"method must be 'rpem' or 'kalman' and adapt 'gain' or 'all', got {method!r}, {adapt!r}")
+        if adapt == "gain":
+            est = GainTracker(model, lam=forgetting or 1.0) if method == "rpem" else GainTracker(model, rate=drift)
         else:
-            raise ValueError(f"method must be 'rpem' or 'kalman', got {method!r}")
+            est = RPEM(prior=model, lam=forgetting) if method == "rpem" else ParameterKalman(prior=model, rate=drift)
         fuel = "flowmeter" if model.output_unit == "kg/h" else "lfe1"
         return cls(est, torque_unit=model.input_units[1] or "Nm", fuel=fuel,
                    names=parameter_names(model.structure), **kwargs)
@@ -257,14 +278,14 @@ class LiveEstimator:
         est = self.est
         theta = est.theta
         gains = dc_gains(theta, est.structure)
-        change = None
+        change = ci = None
         if self._gain0 is not None and self._du_n:
-            du = self._du_sum / self._du_n
-            change = _num(100.0 * (gains @ du / (self._gain0 @ du) - 1.0))
+            change, ci = map(_num, fuel_change(theta, est.covariance(), est.structure, self._gain0,
+                                               self._du_sum / self._du_n))
         rep = est.report()
         names = self.names or [f"theta{j}" for j in range(theta.size)]
         return {"t": t, "names": names, "theta": [float(v) for v in theta], "dc_gain": [_num(g) for g in gains],
-                "fuel_change_pct": change, "lam": rep["lam"], "trace_P": rep["trace_P"], "dtheta": dtheta,
+                "fuel_change_pct": change, "fuel_change_ci95_pct": ci, "lam": rep["lam"], "trace_P": rep["trace_P"], "dtheta": dtheta,
                 "fit_prediction_pct": _num(rep["running_fit_prediction_pct"]),
                 "fit_simulation_pct": _num(rep["running_fit_simulation_pct"]), "updates": rep["updates"],
                 "noise_variance": _num(rep["noise_variance"])}

@@ -405,20 +405,13 @@ class RPEM:
                 updates (default 600 s from scratch, 0 from a prior). From θ = 0 the noise model would
                 otherwise explain the output as an AR process (D/C y ≈ e) before B_i/F_i has moved, a
                 local minimum with a good one-step prediction and a poor simulation.
-    adapt       'all' (default), or 'gain' (needs a prior): only the common relative fuel gain g of the
-                numerators adapts, θ_b = g θ_b(0), with F_i, C and D held at the prior's: P0 = σ_g² β βᵀ with
-                β = [θ_b(0); 0; …; 0] and σ_g² = P0 (a scalar, default 0.1²: 10 %), so K ∝ β and every update
-                moves θ along β only (Q should be along β too: ident.kalman.gain_drift_Q). For tracking a
-                prior's fuel gain: with everything free the noise model (D near an integrator) absorbs a slow
-                gain change, and the B_i alone wander along the near pole–zero cancellations of the paper's
-                orders, where B_i(1)/F_i(1) is poorly determined.
     """
 
     def __init__(self, structure=None, Ts: float | None = None, *, prior=None, lam: float | None = None,
                  lam_start: float | None = None, lam0: float = 0.9995, P0=None, R: float | None = None, Q=0.0,
                  u0=None, y0: float | None = None, trace_max: float | None = None, radius: float = RADIUS,
                  max_gap_s: float = 1.0, warmup_s: float = 10.0, fit_window_s: float = 600.0,
-                 noise_after_s: float | None = None, adapt: str = "all"):
+                 noise_after_s: float | None = None):
         if structure is None:
             if prior is None:
                 raise ValueError("give a structure or a prior model")
@@ -445,12 +438,7 @@ class RPEM:
         cov = prior.covariance if prior is not None else None
         noise_var = (prior.info or {}).get("noise_variance") if prior is not None else None
         self.R = float(R if R is not None else noise_var or 1.0)
-        if adapt not in ("all", "gain") or (adapt == "gain" and prior is None):
-            raise ValueError(f"adapt must be 'all' or 'gain' (with a prior), got {adapt!r}")
-        if adapt == "gain":
-            beta = np.where(np.arange(d) < sum(s.nb), self.theta, 0.0)
-            P0 = float(0.1**2 if P0 is None else P0) * np.outer(beta, beta)
-        elif P0 is None and cov is not None:
+        if P0 is None and cov is not None:
             P0 = cov * (self.R / noise_var) if noise_var else cov
         elif P0 is None:
             P0 = (0.1 * self.theta) ** 2 + 1e-10 if prior is not None else 100.0

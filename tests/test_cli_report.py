@@ -48,6 +48,21 @@ def test_report_command_writes_one_offline_page(loop, capsys):
     assert "<script src" not in page and "<link" not in page  # one file: scripts and styles inline
 
 
+def test_report_reuses_a_saved_diagnosis(loop, tmp_path, capsys):
+    before, trip = str(loop / "before.json"), str(loop / "trip.mcap")
+    assert main(["diagnose", before, trip, "--verify", "1", "--json"]) == 0
+    saved = tmp_path / "diagnosis.json"
+    saved.write_text(capsys.readouterr().out)
+    page = tmp_path / "r.html"
+    assert main(["report", before, trip, "--diagnosis", str(saved), "-o", str(page)]) == 0
+    assert json.loads(saved.read_text())["verdict"] in capsys.readouterr().out
+    assert "DPF active regeneration" in page.read_text(encoding="utf-8")
+    after = str(loop / "after.json")  # a diagnosis of another model is refused, not mixed into the page
+    assert main(["report", after, trip, "--diagnosis", str(saved), "-o", str(tmp_path / "x.html")]) == 1
+    err = capsys.readouterr().err
+    assert "it diagnosed" in err and len(err.strip().splitlines()) == 1
+
+
 def test_report_bad_inputs_are_one_line_errors(loop, tmp_path, capsys):
     broken = tmp_path / "broken.json"
     broken.write_text("{")

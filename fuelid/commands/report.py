@@ -17,6 +17,9 @@ def add_arguments(p):
     p.add_argument("--verify", type=int, default=3, metavar="N",
                    help="refit with each of the N strongest candidates to measure the held-out error drop "
                         "(default 3; 0 skips)")
+    p.add_argument("--diagnosis", metavar="DIAGNOSIS.json",
+                   help="use this saved `fuelid diagnose --json` result of MODEL on the same recordings instead of "
+                        "diagnosing again")
     p.add_argument("--max-points", type=int, default=6000, metavar="N",
                    help="points per curve before min/max decimation (default 6000)")
     add_dataset_arguments(p)
@@ -49,6 +52,23 @@ def truck_name(paths) -> str | None:
     return ", ".join(names) or None
 
 
+def saved_diagnosis(path: str, model_path: str, data_paths: list[str]) -> dict:
+    """A saved `fuelid diagnose --json` result, checked to be of this model on these recordings."""
+    import json
+
+    from fuelid.errors import FuelidError
+
+    try:
+        diagnosis = json.loads(Path(path).read_text())
+        of = (diagnosis["model"].get("file"), diagnosis["data"].get("files"))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise FuelidError(f"--diagnosis {path}: not a `fuelid diagnose --json` result ({exc})") from exc
+    if of != (model_path, data_paths):
+        raise FuelidError(f"--diagnosis {path}: it diagnosed {of[0]} on {', '.join(of[1] or [])}, "
+                          f"not {model_path} on {', '.join(data_paths)}")
+    return diagnosis
+
+
 def run(args) -> int:
     from fuelid.commands.dataset import build
     from fuelid.errors import FuelidError
@@ -71,7 +91,8 @@ def run(args) -> int:
         if abs(m.Ts - ds.Ts) > 1e-9:
             raise FuelidError(f"{path}: model Ts {m.Ts:g} s differs from the data's {ds.Ts:g} s")
     try:
-        diagnosis = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify)
+        diagnosis = (saved_diagnosis(args.diagnosis, model_paths[0], data_paths) if args.diagnosis else
+                     diagnose(model, ds, alpha=args.alpha, n_verify=args.verify))
         out = write_report(args.output, model, ds, diagnosis=diagnosis,
                            after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],
                            title=args.title, truck=truck_name(data_paths), files=data_paths,

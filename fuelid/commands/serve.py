@@ -19,6 +19,8 @@ def add_arguments(p):
                    help="largest file accepted [MiB] (default 1024); larger → 413")
     p.add_argument("--refit-after", type=float, default=600.0, metavar="S",
                    help="identify a truck again S seconds after its last new file (default 600)")
+    p.add_argument("--refit-window-h", type=float, default=24.0, metavar="H",
+                   help="a refit uses the truck's newest H hours of recorded data (default 24)")
     p.add_argument("--no-auto-refit", action="store_true", help="identify only when asked (refit)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
 
@@ -31,11 +33,12 @@ def run(args) -> int:
     from fleet.app import MiB, Settings, create_app
     from fuelid.errors import FuelidError
 
-    if args.max_upload_mb <= 0:
-        raise FuelidError("--max-upload-mb must be positive")
+    if args.max_upload_mb <= 0 or args.refit_window_h <= 0:
+        raise FuelidError("--max-upload-mb and --refit-window-h must be positive")
     settings = Settings(data_dir=Path(args.data_dir), database_url=args.database_url,
                         max_upload_bytes=int(args.max_upload_mb * MiB), scheduler=args.scheduler,
-                        workers=args.workers, refit_after_s=None if args.no_auto_refit else args.refit_after)
+                        workers=args.workers, refit_after_s=None if args.no_auto_refit else args.refit_after,
+                        refit_window_s=args.refit_window_h * 3600.0)
     try:
         app = create_app(settings)
     except Exception as exc:  # unreachable database, bad URL, unwritable data dir

@@ -35,11 +35,18 @@ def fleet_prior(truth: PolyModel) -> PolyModel:
         return pem(u, y, truth.structure, 0.3)
 
 
-def drifting_data(truth: PolyModel, n: int, step: float = 0.05, seed: int = 1):
-    """(u, y): the truth's output with its fuel gain raised by `step` from sample n/2 on (injector drift)."""
+DRIFT_SEEDS = (1, 3, 4, 5)  # the data sets drift tracking is checked on (the prior is from seed 2)
+
+
+def drifting_data(truth: PolyModel, n: int, step: float = 0.05, seed: int = 1, na_every: int = 0):
+    """(u, y): the truth's output with its fuel gain raised by `step` from sample n/2 on (injector drift);
+    na_every > 0: the fuel not available (NaN) for 21 samples (6.3 s) every na_every samples."""
     u, y, y_clean = paper_data(truth, n=n, seed=seed, sigma_e=SIGMA_E)
     gain = np.where(np.arange(n) < n // 2, 1.0, 1.0 + step)
-    return u, y + (gain - 1.0) * y_clean
+    y = y + (gain - 1.0) * y_clean
+    if na_every:
+        y[np.arange(n) % na_every <= 20] = np.nan
+    return u, y
 
 
 def dc_gains(theta_rows, structure) -> np.ndarray:
