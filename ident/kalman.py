@@ -36,7 +36,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ident.rpem import RPEM, Trace
+from ident.rpem import RPEM, Trace, running_fits
 
 
 def gain_drift_Q(theta, structure, rate: float) -> np.ndarray:
@@ -195,11 +195,7 @@ class GainTracker:
 
     def fits(self) -> tuple[float, float]:
         """Running (prediction, simulation) fit [%] over the fit window (ident.rpem.RPEM.fits)."""
-        sw, sy, syy, see, svv = self._st[2:7]
-        var = syy / sw - (sy / sw) ** 2 if sw > 0 else 0.0
-        if var <= 0.0:
-            return math.nan, math.nan
-        return (100.0 * (1.0 - math.sqrt(see / sw / var)), 100.0 * (1.0 - math.sqrt(svv / sw / var)))
+        return running_fits(*self._st[2:7])
 
     def report(self) -> dict:
         """As ident.rpem.RPEM.report, plus the fuel change [%] and its 95 % half-width [%]."""

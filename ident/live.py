@@ -94,6 +94,19 @@ def fuel_change(theta, cov, structure, gain0, du) -> tuple[float, float]:
     return 100.0 * (gains @ du / s0 - 1.0), 196.0 * math.sqrt(max(grad @ cov @ grad, 0.0))
 
 
+def prior_estimator(model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
+                    adapt: str = "gain"):
+    """The recursive estimator that starts from `model` (LiveEstimator.from_model explains the options)."""
+    from ident.kalman import GainTracker, ParameterKalman
+    from ident.rpem import RPEM
+
+    if method not in ("rpem", "kalman") or adapt not in ("gain", "all"):
+        raise ValueError(f"method must be 'rpem' or 'kalman' and adapt 'gain' or 'all', got {method!r}, {adapt!r}")
+    if adapt == "gain":
+        return GainTracker(model, lam=forgetting or 1.0) if method == "rpem" else GainTracker(model, rate=drift)
+    return RPEM(prior=model, lam=forgetting) if method == "rpem" else ParameterKalman(prior=model, rate=drift)
+
+
 class LiveEstimator:
     """Resample decoded records to Ts and run an ident.rpem estimator on them (module docstring).
 
@@ -151,16 +164,9 @@ class LiveEstimator:
         relative drift per sample `drift`); adapt 'gain' (ident.kalman.GainTracker: only the common fuel gain,
         the model's dynamics and noise model held) or 'all' (every parameter: ident.rpem.RPEM or
         ident.kalman.ParameterKalman)."""
-        from ident.kalman import GainTracker, ParameterKalman
         from ident.polymodel import parameter_names
-        from ident.rpem import RPEM
 
-        if method not in ("rpem", "kalman") or adapt not in ("gain", "all"):
-            raise ValueError(f"method must be 'rpem' or 'kalman' and adapt 'gain' or 'all', got {method!r}, {adapt!r}")
-        if adapt == "gain":
-            est = GainTracker(model, lam=forgetting or 1.0) if method == "rpem" else GainTracker(model, rate=drift)
-        else:
-            est = RPEM(prior=model, lam=forgetting) if method == "rpem" else ParameterKalman(prior=model, rate=drift)
+        est = prior_estimator(model, method=method, forgetting=forgetting, drift=drift, adapt=adapt)
         fuel = "flowmeter" if model.output_unit == "kg/h" else "lfe1"
         return cls(est, torque_unit=model.input_units[1] or "Nm", fuel=fuel,
                    names=parameter_names(model.structure), **kwargs)
@@ -285,7 +291,8 @@ class LiveEstimator:
         rep = est.report()
         names = self.names or [f"theta{j}" for j in range(theta.size)]
         return {"t": t, "names": names, "theta": [float(v) for v in theta], "dc_gain": [_num(g) for g in gains],
-                "fuel_change_pct": change, "fuel_change_ci95_pct": ci, "lam": rep["lam"], "trace_P": rep["trace_P"], "dtheta": dtheta,
+                "fuel_change_pct": change, "fuel_change_ci95_pct": ci, "lam": rep["lam"], "trace_P": rep["trace_P"],
+                "dtheta": dtheta,
                 "fit_prediction_pct": _num(rep["running_fit_prediction_pct"]),
                 "fit_simulation_pct": _num(rep["running_fit_simulation_pct"]), "updates": rep["updates"],
                 "noise_variance": _num(rep["noise_variance"])}

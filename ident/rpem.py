@@ -359,6 +359,15 @@ def _run(u, y, valid, theta, P, Q, hist, orders, nc, nd, oc, od, cfg, st, every,
             n_snap += 1
 
 
+def running_fits(sw, sy, syy, see, svv) -> tuple[float, float]:
+    """(prediction, simulation) fit [%] 100 (1 − √(Σε²/Σ(ỹ − mean)²)), v for ε, from exponentially weighted
+    sums: sw Σ1, sy Σỹ, syy Σỹ², see Σε², svv Σv²; NaN while ỹ has not varied."""
+    var = syy / sw - (sy / sw) ** 2 if sw > 0 else 0.0
+    if var <= 0.0:
+        return math.nan, math.nan
+    return (100.0 * (1.0 - math.sqrt(see / sw / var)), 100.0 * (1.0 - math.sqrt(svv / sw / var)))
+
+
 @dataclass
 class Trace:
     """What one `RPEM.update` call saw, per sample (N) unless stated.
@@ -508,11 +517,7 @@ class RPEM:
 
     def fits(self) -> tuple[float, float]:
         """Running (prediction, simulation) fit [%] over the fit window: 100 (1 − ‖ε‖/‖ỹ − mean‖), v for ε."""
-        sw, sy, syy, see, svv = self._st[[S_SW, S_SY, S_SYY, S_SEE, S_SVV]]
-        var = syy / sw - (sy / sw) ** 2 if sw > 0 else 0.0
-        if var <= 0.0:
-            return math.nan, math.nan
-        return (100.0 * (1.0 - math.sqrt(see / sw / var)), 100.0 * (1.0 - math.sqrt(svv / sw / var)))
+        return running_fits(*self._st[[S_SW, S_SY, S_SYY, S_SEE, S_SVV]])
 
     def report(self) -> dict:
         """Convergence summary: samples, updates (shrunk, rejected), λ, trace(P), running fits, Λ̂."""

@@ -51,19 +51,33 @@ def test_from_scratch(scratch, trip):
 
 def test_from_prior_rpem_and_kalman(scratch, trip, tmp_path, capsys):
     prior, first = scratch
-    r = _online(capsys, trip, "--prior", prior, "--forgetting", "0.9995", "-o", tmp_path / "rpem.json")
+    r = _online(capsys, trip, "--prior", prior, "--forgetting", "0.9995", "--adapt", "all", "-o", tmp_path / "rpem.json")
     assert r["final_lambda"] == 0.9995
     assert r["fit_percent"]["simulation"] > first["fit_percent"]["simulation"] - 2.0  # a second pass keeps it
-    k = _online(capsys, trip, "--prior", prior, "--method", "kalman", "-o", tmp_path / "kalman.json")
+    k = _online(capsys, trip, "--prior", prior, "--method", "kalman", "--adapt", "all", "-o", tmp_path / "kalman.json")
     assert k["method"] == "kalman" and load_model(tmp_path / "kalman.json").info["method"].startswith("Kalman")
     assert k["fit_percent"]["simulation"] > first["fit_percent"]["simulation"] - 2.0
+    assert r["fuel_change_percent"] is None and k["fuel_change_percent"] is None  # every parameter adapts
+
+
+def test_from_prior_tracks_the_fuel_gain(trip, tmp_path, capsys):
+    prior = tmp_path / "offline.json"  # the offline PEM model of this truck, then the same data again:
+    assert main(["identify", str(trip), "-o", str(prior)]) == 0  # no drift, and the 95 % interval says so
+    fit = load_model(prior).validation["fit_percent"]["simulation"]
+    for method in ("rpem", "kalman"):
+        g = _online(capsys, trip, "--prior", prior, "--method", method, "--forgetting", "0.9995",
+                    "-o", tmp_path / f"{method}.json")
+        change = g["fuel_change_percent"]
+        assert g["adapt"] == "gain" and abs(change["change"]) <= max(change["ci95"], 1.0) and change["ci95"] < 5.0
+        assert load_model(tmp_path / f"{method}.json").info["method"].startswith("fuel-gain tracking")
+        assert g["fit_percent"]["simulation"] > fit - 1.0
 
 
 def test_text_output(scratch, trip, tmp_path, capsys):
     capsys.readouterr()
     assert main(["online", str(trip), "--prior", str(scratch[0]), "-o", str(tmp_path / "m.json")]) == 0
     out = capsys.readouterr().out
-    assert "final model fit: simulation" in out and "samples/s" in out
+    assert "final model fit: simulation" in out and "samples/s" in out and "fuel change since the prior" in out
 
 
 @pytest.mark.parametrize("args, says", [

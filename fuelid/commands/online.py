@@ -24,6 +24,9 @@ def add_arguments(p):
                         "default λ growing from 0.99 towards 1 (1 with a prior)")
     p.add_argument("--drift", type=float, default=3e-4, metavar="RATE",
                    help="kalman: relative fuel-gain drift per sample (default 3e-4)")
+    p.add_argument("--adapt", choices=["gain", "all"], default="gain",
+                   help="with --prior: 'gain' tracks only the common fuel gain, the prior's dynamics and noise "
+                        "model held (drift of injectors, fuel, meter; default), 'all' every parameter")
     add_dataset_arguments(p)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
 
@@ -88,6 +91,7 @@ def run(args) -> int:
     result = {
         "model": args.output,
         "method": args.method,
+        "adapt": args.adapt if prior is not None else None,
         "structure": dataclasses.asdict(structure),
         "samples": len(ds),
         "updates": report["updates"],
@@ -100,6 +104,8 @@ def run(args) -> int:
         "trace_P": report["trace_P"],
         "running_fit_percent": {"prediction": report["running_fit_prediction_pct"],
                                 "simulation": report["running_fit_simulation_pct"]},
+        "fuel_change_percent": ({"change": report["fuel_change_pct"], "ci95": report["fuel_change_ci95_pct"]}
+                                if "fuel_change_pct" in report else None),
         **metrics,
     }
     if args.json:
@@ -111,6 +117,9 @@ def run(args) -> int:
         print(f"final model fit: simulation {fit['simulation']:.1f} %, prediction {fit.get('prediction', float('nan')):.1f} %"
               f" (running over the last window: {_pct(result['running_fit_percent']['simulation'])} / "
               f"{_pct(result['running_fit_percent']['prediction'])})")
+        change = result["fuel_change_percent"]
+        if change:
+            print(f"steady-state fuel change since the prior: {change['change']:+.1f} % ± {change['ci95']:.1f} % (95 %)")
         print(f"update rate: {result['update_rate_samples_per_s']:,.0f} samples/s")
     return 0
 
@@ -120,14 +129,15 @@ def _pct(v) -> str:
 
 
 def make_estimator(args, structure, ds, prior):
-    """The RPEM or Kalman estimator the options ask for, on the data's operating point unless a prior gives one."""
+    """The estimator the options ask for: from the prior (ident.live.prior_estimator), else an RPEM from scratch
+    at the data's operating point."""
     from fuelid.errors import FuelidError
-    from ident.kalman import ParameterKalman
+    from ident.live import prior_estimator
     from ident.rpem import RPEM
 
-    at = {} if prior is not None else {"u0": ds.u0, "y0": ds.y0}
+    if prior is not None:
+        return prior_estimator(prior, method=args.method, forgetting=args.forgetting, drift=args.drift,
+                               adapt=args.adapt)
     if args.method == "kalman":
-        if prior is None:
-            raise FuelidError("--method kalman needs --prior (its drift covariance is scaled from the prior's B)")
-        return ParameterKalman(structure, ds.Ts, prior=prior, rate=args.drift)
-    return RPEM(structure, ds.Ts, prior=prior, lam=args.forgetting, **at)
+        raise FuelidError("--method kalman needs --prior (its drift covariance is scaled from the prior's B)")
+    return RPEM(structure, ds.Ts, lam=args.forgetting, u0=ds.u0, y0=ds.y0)

@@ -16,6 +16,7 @@ import can
 import numpy as np
 
 from fuelid.cli import main
+from logger.j1939 import parse_id
 from logger.mcap_log import read_messages
 from logger.readers import read_frames
 from tests.conftest import REPO
@@ -210,18 +211,13 @@ echo done
 """
 
 
-def _pgn(msg: can.Message) -> int:
-    pgn = (msg.arbitration_id >> 8) & 0x3FFFF
-    return pgn & 0x3FF00 if (pgn >> 8) & 0xFF < 240 else pgn  # PDU1: the low byte is the destination
-
-
 @pytest.fixture(scope="module")
 def identify_session(tmp_path_factory):
     work = tmp_path_factory.mktemp("vcan-identify")
     trip = work / "trip-full.log.gz"
     assert main(["simulate", "--truth", "diesel_p320", "--cycle", "urban", "--duration", "400", "--seed", "5",
                  "-o", str(trip)]) == 0
-    sent = [m for m in read_frames(trip) if _pgn(m) in IDENTIFY_PGNS]
+    sent = [m for m in read_frames(trip) if parse_id(m.arbitration_id).pgn in IDENTIFY_PGNS]
     with can.CanutilsLogWriter(str(work / "trip.log"), channel="can0") as w:
         for m in sent:
             w.on_message_received(m)
