@@ -56,7 +56,8 @@ def acceptance(seeds: int, null_seeds: int):
     verified — besides, the held-out RMS error falls by ≥ 25 % or to within 5 % of the noise floor; all — besides,
     the cycle fuel error falls (RMS over the cycles, 0.1 percentage point tolerance). Then the false-alarm rate
     on trips with nothing hidden."""
-    print("effect               seed  top candidate                       named  held-out drop  RMSE/floor  cycle err %  pass")
+    print("effect               seed  top candidate                       named  held-out drop  RMSE/floor  "
+          "cycle err %  pass")
     counts = {}
     for effect in EFFECTS:
         for seed in range(3000, 3000 + seeds):
@@ -85,8 +86,9 @@ def acceptance(seeds: int, null_seeds: int):
         top = out["candidates"][0]
         alarm = top["significant"]
         alarms += alarm
-        print(f"null seed {seed}: " + (f"ALARM {top['effect']} ({top['rmse_drop_percent'] or np.nan:.1f} % held-out drop)"
-                                       if alarm else "no significant candidate"), flush=True)
+        drop = top["rmse_drop_percent"] or np.nan
+        print(f"null seed {seed}: " + (f"ALARM {top['effect']} ({drop:.1f} % held-out drop)" if alarm
+                                       else "no significant candidate"), flush=True)
     print(f"no hidden effect: a significant candidate in {alarms} of {null_seeds} trips "
           f"({100.0 * alarms / max(null_seeds, 1):.0f} % false alarms)")
 

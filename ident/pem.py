@@ -26,7 +26,7 @@ Stopping (`levenberg_marquardt`, reasons in `STOP_REASONS`, recorded in model.in
 decrement Δ = ½ gᵀ diag(1/ℓ) g is the fall of V a full Gauss–Newton step promises; since λ̂ = 2V/(N − d)
 and P = λ̂ (ΨᵀΨ)⁻¹, 2Δ/λ̂ = δᵀ P⁻¹ δ is the squared length of that step in standard errors. Converged when
 Δ ≤ tol · V (MATLAB's SearchOptions.Tolerance, there in %, default 0.01 % — ours is stricter), or when V
-fell by ≤ ftol · V in each of the last 3 iterations and either the step left is within one standard error
+fell by ≤ ftol · λ̂/2 (a thousandth of what one standard error is worth) in each of the last 3 iterations and either the step left is within one standard error
 or the steps were being cut back by the stability projection (a minimum on the boundary of the stable
 region). Near pole–zero cancellations (e.g. the paper's orders on data from its own model: Gw's printed F
 has a lightly damped pair at |z| = 0.9988 all but cancelled by zeros of B) make V flat along the direction
@@ -80,6 +80,10 @@ except ImportError:  # pragma: no cover - threadpoolctl missing: run with the BL
 
 RHO_MAX = 0.9999  # largest root radius allowed in F_i, C, D
 HIGH_ORDER_ARX = 30  # order of the ARX model behind the OE/BJ initialisation
+# Iteration limit of the LM fits inside the initialisation (OE, ARMA), apart from pem's max_iter: a start cut
+# off at a limit leaves the BJ fit in a valley it crawls along (shipped 20-min DPF trip: OE stopped at 100
+# iterations → BJ V = 565.6, not converged after 100; OE run to its minimum in 161 → BJ converged in 7 at 558.7).
+INIT_MAX_ITER = 500
 
 
 def stabilize(p: np.ndarray, rho: float = RHO_MAX) -> np.ndarray:
@@ -211,27 +215,32 @@ class LMResult(NamedTuple):
 
 STOP_REASONS = {
     "expected_improvement": "the Gauss-Newton step promises to lower V by less than tol * V",
-    "flat_loss": "V fell by less than ftol * V in each of the last iterations and the remaining Gauss-Newton "
-                 "step is within one standard error",
-    "stability_bound": "V fell by less than ftol * V in each of the last iterations while the step was cut back "
-                       "at the stability bound (a constrained minimum)",
+    "flat_loss": "V fell by less than ftol * lambda/2 in each of the last iterations and the remaining "
+                 "Gauss-Newton step is within one standard error",
+    "stability_bound": "V fell by less than ftol * lambda/2 in each of the last iterations, or no damping lowered "
+                       "it, while the steps were cut back at the stability bound (a constrained minimum)",
     "no_descent": "no damping lowers V",
     "max_iterations": "the iteration limit was reached",
 }
 
 
 def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int = 100, tol: float = 1e-7,
-                        ftol: float = 1e-9) -> LMResult:
+                        ftol: float = 1e-3) -> LMResult:
     """Minimise V(θ) from θ (module docstring); starts: segment starts (filters restart there, the first n0
     samples of each are left out of V).
 
     Each iteration tries the damping μ (relative to the largest eigenvalue of the scaled ΨᵀΨ) and μ/10 and
     keeps the better; when neither lowers V, μ grows tenfold until one does. Stops (reason in `STOP_REASONS`):
     converged when the Gauss–Newton decrement Δ = ½ gᵀ diag(1/ℓ) g is ≤ tol · V (MATLAB's
-    SearchOptions.Tolerance, there in %); or when V fell by ≤ ftol · V in each of the last FLAT_ITERATIONS
+    SearchOptions.Tolerance, there in %); or when V fell by ≤ ftol · λ̂/2 in each of the last FLAT_ITERATIONS
     iterations and either Δ ≤ λ̂/2 — the remaining step δ has δᵀ P⁻¹ δ = 2Δ/λ̂ ≤ 1, i.e. it is within one
     standard error — or the steps were cut back by the stability projection (a minimum on the boundary);
-    when no damping lowers V, converged if one of those two holds. Not converged after max_iter iterations.
+    when no damping lowers V, converged if one of those two holds or every damped step tried was cut back by
+    the projection (a root pressed against |z| = RHO_MAX: the raw steps leave the stable region, the projected
+    ones rise). ftol is in units of λ̂/2 = V/(N − d) because a fall of V by λ̂/2 is what moving one standard
+    error along the gradient is worth (likelihood ratio 1): a fall of 1e-3 of that per iteration is
+    statistically nothing whatever N (relative to V alone, one tolerance is 4.5× looser in standard errors on
+    4,000 samples than on 18,000). Not converged after max_iter iterations.
     """
     used = _used(y.size, starts, s.n_start)
     theta = _stable_theta(np.asarray(theta, float), s)
@@ -248,18 +257,21 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         if flat >= FLAT_ITERATIONS and (small_step or cut):
             return LMResult(theta, V, it - 1, True, "stability_bound" if cut and not small_step else "flat_loss",
                             history, psi, eps)
-        best = (V, None, mu, False)
+        best, all_cut = (V, None, mu, False), True
         for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
             raw = theta + Q @ (g / (ell + trial * ell[-1])) / scale
             cand = _stable_theta(raw, s)
+            all_cut &= not np.array_equal(cand, raw)
             V_c = _loss(prediction_errors(cand, s, u, y, starts=starts), used)
             if V_c < best[0]:
                 best = (V_c, cand, trial, not np.array_equal(cand, raw))
             if trial >= mu and best[1] is not None:
                 break
         if best[1] is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
+            if all_cut and not small_step:
+                return LMResult(theta, V, it - 1, True, "stability_bound", history, psi, eps)
             return LMResult(theta, V, it - 1, bool(small_step or cut), "no_descent", history, psi, eps)
-        flat = flat + 1 if V - best[0] <= ftol * V else 0
+        flat = flat + 1 if V - best[0] <= ftol * V / dof else 0
         V, theta, mu, cut = best[0], best[1], max(best[2], 1e-15), best[3]
         history.append(V)
         eps, psi = prediction_errors(theta, s, u, y, jacobian=True, starts=starts)
@@ -342,7 +354,8 @@ def _drop_warmup(x: np.ndarray, starts, n0: int):
     return x[_used(len(x), starts, n0)], tuple(int(a) for a in np.cumsum(np.r_[0, lengths[lengths > 0]])[:-1])
 
 
-def initial_estimate(u, y, s: Structure, *, starts=(0,), max_iter: int = 100, tol: float = 1e-7) -> np.ndarray:
+def initial_estimate(u, y, s: Structure, *, starts=(0,), max_iter: int = INIT_MAX_ITER,
+                     tol: float = 1e-7) -> np.ndarray:
     """θ₀ for `pem` from deviation data (segments beginning at `starts`): the input part (`_input_model`), then
     the noise model C/D fitted to the residual w = A y − Σ B_i/F_i u_i (`_noise_model`)."""
     A, B, F = _input_model(u, y, s, starts=starts, max_iter=max_iter, tol=tol)
@@ -396,7 +409,7 @@ def _segment_starts(segments, n: int, n0: int) -> tuple[np.ndarray | None, tuple
 
 
 def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel | None = None, u0=None,
-        y0: float = 0.0, max_iter: int = 100, tol: float = 1e-7, ftol: float = 1e-9,
+        y0: float = 0.0, max_iter: int = 100, tol: float = 1e-7, ftol: float = 1e-3,
         cancel_tol: float = 0.01) -> PolyModel:
     """Prediction-error estimate of a MISO polynomial model (module docstring for the method).
 
@@ -406,7 +419,7 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
     every filter restarts from zero state in each, the first n0 samples of each are left out of V, and the
     initialisation and the covariance use them all; None = one record. init: a PolyModel of the
     same structure to start from instead of `initial_estimate`. max_iter, tol, ftol: the stopping rules of
-    `levenberg_marquardt`. Warns (and records in info['warnings']) on a near pole–zero cancellation closer
+    `levenberg_marquardt` for the final fit (the initialisation's own fits stop at INIT_MAX_ITER). Warns (and records in info['warnings']) on a near pole–zero cancellation closer
     than cancel_tol, when LM stops without converging, and when it converged on a flat loss.
     info records converged, stop_reason (a key of STOP_REASONS), iterations, loss_history (V per iteration)
     and gauss_newton_step_se, the length √(δᵀP⁻¹δ) of the Gauss–Newton step still left at θ̂ [standard errors].
@@ -428,7 +441,7 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
         raise ValueError(f"init has structure {init.structure}, expected {s}")
     with threadpool_limits(1, "blas") if threadpool_limits else contextlib.nullcontext():
         theta0 = (init.theta if init is not None else
-                  initial_estimate(du, dy, s, starts=starts, max_iter=max_iter, tol=tol))
+                  initial_estimate(du, dy, s, starts=starts, tol=tol))
         fit = levenberg_marquardt(theta0, s, du, dy, starts=starts, max_iter=max_iter, tol=tol, ftol=ftol)
         scale, Q, ell, g = _scaled_normal_equations(fit.psi, fit.eps, _used(dy.size, starts, s.n_start))
 

@@ -29,6 +29,11 @@ def test_identify_diagnose_add_the_effect_and_watch_the_error_fall(trip, capsys)
     top = result["candidates"][0]
     assert top["effect"] == "dpf_regeneration" and top["significant"] and 3700 in top["spns"]
     assert "add effect dpf_regeneration" in top["explanation"] and result["verdict"].startswith("Missing effect")
+    assert top["verification"]["rmse_drop_percent"] >= 2  # confirmed on held-out blocks (--min-drop, default 2)
+    strict = run_json(capsys, "diagnose", before, data, "--min-drop", 100)  # a fall no effect can reach
+    assert strict["verdict"].startswith("No significant candidate")
+    dpf = next(c for c in strict["candidates"] if c["effect"] == "dpf_regeneration")
+    assert not dpf["significant"] and "not confirmed" in dpf["explanation"]
     run_json(capsys, "identify", data, "--effect", top["effect"], "-o", after)
     compared = run_json(capsys, "compare", before, after, data)
     rmse = [m["rmse"]["simulation"] for m in compared["models"]]

@@ -4,8 +4,8 @@ through the bus and fuelid's decoder, identified with the paper's orders and dia
 For each effect the simulator can hide (one seed each here; `python benchmarks/bench_diagnose.py --acceptance`
 runs three more per effect and 20 trips with nothing hidden) the top significant candidate names it (or its
 signal's SPN), and adding it lowers the held-out RMS simulation error (the linearised refit scored on 1-minute
-blocks left out of the fit, ident.diagnosis.verify) by ≥ 25 % or to the noise floor — the RMS of the simulator's noise H e (truth.npz
-`noise`), +5 % — and the cycle fuel error falls. With nothing hidden no candidate is significant.
+blocks left out of the fit, ident.diagnosis.verify) by ≥ 25 % or to the noise floor — the RMS of the
+simulator's noise H e (truth.npz `noise`), +5 % — and the cycle fuel error falls. With nothing hidden no candidate is significant.
 Simulated data and diagnoses are cached per session (tests.ident.hidden).
 
 What does not hold is marked xfail(strict=True) with what was measured (deterministic seeds, so a mark that
