@@ -26,16 +26,17 @@ Stopping (`levenberg_marquardt`, reasons in `STOP_REASONS`, recorded in model.in
 decrement Δ = ½ gᵀ diag(1/ℓ) g is the fall of V a full Gauss–Newton step promises; since λ̂ = 2V/(N − d)
 and P = λ̂ (ΨᵀΨ)⁻¹, 2Δ/λ̂ = δᵀ P⁻¹ δ is the squared length of that step in standard errors. Converged when
 Δ ≤ tol · V (MATLAB's SearchOptions.Tolerance, there in %, default 0.01 % — ours is stricter), or when V
-fell by ≤ ftol · λ̂/2 (a thousandth of what one standard error is worth) in each of the last 3 iterations and either the step left is within one standard error
-or the steps were being cut back by the stability projection (a minimum on the boundary of the stable
-region). Near pole–zero cancellations (e.g. the paper's orders on data from its own model: Gw's printed F
+fell by ≤ ftol · λ̂/2 (a thousandth of what one standard error is worth) in each of the last 3 iterations and
+either the step left is within one standard error or the steps were being cut back by the stability
+projection (a minimum on the boundary of the stable region), or when no damped step lowers V and every one
+was cut back by the projection. Near pole–zero cancellations (e.g. the paper's orders on data from its own model: Gw's printed F
 has a lightly damped pair at |z| = 0.9988 all but cancelled by zeros of B) make V flat along the direction
 that moves the pair together, and can put the pair on the stability bound: the promised Δ is then never
 realised (the step pushes the pair outward and is clipped back), so a decrement-only rule runs to the
 iteration limit while V no longer changes (measured on the shipped 1.5 h trip: V fell by < 1e-7 of itself
 per iteration from iteration 13 and < 1e-9 from about 30, while Δ stayed at 7.5e-6 V). The fit is fine then, the cancelling pair's coefficients are not
 determined; pem says so in its warning. Not converged: the iteration limit, or no damping lowering V while
-the step left is larger than one standard error.
+the step left is larger than one standard error and not all the steps tried were cut back at the bound.
 
 Stability: after every step the roots of F_i, C and D outside the unit circle are reflected to 1/z̄ and all
 roots are clipped to radius ≤ 0.9999 (`stabilize`); the reflected candidate must still lower V to be
@@ -237,10 +238,10 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     standard error — or the steps were cut back by the stability projection (a minimum on the boundary);
     when no damping lowers V, converged if one of those two holds or every damped step tried was cut back by
     the projection (a root pressed against |z| = RHO_MAX: the raw steps leave the stable region, the projected
-    ones rise). ftol is in units of λ̂/2 = V/(N − d) because a fall of V by λ̂/2 is what moving one standard
-    error along the gradient is worth (likelihood ratio 1): a fall of 1e-3 of that per iteration is
-    statistically nothing whatever N (relative to V alone, one tolerance is 4.5× looser in standard errors on
-    4,000 samples than on 18,000). Not converged after max_iter iterations.
+    ones rise). ftol is in units of λ̂/2 = V/(N − d), what moving one standard error is worth (likelihood
+    ratio 1): a fall of 1e-3 of that per iteration is statistically nothing whatever N (a tolerance relative
+    to V alone means 4.5× more in standard errors on 18,000 samples than on 4,000). Not converged after
+    max_iter iterations.
     """
     used = _used(y.size, starts, s.n_start)
     theta = _stable_theta(np.asarray(theta, float), s)
