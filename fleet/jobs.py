@@ -2,7 +2,7 @@
 
 `identify_truck` is one job: the truck's MCAP files → dataset (ident.dataset) → Box-Jenkins model by PEM through
 `fuelid identify`'s own code path (ident.identify.identify_model) → diagnosis (ident.diagnosis.diagnose) →
-model.json, diagnosis.json (and report.html when ident.report is installed) in out_dir. It is a plain module
+model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
 Held-out evidence: the model is fitted on all the truck's data (the newest file included) and the diagnosis
@@ -19,7 +19,6 @@ readable by the workers (same host, or storage shared with the cluster).
 """
 from __future__ import annotations
 
-import contextlib
 import importlib
 import json
 import os
@@ -45,12 +44,10 @@ def _write_json(path: Path, obj) -> None:
 
 
 def _report(out: Path, model, diagnosis: dict, ds, truck: str, files: list[str]) -> tuple[str | None, str | None]:
-    """(report.html path, None) by ident.report.write_report; (None, None) without that module; (None, why) when
-    the report fails: the model and diagnosis are the job's product, the report only shows them."""
-    try:
-        from ident.report import write_report
-    except ImportError:
-        return None, None
+    """(report.html path, None) by ident.report.write_report, or (None, why) when the report fails: the model
+    and diagnosis are the job's product, the report only shows them."""
+    from ident.report import write_report
+
     path = out / "report.html"
     try:
         write_report(path, model, ds, diagnosis=diagnosis, truck=truck, files=files)
@@ -75,12 +72,12 @@ def _held_out(model, ds) -> dict | None:
 def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: str = "paper",
                    previous_model: str | None = None) -> dict:
     """Identify and diagnose one truck's fuel model from its MCAP files; write out_dir/model.json,
-    out_dir/diagnosis.json (and out_dir/report.html when ident.report exists).
+    out_dir/diagnosis.json and out_dir/report.html.
 
     orders: 'paper' or a SPEC as `fuelid identify --orders`. previous_model: the truck's current model.json;
     PEM starts from it when it has the same structure (a refit then needs fewer iterations) and its metrics on
     the same data are returned as previous_metrics (is the new version better?).
-    Returns (JSON-ready) {"truck", "model_path", "diagnosis_path", "report_path" (None without ident.report),
+    Returns (JSON-ready) {"truck", "model_path", "diagnosis_path", "report_path" (None when the report failed: see warnings),
     "metrics": {"fit_percent": {simulation, prediction} [%], "rmse": {simulation, prediction} [unit],
     "cycle_fuel_error_percent": {cycle id: E, mean, rms} [%], "unit", "held_out": {"rmse_simulation" [unit],
     "cycle_fuel_error_percent": {mean, rms} [%]} or None},
@@ -168,10 +165,9 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
 
 def _warm_up() -> None:
     """Import the identification stack once per worker process (a second or more with plotly), so no job pays
-    for it; ident.report is optional. Nothing on this path is numba-compiled (only the online RPEM is)."""
+    for it. Nothing on this path is numba-compiled (only the online RPEM is)."""
     for name in ("ident.dataset", "ident.identify", "ident.diagnosis", "ident.modelfile", "ident.report"):
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
+        importlib.import_module(name)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -58,8 +58,7 @@ def test_identify_truck_writes_model_diagnosis_and_returns_metrics(trip, tmp_pat
     diagnosis = json.loads(open(res["diagnosis_path"]).read())
     assert diagnosis["data"]["files"] == [str(trip)] and diagnosis["candidates"]
     assert res["top_effect"] in {None} | {c["effect"] for c in diagnosis["candidates"] if c["significant"]}
-    if res["report_path"]:
-        assert "<html" in open(res["report_path"], encoding="utf-8").read(2000).lower()
+    assert "<html" in open(res["report_path"], encoding="utf-8").read(2000).lower()
     assert res["wall_s"] > 0 and set(res["phases_s"]) == {"dataset", "identify", "diagnose", "write"}
     json.dumps(res, allow_nan=False)  # the server stores it as it is
 
