@@ -4,7 +4,8 @@
 
 The frame stream mixes the FMS messages at their bus rates (EEC1 every 20 ms, EEC2 50 ms, LFE1/CCVS1/ETC2
 100 ms, EEC3 250 ms, AMB/ET1/DPFC1/FD/LFC1/HRLFC 1 s, a second ECU repeating CCVS1 and LFE1, EC1 and VI by
-BAM every 5 s), with random in-range values. Each contender gets the frames already in memory and writes a file
+BAM every 5 s), with random in-range values. fuelid runs twice: as `fuelid convert` writes (no disk sync) and as the daemon does (fsync every second of
+wall time, so a power cut loses at most a second). Each contender gets the frames already in memory and writes a file
 in a temporary directory; the best of --repeat runs counts. One core: the process is pinned to CPU 0 where possible.
 """
 import argparse
@@ -55,9 +56,9 @@ def fms_frames(n_frames: int, seed: int = 1) -> list[can.Message]:
     return frames
 
 
-def time_fuelid(frames, path: Path) -> float:
+def time_fuelid(frames, path: Path, fsync: bool) -> float:
     start = time.perf_counter()
-    writer = open_writer(path, source="benchmark")
+    writer = open_writer(path, source="benchmark", fsync=fsync)
     recorder = Recorder(writer)
     for msg in frames:
         recorder.on_message_received(msg)
@@ -83,7 +84,8 @@ def main():
         os.sched_setaffinity(0, {0})
     frames = fms_frames(args.frames)
     contenders = {
-        "fuelid decode + MCAP (zstd, JSON)": lambda p: time_fuelid(frames, p.with_suffix(".mcap")),
+        "fuelid convert (decode + MCAP)": lambda p: time_fuelid(frames, p.with_suffix(".mcap"), fsync=False),
+        "fuelid log (+ fsync every second)": lambda p: time_fuelid(frames, p.with_suffix(".mcap"), fsync=True),
         "python-can BLFWriter (no decoding)": lambda p: time_python_can(can.BLFWriter, frames, p.with_suffix(".blf")),
         "python-can ASCWriter (no decoding)": lambda p: time_python_can(can.ASCWriter, frames, p.with_suffix(".asc")),
     }
@@ -91,7 +93,7 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         for name, run in contenders.items():
             results[name] = min(run(Path(tmp) / f"run{i}") for i in range(args.repeat))
-    ours = len(frames) / results["fuelid decode + MCAP (zstd, JSON)"]
+    ours = len(frames) / results["fuelid convert (decode + MCAP)"]
     print(f"{len(frames)} frames, best of {args.repeat}, one core")
     print(f"{'writer':<40} {'frames/s':>12} {'fuelid ÷ it':>12}")
     for name, seconds in results.items():

@@ -22,10 +22,11 @@ def dbc_sha256() -> str:
     return hashlib.sha256(FMS_DBC.read_bytes()).hexdigest()
 
 
-def open_writer(path, *, truck: str = "unknown", source: str = "") -> McapLogWriter:
-    """An MCAP writer for `path` with the fuelid metadata record (truck, logger version, DBC hash, source)."""
+def open_writer(path, *, truck: str = "unknown", source: str = "", fsync: bool = True) -> McapLogWriter:
+    """An MCAP writer for `path` with the fuelid metadata record (truck, logger version, DBC hash, source);
+    fsync: sync to disk every second of wall time (the daemon, which a power cut may stop) or never."""
     metadata = {"truck": truck, "logger_version": __version__, "dbc_sha256": dbc_sha256(), "source": source}
-    return McapLogWriter(path, metadata=metadata)
+    return McapLogWriter(path, metadata=metadata, fsync=fsync)
 
 
 @dataclass

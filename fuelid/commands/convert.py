@@ -41,7 +41,8 @@ def run(args) -> int:
     if args.flowmeter:
         streams.append((r.t, 1, r) for r in capture_readings(args.flowmeter, calibration))
 
-    writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs))
+    # no disk sync every second: unlike the daemon's log, a conversion can be run again from its source
+    writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), fsync=False)
     recorder = Recorder(writer)
     try:
         for _, kind, item in progress(heapq.merge(*streams, key=lambda e: e[0]), desc="convert", unit="msg"):
