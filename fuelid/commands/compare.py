@@ -26,7 +26,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.commands.dataset import build
+    from fuelid.commands.dataset import build, build_for_models
     from fuelid.commands.identify import format_table
     from fuelid.errors import FuelidError
     from ident.baseline import engine_map, seed2_baselines
@@ -41,29 +41,10 @@ def run(args) -> int:
     data_paths = [p for p in args.inputs if not p.endswith(".json")]
     if not model_paths or not data_paths:
         raise FuelidError("give at least one model file (.json) and one recording (.mcap)")
-    models = []
-    for path in model_paths:
-        try:
-            models.append((path, load_model(path)))
-        except FuelidError:
-            raise
-        except Exception as exc:
-            raise FuelidError(f"{path}: unreadable model ({exc})") from exc
-    ts = {m.Ts for _, m in models}
-    if args.ts is None:
-        if len(ts) > 1:
-            raise FuelidError(f"the models have different sampling intervals {sorted(ts)} s; choose one with --ts")
-        args.ts = ts.pop()
-    if args.fuel == "auto":
-        units = {m.output_unit for _, m in models}
-        args.fuel = {"kg/h": "flowmeter", "L/h": "lfe1"}.get(units.pop(), "auto") if len(units) == 1 else "auto"
-    ds = build(args, data_paths)
+    models = [(path, load_model(path)) for path in model_paths]
+    ds = build_for_models(args, data_paths, models)
 
-    results = []
-    for path, model in models:
-        if abs(model.Ts - ds.Ts) > 1e-9:
-            raise FuelidError(f"{path}: model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
-        results.append({"model": path, **evaluate(model, ds, k=args.horizon)})
+    results = [{"model": path, **evaluate(model, ds, k=args.horizon)} for path, model in models]
     cal = build(args, args.map_from) if args.map_from else ds
     built = {"built_from": args.map_from or data_paths, "in_sample": not args.map_from}
     baselines, sweeps = {}, None

@@ -7,7 +7,7 @@ HELP = "resample MCAP recordings to an identification data set (CSV or MATLAB .m
 
 
 def add_dataset_arguments(p):
-    """The data-set options shared by dataset, identify and compare."""
+    """The data-set options shared by the commands that read recordings into a Dataset."""
     p.add_argument("--ts", type=float, metavar="S",
                    help="sampling interval [s] (default 0.3, the paper's; compare: the model's)")
     p.add_argument("--fuel", choices=["auto", "flowmeter", "lfe1"], default="auto",
@@ -27,6 +27,27 @@ def build(args, paths):
     with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
         warnings.simplefilter("ignore", UserWarning)
         return build_dataset(paths, Ts=args.ts or 0.3, fuel=args.fuel, max_gap_s=args.max_gap, cycle_s=args.cycle)
+
+
+def build_for_models(args, paths, models):
+    """The Dataset of `paths` to evaluate `models` [(path, PolyModel)] on: --ts defaults to the models' Ts and
+    --fuel auto to the signal of their output unit (meter for kg/h, LFE1 for L/h); every model's Ts must be
+    the data's (FuelidError otherwise)."""
+    from fuelid.errors import FuelidError
+
+    ts = {m.Ts for _, m in models}
+    if args.ts is None:
+        if len(ts) > 1:
+            raise FuelidError(f"the models have different sampling intervals {sorted(ts)} s; choose one with --ts")
+        args.ts = ts.pop()
+    if args.fuel == "auto":
+        units = {m.output_unit for _, m in models}
+        args.fuel = {"kg/h": "flowmeter", "L/h": "lfe1"}.get(units.pop(), "auto") if len(units) == 1 else "auto"
+    ds = build(args, paths)
+    for path, model in models:
+        if abs(model.Ts - ds.Ts) > 1e-9:
+            raise FuelidError(f"{path}: model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
+    return ds
 
 
 def add_arguments(p):

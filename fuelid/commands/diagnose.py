@@ -52,24 +52,13 @@ def format_report(result: dict, top: int = 8) -> str:
 
 
 def run(args) -> int:
-    from fuelid.commands.dataset import build
+    from fuelid.commands.dataset import build_for_models
     from fuelid.errors import FuelidError
     from ident.diagnosis import diagnose
     from ident.modelfile import load_model
 
-    try:
-        model = load_model(args.model)
-    except FuelidError:
-        raise
-    except Exception as exc:
-        raise FuelidError(f"{args.model}: unreadable model ({exc})") from exc
-    if args.ts is None:
-        args.ts = model.Ts
-    if args.fuel == "auto":
-        args.fuel = {"kg/h": "flowmeter", "L/h": "lfe1"}.get(model.output_unit, "auto")
-    ds = build(args, args.inputs)
-    if abs(model.Ts - ds.Ts) > 1e-9:
-        raise FuelidError(f"model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
+    model = load_model(args.model)
+    ds = build_for_models(args, args.inputs, [(args.model, model)])
     try:
         result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect,
                           min_drop_percent=args.min_drop)

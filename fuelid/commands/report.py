@@ -25,18 +25,6 @@ def add_arguments(p):
     add_dataset_arguments(p)
 
 
-def _load(path):
-    from fuelid.errors import FuelidError
-    from ident.modelfile import load_model
-
-    try:
-        return load_model(path)
-    except FuelidError:
-        raise
-    except Exception as exc:
-        raise FuelidError(f"{path}: unreadable model ({exc})") from exc
-
-
 def truck_name(paths) -> str | None:
     """The truck named in the recordings' fuelid MCAP metadata (VIN when seen), several joined by ', '."""
     from logger.mcap_log import read_metadata
@@ -70,9 +58,10 @@ def saved_diagnosis(path: str, model_path: str, data_paths: list[str]) -> dict:
 
 
 def run(args) -> int:
-    from fuelid.commands.dataset import build
+    from fuelid.commands.dataset import build_for_models
     from fuelid.errors import FuelidError
     from ident.diagnosis import diagnose
+    from ident.modelfile import load_model
     from ident.report import write_report
 
     model_paths = [p for p in args.inputs if p.endswith(".json")]
@@ -81,15 +70,8 @@ def run(args) -> int:
         raise FuelidError("give a model file (.json), optionally AFTER models (.json), and recordings (.mcap)")
     if args.max_points < 100:
         raise FuelidError(f"--max-points must be at least 100, got {args.max_points}")
-    model, *after = [_load(p) for p in model_paths]
-    if args.ts is None:
-        args.ts = model.Ts
-    if args.fuel == "auto":
-        args.fuel = {"kg/h": "flowmeter", "L/h": "lfe1"}.get(model.output_unit, "auto")
-    ds = build(args, data_paths)
-    for path, m in zip(model_paths, [model, *after]):
-        if abs(m.Ts - ds.Ts) > 1e-9:
-            raise FuelidError(f"{path}: model Ts {m.Ts:g} s differs from the data's {ds.Ts:g} s")
+    model, *after = [load_model(p) for p in model_paths]
+    ds = build_for_models(args, data_paths, list(zip(model_paths, [model, *after])))
     try:
         diagnosis = (saved_diagnosis(args.diagnosis, model_paths[0], data_paths) if args.diagnosis else
                      diagnose(model, ds, alpha=args.alpha, n_verify=args.verify))
