@@ -13,7 +13,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from logger.upload import fsync_dir
+from logger.durable import fsync_path
 
 HEX64 = r"^[0-9a-f]{64}$"
 
@@ -51,7 +51,7 @@ class BlobStore:
         with open(src, "rb+") as f:
             os.fsync(f.fileno())
         os.replace(src, dst)
-        fsync_dir(dst.parent)
+        fsync_path(dst.parent)
         return dst
 
     def put_file(self, path: str | Path) -> str:

@@ -35,6 +35,7 @@ import can
 from logger.config import LoggerConfig
 from logger.flowmeter import Calibration, SerialFlowMeter
 from logger.mcap_log import MAGIC, recover
+from logger.durable import fsync_path
 from logger.recorder import Recorder, open_writer
 
 log = logging.getLogger("fuelid.log")
@@ -116,7 +117,7 @@ class LogFiles:
         """Rename a closed `.part` file to its final name, durably."""
         final = part.with_name(part.name[: -len(PART)])
         os.replace(part, final)
-        _fsync_dir(self.dir)
+        fsync_path(self.dir)
         self._closed(final)
         return final
 
@@ -138,19 +139,11 @@ class LogFiles:
                 continue
             os.replace(tmp, final)
             part.unlink()
-            _fsync_dir(self.dir)
+            fsync_path(self.dir)
             lost = "" if stats.complete else f", {stats.bytes_lost} trailing bytes lost"
             done.append(f"recovered {final.name}: {sum(stats.messages.values())} messages{lost}")
             self._closed(final)
         return done
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 class IdentifyingRecorder(Recorder):

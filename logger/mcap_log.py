@@ -7,7 +7,6 @@ truncated ones (power cut before `close()`) by a sequential scan that stops at t
 from __future__ import annotations
 
 import io
-import os
 import struct
 import time
 from collections import Counter
@@ -27,6 +26,7 @@ from mcap.writer import CompressionType, Writer
 
 from fuelid import __version__
 from fuelid.errors import FuelidError
+from logger.durable import fsync_path
 
 METADATA_NAME = "fuelid"
 MAGIC = b"\x89MCAP0\r\n"
@@ -177,16 +177,8 @@ class McapLogWriter:
         """Close the open chunk and push everything to the OS (and the disk when fsync)."""
         self._close_chunk()
         if self._fsync:
-            self._sync()
+            fsync_path(self.path)
         self._wall_due_ns = time.monotonic_ns() + self._flush_ns
-
-    def _sync(self) -> None:
-        # fsync works on the file, not the descriptor: a descriptor of our own reaches the SDK's writes.
-        fd = os.open(self.path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
     def close(self) -> None:
         """Write the summary and index (MCAP finish) and close the file."""
@@ -196,7 +188,7 @@ class McapLogWriter:
         self._channels.clear()  # a write after close raises KeyError instead of vanishing without a sink
         self._writer.close()
         if self._fsync:
-            self._sync()
+            fsync_path(self.path)
 
     def __enter__(self) -> McapLogWriter:
         return self

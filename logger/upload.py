@@ -27,6 +27,7 @@ from email.message import Message
 from pathlib import Path
 
 from fuelid.errors import FuelidError
+from logger.durable import write_atomic
 
 log = logging.getLogger("fuelid.upload")
 
@@ -176,25 +177,6 @@ def upload_with_retry(path: str | Path, server_url: str, token: str, *, deadline
             time.sleep(delay)
 
 
-def fsync_dir(path: str | Path) -> None:
-    """Make a rename or new file in directory `path` durable."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    # A power cut leaves either the old journal or the new one, never half of one.
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    fsync_dir(path.parent)
-
 
 class UploadQueue:
     """Uploads closed MCAP files in the background, in the order queued, whenever the server can be reached.
@@ -238,7 +220,7 @@ class UploadQueue:
 
     def _save(self) -> None:
         state = {"version": 1, "truck": self.truck, "pending": self.pending, "rejected": self.rejected}
-        _write_atomic(self._journal, json.dumps(state, indent=1).encode())
+        write_atomic(self._journal, json.dumps(state, indent=1).encode())
 
     def enqueue(self, path: str | Path) -> None:
         """Queue a closed file (an absolute path is kept); queuing a path twice uploads it once."""
