@@ -8,8 +8,8 @@ function of plain arguments, so Dask pickles it by reference and any worker with
 Held-out evidence: the model is fitted on all the truck's data (the newest file included) and the diagnosis
 runs on the same data, because its score tests are by construction tests at the fitted model; what needs
 unseen data is measured by refits: diagnose verifies candidate effects by a linearised refit scored on each
-60-s block left out of the fit, and the job scores the model structure itself the same way
-(ident.diagnosis.cross_validate), reported as metrics["held_out"] next to the in-sample metrics.
+60-s block left out of the fit, and scores the model itself the same way (the diagnosis's `held_out`),
+reported as metrics["held_out"] next to the in-sample metrics.
 
 `JobRunner` runs jobs on a Dask LocalCluster of worker processes (the default: one single-threaded worker per
 core) or on an existing cluster through its scheduler address. Each job limits BLAS/OpenMP to one thread, so
@@ -54,19 +54,6 @@ def _report(out: Path, model, diagnosis: dict, ds, truck: str, files: list[str])
     except Exception as exc:  # noqa: BLE001 - a broken report must not lose the model
         return None, f"report.html not written: {_one_line(exc)}"
     return str(path), None
-
-
-def _held_out(model, ds) -> dict | None:
-    """Simulation RMSE [output unit] and cycle fuel errors [%] of the model's structure refitted (linearised)
-    without each 60-s block of ds and simulated on it (cross-validation in time, as diagnose verifies); None
-    when no segment of ds outlasts the model's settling time."""
-    from ident.diagnosis import cross_validate, held_out_scores, run_model
-
-    try:
-        scores = held_out_scores(cross_validate(model, ds, run_model(model, ds)), ds)
-    except ValueError:
-        return None
-    return {"rmse_simulation": scores["rmse"], "cycle_fuel_error_percent": scores["cycle_fuel_error_percent"]}
 
 
 def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: str = "paper",
@@ -124,7 +111,6 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             model = identify_model(ds, structure, files=paths, init=previous)
             lap("identify")
             diagnosis = diagnose(model, ds)
-            held_out = _held_out(model, ds)
             lap("diagnose")
         except (FuelidError, ValueError) as exc:  # diagnose raises ValueError when no segment is long enough
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None
@@ -151,7 +137,9 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         "model_path": str(model_path),
         "diagnosis_path": str(diagnosis_path),
         "report_path": report_path,
-        "metrics": {**metrics(model.validation), "held_out": held_out},
+        "metrics": {**metrics(model.validation), "held_out": diagnosis["held_out"] and {
+            "rmse_simulation": diagnosis["held_out"]["rmse"],
+            "cycle_fuel_error_percent": diagnosis["held_out"]["cycle_fuel_error_percent"]}},
         "previous_metrics": previous_metrics and metrics(previous_metrics),
         "n_samples": model.training["identification_samples"],
         "duration_s": model.training["valid_duration_s"],

@@ -515,34 +515,20 @@ def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S
     return {"ysim": ysim, "y": run.y, "beta": beta}
 
 
-def cross_validate(model: PolyModel, ds, run: Run, effect_ids=(), block_s: float = BLOCK_S) -> dict:
-    """held_out() of the model with the effects effect_ids (ids or `level:SIG`-style; none: the model as it is)
-    added as linearised columns (module docstring, 4)."""
-    dsm = fx.at_operating_point(ds, model)
-    X = np.zeros((run.r.size, 0))
-    for eid in effect_ids:
-        cols = candidate_columns(model, dsm, run, fx.get_effect(fx.parse_effect(eid)[0], ds))
-        if cols is None:
-            raise ValueError(f"effect {eid}: its bus signals are not in the data")
-        X = np.column_stack([X, lfilter(model.A, [1.0], cols[2], axis=0)])  # w has A x (as in the tests)
-    return held_out(model, run, X, block_s)
-
-
 def held_out_scores(cv: dict, ds) -> dict:
     """RMS simulation error [output unit] and cycle fuel errors [%] (eq. 20; mean and RMS over the cycles) of a
-    cross_validate result on its held-out blocks."""
+    held_out result on its held-out blocks."""
     y, ysim = cv["y"], cv["ysim"]
     ok = np.isfinite(ysim) & np.isfinite(y)
     return {"rmse": float(np.sqrt(np.mean((ysim[ok] - y[ok]) ** 2))),
             "cycle_fuel_error_percent": error_table(cycle_fuel_error(np.where(ok, y, np.nan), ysim, ds.cycle, ds.Ts))}
 
 
-def verify(run: Run, X: np.ndarray, model: PolyModel, ds, base: dict) -> dict:
-    """The held-out scores with the candidate columns X (w domain) against base (held_out of the model as it
-    is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%], and β the
-    candidate's coefficients fitted on all the data."""
-    cv = held_out(model, run, X)
-    before, after = held_out_scores(base, ds), held_out_scores(cv, ds)
+def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict) -> dict:
+    """The held-out scores with the candidate columns X (w domain) against `before` (held_out_scores of the
+    model as it is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%],
+    and β the candidate's coefficients fitted on all the data."""
+    after = held_out_scores(cv := held_out(model, run, X), ds)
     return {"rmse_without": before["rmse"], "rmse_with": after["rmse"],
             "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / before["rmse"]),
             "cycle_fuel_error_percent_without": before["cycle_fuel_error_percent"],
@@ -673,7 +659,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
              candidates=None, min_drop_percent: float = 2.0) -> dict:
     """The whole diagnosis of `model` on dataset ds (module docstring); JSON-ready.
 
-    Returns {model, data, compare (ident.validation.evaluate), where_it_fails, test, candidates, verdict}.
+    Returns {model, data, compare (ident.validation.evaluate), held_out (held_out_scores of the model as it is,
+    linearised refit without each block: rmse [output unit], cycle_fuel_error_percent; None when no segment
+    outlasts the settling time), where_it_fails, test, candidates, verdict}.
     Each candidate (best first) has: effect (id for `fuelid identify --effect`), name, form, signals (DBC
     names), spns, statistic (the larger LM of its two tests), df, p_value (Bonferroni over the two tests),
     p_holm, test_significant (Holm at alpha), estimated_drop_percent (share of the simulation error its
@@ -687,7 +675,12 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
     for r in rows:
         r.update(rmse_drop_percent=None, verification=None, conditional=None, explained_by=None)
     accepted = accept_sequentially([r for r in rows if r["testable"]], run, alpha, min_effect_percent)
-    base = held_out(model, run, np.zeros((run.r.size, 0))) if accepted and n_verify else None
+    try:  # the model as it is, scored on each block left out: the reference every verification is measured against
+        base = held_out_scores(held_out(model, run, np.zeros((run.r.size, 0))), ds)
+    except (ValueError, np.linalg.LinAlgError):
+        if accepted and n_verify:
+            raise
+        base = None
     for k, r in enumerate(accepted):
         r["significant"] = True
         if k >= n_verify:
@@ -728,6 +721,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
         "model": {"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         "data": ds.summary() if hasattr(ds, "summary") else {},
         "compare": {**evaluate(model, ds), "unit": ds.output_unit},
+        "held_out": base,
         "where_it_fails": where_it_fails(model, ds, run),
         "test": {"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "
                            "the simulation errors; Newey-West robust, chi2(k); Bonferroni over the two, Holm "
