@@ -8,7 +8,9 @@ r = ỹ − Σ_i B_i/(A F_i) ũ_i. If an effect with regressors x(t) (N × k, id
 missing, y would contain Σ_l β_l x(t − l).
 
 1. Prediction-error (score / Lagrange-multiplier) test. ε would contain ψ_x = D/C x (the gradient −∂ε/∂β at
-   β = 0). With Z = [Ψ_θ, D/C·1] (the PEM gradient at θ̂ and an offset) and M_Z = I − Z Z⁺, the score is
+   β = 0). With Z = [Ψ_θ, D/C·1, I_ε] (the PEM gradient at θ̂, an offset, and the free responses through which
+   each segment's unknown initial state enters, `free_responses`: estimated, not waited out, so a cold start at
+   the beginning of the log is tested too) and M_Z = I − Z Z⁺, the score is
    s = (M_Z ψ_x)ᵀ ε and LM = sᵀ Ω̂⁻¹ s ~ χ²(k_eff) under "no such effect", Ω̂ the Newey–West (Bartlett,
    L = ⌊4 (N/100)^{2/9}⌋ lags) long-run covariance of g_t = (M_Z ψ_x)(t) ε(t) (for white ε this is the textbook
    N R²; the robust form keeps the level when ε is not quite white or its variance changes with load,
@@ -19,9 +21,10 @@ missing, y would contain Σ_l β_l x(t − l).
    regeneration, a cold start — is partly absorbed there by the noise model as low-frequency noise (C and D get
    roots near 1, D/C x of a step is two spikes): the test keeps its level but loses its power. So each
    candidate is also tested where a level shift is not whitened away, in r: with the simulation gradient
-   Z_G = [∂ŷ_sim/∂θ_G, 1] projected out of r and x (x̃ = M_G x, r̃ = M_G r), the candidate's coefficient is
-   estimated by least squares, β̂ = x̃⁺ r̃, and the noise v = r̃ − x̃ β̂ — the noise *under the alternative*,
-   with the effect removed — is fitted by an AR(p) model a(q) (Yule–Walker, p = 30 samples ≈ 9 s). Then
+   Z_G = [∂ŷ_sim/∂θ_G, 1, I_w] (I_w the free responses of 1/F_i) projected out of r and x (x̃ = M_G x,
+   r̃ = M_G r), the candidate's coefficient is estimated by least squares, β̂ = x̃⁺ r̃, and the noise
+   v = r̃ − x̃ β̂ — the noise *under the alternative*, with the effect removed — is fitted by an AR(p) model
+   a(q) (Yule–Walker, p = AR_ORDER = 100 samples, 30 s). Then
    a(q) r̃ and a(q) x̃ are whitened, and the score test of (1) without nuisance columns gives
    LM ~ χ²(k_eff) under "no such effect" (feasible GLS; the Newey–West covariance covers what the AR(p)
    leaves, Andrews & Monahan 1992). Under the null v is the noise and a(q) whitens it; under the alternative
@@ -38,11 +41,10 @@ missing, y would contain Σ_l β_l x(t − l).
    false-discovery proportion instead, which needs positive dependence.
 
 4. Verification (practical relevance) by a linearised refit scored on held-out blocks. With many samples a
-   test detects effects too small to matter: a sub-sample timing offset between the fuel and the torque
-   signals, or a torque-like bus signal sampled at the end of each 0.3 s bin where the model's torque is the bin
-   mean, is "significant" on a 20-minute trip and lowers the error by a fraction of a percent. So each accepted
-   candidate (the first n_verify, default 3) is added to the model and the RMS simulation error of the model
-   with and without it is measured on data not used for fitting.
+   test detects effects too small to matter, and a slow bus signal can follow the slow wander of the noise by
+   chance. So every candidate that passes the tests and explains at least min_effect_percent (at most n_verify
+   of them, default 10, by estimated drop) is added to the model and the RMS simulation error of the model with
+   and without it is measured on data not used for fitting.
    The refit is one Gauss–Newton step from the fitted θ̂ rather than PEM from scratch: with the effect entering
    as ŷ(t) + Σ_l β_l x(t − l), the simulation-domain error w (Run) of the extended model is, to first order in
    (δ, β) around (θ̂, 0),
@@ -51,36 +53,41 @@ missing, y would contain Σ_l β_l x(t − l).
    candidate's lagged columns in the same domain (A x; for a regressor in the torque unit also its image
    through the model's torque path, B_T/F_T x, the gradient of a torque T + κ x the fuel burns for and the bus
    does not report). (δ, β) minimise Σ w² over the fitting samples — linear least squares, exact for the
-   linearised model, nothing re-estimated from scratch. The error is scored by leave-one-block-out
-   cross-validation in time over blocks of BLOCK_S = 60 s: with Q an orthonormal basis of [G, X] and e = w − Q Qᵀ w
-   the full-data residual, the error on block b of the fit without b is exactly
-       e_(b) = e_b + Q_b (I − Q_bᵀ Q_b)⁺ Q_bᵀ e_b        (block deletion, Woodbury)
+   linearised model, nothing re-estimated from scratch. The error is scored by h-block cross-validation in time
+   (Burman, Chow & Nolan 1994) over blocks of BLOCK_S = 60 s, each fitted without itself and BUFFER_S = 15 s
+   either side (the errors are correlated over seconds; neighbours left in the fit would carry the block's own
+   noise into its prediction): with Q an orthonormal basis of [G, X] and e = w − Q Qᵀ w the full-data residual,
+   the error on block b of the fit without the samples S ⊇ b is exactly
+       e_(S) = e_S + Q_S (I − Q_Sᵀ Q_S)⁺ Q_Sᵀ e_S        (deletion, Woodbury), taken on b,
    so every sample is held out once and no least-squares problem is solved more than once (cost N p² + K p³
-   for N samples, p columns, K blocks: milliseconds). The held-out simulation is ŷ = y − e_(b) (through 1/A
-   when A ≠ 1), scored by its RMS error and cycle fuel error (eq. 20): rmse_drop_percent = 100 (1 − RMSE_with /
-   RMSE_without). Short blocks are possible because nothing is refitted per block, so an effect that lasts
-   minutes (a cold engine warming in 2.5 min, a regeneration) is in many fitting blocks and scored on its own.
+   for N samples, p columns, K blocks: milliseconds). The segments' initial states are fitted on all the data
+   and not refitted per block. The held-out simulation is ŷ = y − e_(b) (through 1/A when A ≠ 1), scored by its
+   RMS error and cycle fuel error (eq. 20): rmse_drop_percent = 100 (1 − RMSE_with / RMSE_without). Short
+   blocks are possible because nothing is refitted per block, so an effect that lasts minutes (a cold engine
+   warming up, a regeneration) is in many fitting blocks and scored on its own.
+   A candidate is confirmed when the drop is at least min_drop_percent and the refit moves the fuel the way
+   the effect's physics does (Effect.sign: more fuel during a regeneration, none on overrun; on trips with
+   nothing hidden the bus's clipping of negative fuel at 0 makes "overrun" look like *more* fuel).
    Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
    refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
    since a refit of the 30+ parameters on half the data adds its own noise to the comparison. A full refit is
    done only where the effect is finally added: `fuelid identify --effect` (PEM with the effect's own dynamics
    B_x/F_x and noise model), which `fuelid compare` and the report then score.
 
-5. Sequential conditional check. Slow bus signals (cab temperature, a slowly drifting ambient) can follow the
-   level shift a real effect leaves in the error by chance. The candidate with the largest estimated drop
-   (`_priority`) is accepted first; each other test-significant candidate is re-tested by the simulation-error
-   test with the accepted candidates' columns among the nuisance columns and must still reject (Bonferroni
-   over the candidates) and explain min_effect_percent, else it is "explained by" the accepted one
-   (`accept_sequentially`).
+5. Sequential conditional check. Bus signals are dependent (a cab temperature follows the level shift a real
+   effect leaves in the error). The confirmed candidates are taken in the order of their held-out drop
+   (`_priority`; a generic bus signal's discounted by GENERIC_WEIGHT); each after the first is re-tested by the
+   simulation-error test with the accepted candidates' columns among the nuisance columns and must still reject
+   (Bonferroni over the candidates) and explain min_effect_percent, and, added on top of them, still lower the
+   held-out RMS error by min_drop_percent, else it is "explained by" the first (`accept_sequentially`).
 
 A candidate is `significant` — a missing effect the diagnosis names — when the Holm-corrected test rejects
-AND it explains at least min_effect_percent (default 1 %) of the simulation error AND (after the first) it
-survives the conditional check AND, when verified, the linearised refit lowers the held-out RMS error by at
-least min_drop_percent (default 2 %: on 20 simulated trips with nothing hidden, seeds 100–119, the candidates
-that pass the tests lower it by 0.2–2.8 %, 9 of them by > 0; the hidden effects by 2.2–25 %, bar ambient air and
-overrun cut-off at 0.5–0.7 %). The
-conjunction can only remove rejections, so the family-wise false-alarm rate stays ≤ α. Significant
-candidates are listed first, in the order accepted; then the rest by p-value.
+AND it explains at least min_effect_percent (default 1 %) of the simulation error AND, when verified, the
+linearised refit lowers the held-out RMS error by at least min_drop_percent (default 2 %) the way its physics
+says AND (after the first) it survives the conditional check. The conjunction can only remove rejections, so
+the family-wise false-alarm rate stays ≤ α. Significant candidates are listed first, in the order accepted;
+then the rest by p-value. Measured on 20-minute simulated trips (benchmarks/bench_diagnose.py --acceptance):
+1 trip of 50 with nothing hidden names an effect; README gives the table per hidden effect.
 """
 from __future__ import annotations
 
@@ -89,7 +96,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import lstsq, qr, solve_toeplitz, svd
+from scipy.linalg import block_diag, lstsq, qr, solve_toeplitz, svd
 from scipy.signal import lfilter
 from scipy.stats import chi2
 
@@ -230,13 +237,19 @@ def lagged(x: np.ndarray, lags) -> np.ndarray:
     return out
 
 
-def settle_samples(model: PolyModel, fraction: float = 0.01, cap: int = 400) -> int:
-    """Samples until the slowest pole of 1/A, 1/F_i, 1/C (the filters started from zero state) decays to
-    `fraction`, plus the structure's n_start; at most cap + n_start."""
-    radii = [np.abs(np.roots(p)).max() for p in [model.A, model.C, *model.F] if p.size > 1]
-    r = min(max(radii, default=0.0), 0.9999)
-    n = 0 if r <= 0 else math.ceil(math.log(fraction) / math.log(r))
-    return model.structure.n_start + min(n, cap)
+def free_responses(denominators, n: int) -> np.ndarray:
+    """Columns (n × Σ deg) spanning every free (zero-input) response of the filters 1/den over n samples: for each
+    denominator of degree d, its responses to unit impulses at samples 0 … d − 1. A filter started from zero
+    state differs from one started in its true, unknown state by such a response, so projecting these columns
+    out estimates the initial state (MATLAB's InitialCondition = 'estimate') instead of discarding a settling
+    time."""
+    cols = []
+    for den in denominators:
+        for j in range(len(den) - 1):
+            impulse = np.zeros(n)
+            impulse[j] = 1.0
+            cols.append(lfilter([1.0], den, impulse))
+    return np.column_stack(cols) if cols else np.zeros((n, 0))
 
 
 def _one_blas_thread():
@@ -250,9 +263,12 @@ class Run:
     """A model run over the valid segments of a dataset: u, y the model's inputs and (shifted) fuel; ysim, ypred
     (1-step) — N long, NaN outside the segments used; eps the prediction errors exactly as
     ident.validation.evaluate computes them for its whiteness verdict (every segment, NaN during each one's
-    first n_start samples), so the diagnosis and the compare table never disagree on it; segs the slices used; after each segment's warm-up, stacked: e the prediction
-    errors and Q a basis of their nuisance gradient (test 1), r the errors w = A ỹ − Σ B_i/F_i ũ_i before the
-    noise filter (the simulation errors when A = 1) with the basis QG of their gradient projected out (test 2)."""
+    first n_start samples), so the diagnosis and the compare table never disagree on it; segs the slices used;
+    after each segment's first `warm` (= n_start) samples, stacked: e the prediction errors and Q a basis of
+    their nuisance columns (test 1), r the errors w = A ỹ − Σ B_i/F_i ũ_i before the noise filter (the
+    simulation errors when A = 1) with the basis QG of their nuisance columns projected out (test 2), and
+    QG_blocks the part of QG the held-out refit re-fits per block (QG without the initial states, which are
+    fitted on all the data)."""
 
     u: np.ndarray
     y: np.ndarray
@@ -265,10 +281,11 @@ class Run:
     Q: np.ndarray
     r: np.ndarray
     QG: np.ndarray
+    QG_blocks: np.ndarray
 
     @property
     def lens(self) -> list[int]:
-        """Samples of each segment after warm-up (the blocks e, r and the columns are stacked from)."""
+        """Samples of each segment after its first `warm` (the blocks e, r and the columns are stacked from)."""
         return [s.stop - s.start - self.warm for s in self.segs]
 
     @property
@@ -278,19 +295,22 @@ class Run:
 
 
 def run_model(model: PolyModel, ds) -> Run:
-    """Simulate, predict and compute ε, w and their gradients for `model` on every valid segment of ds long
-    enough to leave 50 samples after the model's settling time."""
+    """Simulate, predict and compute ε, w and their gradients for `model` on every valid segment of ds at least
+    50 samples longer than the structure's n_start plus its initial-state columns. Each segment's filters start
+    from zero state; the free responses of 1/F_i (for w) and of D/C·1/F_i and 1/C (for ε) are nuisance columns of
+    that segment alone (free_responses), so its first minutes are tested rather than thrown away as a warm-up."""
     u, y = fx.model_data(model, ds)
-    warm = settle_samples(model)
+    s = model.structure
+    warm = s.n_start
     n = len(y)
     ysim, ypred, eps = (np.full(n, np.nan) for _ in range(3))
-    s = model.structure
     no_noise = Structure(nb=s.nb, nf=s.nf, nk=s.nk, na=s.na)  # the same model with C = D = 1
     theta_g = model.theta[: no_noise.n_params]  # θ lists a, b, f before c, d
-    segs, Zs, es, ZGs, ws = [], [], [], [], []
+    n_initial = sum(f.size - 1 for f in model.F) * 2 + model.C.size - 1
+    segs, Zs, es, ZGs, ws, ICs, ICGs = [], [], [], [], [], [], []
     for seg in ds.segments():
         ok = np.isfinite(y[seg]) & np.isfinite(u[seg]).all(axis=1)
-        if seg.stop - seg.start < warm + 50 or not ok.all():
+        if seg.stop - seg.start < warm + n_initial + 50 or not ok.all():
             continue
         us, ys = u[seg] - np.asarray(model.u0), y[seg] - model.y0
         ysim[seg] = simulate(model, u[seg])
@@ -298,25 +318,35 @@ def run_model(model: PolyModel, ds) -> Run:
         e, psi = prediction_errors(model.theta, s, us, ys, jacobian=True)
         w, psi_g = prediction_errors(theta_g, no_noise, us, ys, jacobian=True)
         ones = np.ones(len(ys))
+        free = free_responses(model.F, len(ys))
+        ICGs.append(free[warm:])
+        noise_free = free_responses([model.C], len(ys))
+        ICs.append(np.column_stack([lfilter(model.D, model.C, free, axis=0), noise_free])[warm:])
         Zs.append(np.column_stack([psi, lfilter(model.D, model.C, ones)])[warm:])
         ZGs.append(np.column_stack([psi_g, ones])[warm:])
         es.append(e[warm:])
         ws.append(w[warm:])
         segs.append(seg)
     if not segs:
-        raise ValueError(f"no valid segment of the data is longer than the model's settling time ({warm} samples)")
+        raise ValueError(f"no valid segment of the data is longer than {warm + n_initial + 50} samples, what the "
+                         "model's initial state and the tests need")
     for seg in ds.segments():  # the whiteness rule of ident.validation.evaluate: skip n_start, keep short segments
         eps[seg] = residuals(model, u[seg], y[seg])
         eps[seg.start: seg.start + s.n_start] = np.nan
     with _one_blas_thread():
-        Q, QG = nuisance_basis(np.vstack(Zs)), nuisance_basis(np.vstack(ZGs))
+        Q = nuisance_basis(np.column_stack([np.vstack(Zs), block_diag(*ICs)]))
+        QI = nuisance_basis(block_diag(*ICGs))
+        ZG = np.vstack(ZGs)
+        QGp = nuisance_basis(ZG - QI @ (QI.T @ ZG))
+    QG = np.column_stack([QI, QGp])
     w = np.concatenate(ws)
-    return Run(u, y, ysim, ypred, eps, segs, warm, np.concatenate(es), Q, w - QG @ (QG.T @ w), QG)
+    return Run(u, y, ysim, ypred, eps, segs, warm, np.concatenate(es), Q, w - QG @ (QG.T @ w), QG, QGp)
 
 
 def candidate_columns(model: PolyModel, ds, run: Run, effect: fx.Effect):
     """(Regressors on the dataset grid, their prewhitened lagged image ψ_x stacked over the run's segments after
-    warm-up, the lagged unfiltered columns likewise); None when the effect's signals are not logged."""
+    their first run.warm samples, the lagged unfiltered columns likewise); None when the effect's signals are not
+    logged."""
     if effect.form == "shift":
         reg = fx.Regressors(fx.rate(run.ysim, ds.t)[:, None], ("d/dt simulated fuel",), (f"{ds.output_unit}/s",))
     else:
@@ -481,31 +511,39 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
 # ---- verification: a linearised refit scored on held-out blocks ----------------------------------------
 
 BLOCK_S = 60.0  # [s] the blocks left out one at a time when scoring the linearised refit
+BUFFER_S = 15.0  # [s] also left out of the fit on either side of the scored block (h-block cross-validation):
+#   about twice the slowest time constant of the simulated noise H (≈ 9 s), past which the errors decorrelate
 
 
-def block_cv(r: np.ndarray, Q: np.ndarray, block: int) -> np.ndarray:
+def block_cv(r: np.ndarray, Q: np.ndarray, block: int, buffer: int = 0) -> np.ndarray:
     """Leave-one-block-out errors of the least-squares fit of r (N) on the orthonormal columns Q (N × p): for
-    each block b of `block` consecutive samples, r − Q δ_(−b) on b, δ_(−b) fitted without b. Exact, without
-    refitting (module docstring, 4): e_(b) = e_b + Q_b (I − Q_bᵀ Q_b)⁺ Q_bᵀ e_b, e = r − Q Qᵀ r."""
+    each block b of `block` consecutive samples, r − Q δ_(−S) on b, δ_(−S) fitted without S = b and `buffer`
+    samples either side (h-block cross-validation, Burman, Chow & Nolan 1994: the errors are correlated over
+    seconds, and neighbours left in the fit would carry b's own noise into its prediction). Exact, without
+    refitting (module docstring, 4): e_(S) = e_S + Q_S (I − Q_Sᵀ Q_S)⁺ Q_Sᵀ e_S, e = r − Q Qᵀ r."""
     e = r - Q @ (Q.T @ r)
     out = e.copy()
     eye = np.eye(Q.shape[1])
-    for a in range(0, r.size, max(block, 1)):
-        Qb, eb = Q[a:a + block], e[a:a + block]
-        out[a:a + block] = eb + Qb @ lstsq(eye - Qb.T @ Qb, Qb.T @ eb, cond=1e-10, check_finite=False)[0]
+    block = max(block, 1)
+    for a in range(0, r.size, block):
+        lo, hi = max(a - buffer, 0), min(a + block + buffer, r.size)
+        Qs, es = Q[lo:hi], e[lo:hi]
+        left_out = es + Qs @ lstsq(eye - Qs.T @ Qs, Qs.T @ es, cond=1e-10, check_finite=False)[0]
+        out[a:a + block] = left_out[a - lo:a - lo + block]
     return out
 
 
-def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S) -> dict:
+def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S, buffer_s: float = BUFFER_S) -> dict:
     """The linearised refit of `model` with the extra columns X (w domain, stacked like run.r; none: N × 0),
-    scored block by block on data it was not fitted on (block_cv, blocks of block_s [s]): ysim (N on the dataset
-    grid, the held-out simulation, NaN outside the run), y (the fuel it is scored against) and beta (X's
-    coefficients fitted on all the data, for the size of the effect)."""
+    scored block by block on data it was not fitted on (block_cv, blocks of block_s [s] with buffer_s [s] either
+    side also left out): ysim (N on the dataset grid, the held-out simulation, NaN outside the run), y (the fuel
+    it is scored against) and beta (X's coefficients fitted on all the data, for the size of the effect)."""
+    block = round(block_s / model.Ts)
     with _one_blas_thread():
         Xt = X - run.QG @ (run.QG.T @ X)
         U, sig, _ = svd(Xt / np.maximum(np.linalg.norm(X, axis=0), 1e-300), full_matrices=False, check_finite=False)
-        Q = np.column_stack([run.QG, U[:, sig > 1e-4]])  # the same rank rule as the tests
-        err = block_cv(run.r, Q, round(block_s / model.Ts))
+        Q = np.column_stack([run.QG_blocks, U[:, sig > 1e-4]])  # the same rank rule as the tests
+        err = block_cv(run.r, Q, block, round(buffer_s / model.Ts))
         beta = lstsq(Xt, run.r, cond=1e-10, check_finite=False)[0] if X.shape[1] else np.zeros(0)
     if model.A.size > 1:  # the step is linear in w = A·(simulation error): back through 1/A, segment by segment
         ends = np.cumsum(run.lens)
@@ -525,13 +563,14 @@ def held_out_scores(cv: dict, ds) -> dict:
 
 
 def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict) -> dict:
-    """The held-out scores with the candidate columns X (w domain) against `before` (held_out_scores of the
-    model as it is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%],
-    and β the candidate's coefficients fitted on all the data."""
-    after = held_out_scores(cv := held_out(model, run, X), ds)
-    return {"rmse_without": before["rmse"], "rmse_with": after["rmse"],
-            "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / before["rmse"]),
-            "cycle_fuel_error_percent_without": before["cycle_fuel_error_percent"],
+    """The held-out scores with the candidate columns X (w domain) against `before` (held_out of the model as it
+    is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%], and β the
+    candidate's coefficients fitted on all the data."""
+    cv = held_out(model, run, X)
+    without, after = held_out_scores(before, ds), held_out_scores(cv, ds)
+    return {"rmse_without": without["rmse"], "rmse_with": after["rmse"],
+            "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / without["rmse"]),
+            "cycle_fuel_error_percent_without": without["cycle_fuel_error_percent"],
             "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"], "_beta": cv["beta"]}
 
 
@@ -612,7 +651,9 @@ def _verify_row(r: dict, model: PolyModel, ds, run: Run, base: dict) -> dict:
     if through_torque:
         X, Xy = (np.column_stack(c) for c in zip((X, Xy), torque_path_columns(model, run, r["_reg"].x[:, 0])))
     v = verify(run, X, model, ds, base)
+    r["_X"] = X  # for the conditional check on top of the candidates accepted before it
     beta = v.pop("_beta")
+    v["direction"] = int(np.sign((Xy @ beta) @ r["_x"][:, 0]))  # does the fuel rise or fall with the effect?
     if v["rmse_drop_percent"] > 0 and effect.form != "shift":  # the held-out-checked refit measures it better
         n_lagged = r["_x"].shape[1]
         gains = beta[:n_lagged].reshape(len(effect.lags), -1).sum(axis=0)
@@ -623,29 +664,47 @@ def _verify_row(r: dict, model: PolyModel, ds, run: Run, base: dict) -> dict:
     return v
 
 
+def _confirmed(r: dict, min_drop_percent: float) -> bool:
+    """Whether row r's verification confirms it: the held-out RMS error falls by at least min_drop_percent, and
+    the fuel moves the way the effect's physics says (Effect.sign: fuel cut on overrun falls, a regeneration
+    adds fuel). A candidate the refit cannot score stays as the tests found it."""
+    v = r["verification"]
+    if "error" in v:
+        return True
+    return v["rmse_drop_percent"] >= min_drop_percent and r["_effect"].sign * v["direction"] >= 0
+
+
 def _priority(r: dict) -> float:
-    """Order of acceptance: the estimated drop, a generic bus signal's discounted by GENERIC_WEIGHT (a named
-    physical effect is preferred to a bus signal that explains no more than it)."""
-    return r["estimated_drop_percent"] * (1.0 if r["effect"] in fx.EFFECTS else GENERIC_WEIGHT)
+    """Order of acceptance: the held-out RMS error drop when verified, else the estimated drop; a generic bus
+    signal's discounted by GENERIC_WEIGHT (a named physical effect is preferred to a bus signal that explains no
+    more than it)."""
+    drop = r["estimated_drop_percent"] if r["rmse_drop_percent"] is None else r["rmse_drop_percent"]
+    return drop * (1.0 if r["effect"] in fx.EFFECTS else GENERIC_WEIGHT)
 
 
-def accept_sequentially(rows: list[dict], run: Run, alpha: float, min_effect_percent: float) -> list[dict]:
-    """The candidates named as missing, in order (module docstring, 4–5): among the test-significant ones whose
-    estimated drop is at least min_effect_percent, by `_priority`, each re-tested by the simulation-error test
-    conditional on those accepted before it (their columns join the nuisance basis) and accepted when its
-    conditional p-value is below alpha/m (Bonferroni over the m candidates) and its conditional estimated drop
-    still reaches min_effect_percent. The others get `explained_by`."""
-    m = max(len(rows), 1)
-    eligible = sorted((r for r in rows if r["test_significant"] and r["estimated_drop_percent"] >= min_effect_percent),
-                      key=lambda r: -_priority(r))
+def accept_sequentially(rows: list[dict], run: Run, model: PolyModel, ds, alpha: float, min_effect_percent: float,
+                        min_drop_percent: float, m: int) -> list[dict]:
+    """The candidates named as missing, in order (module docstring, 5): rows (in order of preference), each after
+    the first re-tested conditional on those accepted before it and accepted when (a) the simulation-error test
+    with their columns among the nuisance columns still rejects at alpha/m (Bonferroni over the m candidates
+    tested) and still explains min_effect_percent, and (b) when verified, adding it on top of them still lowers
+    the held-out RMS error by min_drop_percent. The others get `explained_by`."""
     accepted, QG, resid = [], run.QG, run.r
-    for r in eligible:
+    for r in rows:
         if accepted:
             with _one_blas_thread():
                 test, left = level_test(resid, r["_raw"], run.lens, QG)
             r["conditional"] = {"given": [a["effect"] for a in accepted], "p_value": test.p_value,
-                                "estimated_drop_percent": 100.0 * (1.0 - left)}
-            if test.log_p >= math.log(alpha / m) or 100.0 * (1.0 - left) < min_effect_percent:
+                                "estimated_drop_percent": 100.0 * (1.0 - left), "rmse_drop_percent": None}
+            explained = test.log_p >= math.log(alpha / m) or 100.0 * (1.0 - left) < min_effect_percent
+            if not explained and "_X" in r:
+                X_before = np.column_stack([a["_X"] for a in accepted if "_X" in a] or [np.zeros((run.r.size, 0))])
+                rmse = [held_out_scores(held_out(model, run, X), ds)["rmse"]
+                        for X in (X_before, np.column_stack([X_before, r["_X"]]))]
+                drop = 100.0 * (1.0 - rmse[1] / rmse[0])
+                r["conditional"]["rmse_drop_percent"] = drop
+                explained = drop < min_drop_percent
+            if explained:
                 r["explained_by"] = accepted[0]["effect"]
                 continue
         accepted.append(r)
@@ -655,7 +714,7 @@ def accept_sequentially(rows: list[dict], run: Run, alpha: float, min_effect_per
     return accepted
 
 
-def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_effect_percent: float = 1.0,
+def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_effect_percent: float = 1.0,
              candidates=None, min_drop_percent: float = 2.0) -> dict:
     """The whole diagnosis of `model` on dataset ds (module docstring); JSON-ready.
 
@@ -674,27 +733,37 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
     rows = rank_candidates(model, ds, run, candidates, alpha)
     for r in rows:
         r.update(rmse_drop_percent=None, verification=None, conditional=None, explained_by=None)
-    accepted = accept_sequentially([r for r in rows if r["testable"]], run, alpha, min_effect_percent)
+    testable = [r for r in rows if r["testable"]]
     try:  # the model as it is, scored on each block left out: the reference every verification is measured against
-        base = held_out_scores(held_out(model, run, np.zeros((run.r.size, 0))), ds)
+        base = held_out(model, run, np.zeros((run.r.size, 0)))
     except (ValueError, np.linalg.LinAlgError):
-        if accepted and n_verify:
-            raise
         base = None
-    for k, r in enumerate(accepted):
-        r["significant"] = True
-        if k >= n_verify:
-            continue
+    eligible = sorted((r for r in testable
+                       if r["test_significant"] and r["estimated_drop_percent"] >= min_effect_percent),
+                      key=lambda r: -_priority(r))
+    if eligible and n_verify and base is None:
+        raise ValueError("the model cannot be scored on held-out blocks of these data")
+    for r in eligible[:n_verify]:
         try:
             r["verification"] = v = _verify_row(r, model, ds, run, base)
             r["rmse_drop_percent"] = v["rmse_drop_percent"]
         except (ValueError, np.linalg.LinAlgError) as exc:
             r["verification"] = {"error": str(exc)}
-            continue
+    unconfirmed = [r for r in eligible if r["verification"] is not None and not _confirmed(r, min_drop_percent)]
+    candidates = sorted((r for r in eligible if all(r is not u for u in unconfirmed)),
+                        key=lambda r: (r["verification"] is None, -_priority(r)))  # verified ones first
+    accepted = accept_sequentially(candidates, run, model, ds, alpha, min_effect_percent, min_drop_percent,
+                                   max(len(testable), 1))
+    for r in accepted:
+        r["significant"] = True
+    for r in unconfirmed:
+        v = r["verification"]
         if v["rmse_drop_percent"] < min_drop_percent:
-            r["significant"] = False
             r["explanation"] += f" — but adding it changes the held-out RMS error by {-v['rmse_drop_percent']:+.1f} " \
                                 f"% (a fall of {min_drop_percent:g} % is needed): not confirmed"
+        else:
+            r["explanation"] += " — but the refit moves the fuel the other way than this effect would: not " \
+                                "confirmed"
     for r in rows:
         if r["explained_by"]:
             r["explanation"] += f" — explained by {r['explained_by']} (not significant given it)"
@@ -704,7 +773,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
     order = {id(r): k for k, r in enumerate(accepted)}
     rows.sort(key=lambda r: (not r["significant"], order.get(id(r), 0), r.get("log10_p", 0.0)))
     for r in rows:
-        for key in ("_reg", "_effect", "_x", "_raw"):
+        for key in ("_reg", "_effect", "_x", "_raw", "_X"):
             r.pop(key, None)
     testable = [r for r in rows if r["testable"]]
     best = rows[0] if rows and rows[0]["significant"] else None
@@ -721,7 +790,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 3, min_e
         "model": {"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         "data": ds.summary() if hasattr(ds, "summary") else {},
         "compare": {**evaluate(model, ds), "unit": ds.output_unit},
-        "held_out": base,
+        "held_out": None if base is None else held_out_scores(base, ds),
         "where_it_fails": where_it_fails(model, ds, run),
         "test": {"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "
                            "the simulation errors; Newey-West robust, chi2(k); Bonferroni over the two, Holm "

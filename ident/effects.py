@@ -49,7 +49,9 @@ class Effect:
 
     A shift effect has no build: its test regressor is d/dt of the model's simulated output (the diagnosis
     makes it), since y(t − τ) ≈ y(t) − τ dy/dt. orders (nb, nf, nk) of each extra input when the effect is
-    added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics)."""
+    added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics);
+    sign the direction the physics moves the fuel when the effect's first regressor grows (+1 more fuel, −1 less,
+    0 either): a candidate fitted the other way is not this effect (ident.diagnosis)."""
 
     id: str
     name: str
@@ -60,6 +62,7 @@ class Effect:
     build: Callable | None = field(default=None, compare=False, repr=False)
     orders: tuple[int, int, int] = (1, 1, 0)
     lags: tuple[int, ...] = (0, 1, 2)
+    sign: int = 0
 
 
 @dataclass
@@ -274,7 +277,8 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("inertia", "rotational inertia",
            "The bus reports net (flywheel) torque, but fuel burns for the indicated torque, which also "
            "accelerates the crankshaft and flywheel: T_ind = T_net + J dω/dt, ω [rad/s], J [kg·m²] (seed 2's EB*).",
-           ("EEC1.EngSpeed", "EC1.EngMomentOfInertia"), (190, 1794), "input", _inertia, orders=(2, 1, 0)),
+           ("EEC1.EngSpeed", "EC1.EngMomentOfInertia"), (190, 1794), "input", _inertia, orders=(2, 1, 0),
+           sign=+1),
     Effect("fuel_delay", "fuel-signal delay",
            "The fuel-rate signal lags speed and torque (fuel-system and ECU filtering; seed 2 found 0.4 s): "
            "y_measured(t) = y(t − τ). Removed by advancing the fuel signal by τ.",
@@ -283,7 +287,7 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "With the pedal released above idle speed the engine is motored and injects no fuel; a linear model "
            "extrapolates its torque gain to negative fuel instead.",
            ("EEC1.ActualEngPercentTorque", "EEC2.AccelPedalPos1", "EEC1.EngSpeed"), (513, 91, 190), "regime",
-           _overrun, lags=(0,)),
+           _overrun, lags=(0,), sign=-1),
     Effect("power_nonlinearity", "speed × torque (power) nonlinearity",
            "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
            "term is the first missing term of the map.",
@@ -297,24 +301,25 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "During a gear change (ETC2 selected ≠ current gear) traction is interrupted and the engine speed "
            "synchronised; for a moment after the clutch closes into the new gear the torque ramps up with low "
            "boost: more fuel per torque. Torque and fuel do not follow the steady relation in either.",
-           ("ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (523, 524), "regime", _gear_shift, lags=(0,)),
+           ("ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (523, 524), "regime", _gear_shift, lags=(0,),
+           sign=+1),
     Effect("dpf_regeneration", "DPF active regeneration",
            "While the diesel particulate filter regenerates actively (DPFC1 SPN 3700 = 1) the engine injects "
            "extra (post-injection) fuel that produces no torque.",
            ("DPFC1.DPFActiveRegenStatus",), (3700,), "regime",
-           _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,)),
+           _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,), sign=+1),
     Effect("cold_engine", "cold engine (coolant temperature)",
            "Below operating temperature (the coolant's warm level, 80–90 °C) friction is higher and the ECU "
            "enriches: extra fuel grows with the coolant-temperature deficit and with the fuel itself.",
-           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,)),
+           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1),
     Effect("ambient", "ambient temperature and pressure",
            "Air density ρ = p/(R T) (ambient temperature, barometric pressure) changes charge air, boost and "
            "pumping work: thin (warm, high) air changes the fuel in proportion to the fuel.",
-           ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,)),
+           ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,), sign=+1),
     Effect("engine_fan", "engine fan",
            "A viscous or clutched engine fan takes power ∝ (fan speed)³ from the crankshaft that the reported "
            "torque does not include.",
-           ("FD.EstPercentFanSpeed", "FD.FanDriveState"), (975, 977), "input", _fan),
+           ("FD.EstPercentFanSpeed", "FD.FanDriveState"), (975, 977), "input", _fan, sign=+1),
     Effect("retarder", "retarder / engine brake",
            "While the retarder or engine brake works (ERC1 SPN 520) no fuel is injected and the engine absorbs "
            "torque.",

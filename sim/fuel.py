@@ -109,8 +109,8 @@ def deterministic_fuel(truth: FuelTruth, speed_rpm: np.ndarray, torque_pct: np.n
 
         y0 = y_idle + Gw (n - n_idle) + GT (T - T_idle)
 
-    speed_rpm, torque_pct: true engine speed [rpm] and indicated torque [%] sampled at Ts. The filters start at
-    rest in the idle operating point, as the trips do.
+    speed_rpm, torque_pct: true engine speed [rpm] and indicated torque [%] at Ts (sim.trip: their bin means). The
+    filters start at rest in the idle operating point, as the trips do.
     """
     m = truth.model
     w = speed_rpm - truth.idle_speed_rpm

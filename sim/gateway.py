@@ -103,7 +103,8 @@ def block(db, name: str, sa: int, period_s: float, signals, t0: float, duration_
     fine-grid sample index) per signal name."""
     message = db.get_message_by_name(name)
     t = schedule(period_s, t0, t0 + duration_s, rng)
-    idx = np.clip(np.round((t - t0) / dt).astype(int), 0, int(round(duration_s / dt)) - 1)
+    # the value in effect when the frame leaves: an ECU sends its latest value, never the next one
+    idx = np.clip(np.floor((t - t0) / dt + 1e-9).astype(int), 0, int(round(duration_s / dt)) - 1)
     values = {k: (v(idx) if callable(v) else np.broadcast_to(np.asarray(v, float), (int(round(duration_s / dt)),))[idx])
               for k, v in signals.items()}
     for sig in NA_SIGNALS.get(name, ()):

@@ -14,9 +14,9 @@ def add_arguments(p):
     p.add_argument("--title", metavar="T", help="page title (default: 'fuelid diagnosis report — TRUCK')")
     p.add_argument("--alpha", type=float, default=0.05,
                    help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
-    p.add_argument("--verify", type=int, default=3, metavar="N",
-                   help="refit with each of the N strongest candidates to measure the held-out error drop "
-                        "(default 3; 0 skips)")
+    p.add_argument("--verify", type=int, default=10, metavar="N",
+                   help="verify up to N candidates that pass the tests by the held-out error drop of a "
+                        "linearised refit (default 10; 0 skips)")
     p.add_argument("--diagnosis", metavar="DIAGNOSIS.json",
                    help="use this saved `fuelid diagnose --json` result of MODEL on the same recordings instead of "
                         "diagnosing again")

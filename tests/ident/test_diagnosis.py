@@ -68,6 +68,22 @@ def test_block_cv_is_exact_leave_one_block_out_least_squares():
         assert np.allclose(out[a:a + 60], r[a:a + 60] - Z[a:a + 60] @ coef)
     in_sample = r - Z @ np.linalg.lstsq(Z, r, rcond=None)[0]
     assert np.sum(out**2) > np.sum(in_sample**2)
+    h_block = dg.block_cv(r, dg.nuisance_basis(Z), 60, buffer=20)  # each block fitted without it and 20 either side
+    for a in range(0, 500, 60):
+        fit = np.r_[0:max(a - 20, 0), min(a + 80, 500):500]
+        coef = np.linalg.lstsq(Z[fit], r[fit], rcond=None)[0]
+        assert np.allclose(h_block[a:a + 60], r[a:a + 60] - Z[a:a + 60] @ coef)
+
+
+def test_free_responses_span_any_initial_state():
+    """A filter started from zero state differs from one started anywhere else by a combination of the columns."""
+    F = np.array([1.0, -1.5, 0.7])
+    x = np.random.default_rng(4).normal(size=300)
+    started = lfilter([1.0], F, x, zi=[0.8, -0.3])[0]
+    diff = started - lfilter([1.0], F, x)
+    cols = dg.free_responses([F], 300)
+    assert cols.shape == (300, 2)
+    assert np.allclose(cols @ np.linalg.lstsq(cols, diff, rcond=None)[0], diff)
 
 
 @pytest.mark.parametrize("effect, check", [
@@ -87,6 +103,16 @@ def test_hidden_effect_is_found_first_explained_and_verified(effect, check):
     for key in ("effect", "signals", "spns", "statistic", "p_value", "significant", "rmse_drop_percent",
                 "explanation", "p_holm", "test_significant", "estimated_drop_percent", "verification", "tests"):
         assert key in top
+
+
+def test_a_candidate_fitted_against_its_physics_is_not_confirmed():
+    """Fuel 11 % lower while SPN 3700 says 'regenerating' is something, but not a DPF regeneration."""
+    ds = hidden.make("dpf_regeneration", seed=1, size=-0.11)
+    out = dg.diagnose(fitted(ds), ds)
+    row = next(r for r in out["candidates"] if r["effect"] == "dpf_regeneration")
+    assert row["test_significant"] and row["verification"]["rmse_drop_percent"] > 5
+    assert row["verification"]["direction"] == -1 and not row["significant"]
+    assert "the other way" in row["explanation"]
 
 
 def test_no_hidden_effect_no_significant_candidate_and_calibrated_p_values():
