@@ -42,7 +42,7 @@ eigenvalues). An unstable candidate is retried with the step K ε halved, up to 
 rejected (θ(t) = θ(t−1)) and only P is updated (Ljung 1999, §11.7). D is not constrained: it enters the
 predictor as a numerator.
 
-Robust step: ε enters the update clipped at HUBER_K = 4 running standard deviations of ε (Huber's norm, Ljung
+Robust step: ε enters the update clipped at HUBER_K = 6 running standard deviations of ε (Huber's norm, Ljung
 1999, §15.2; the running window of the fits): early in the output-error phase a model far from the data makes
 errors of hundreds of L/h, and one such step threw θ to the stability bound, from where it took the rest of a
 30-minute trip to recover (shipped cycle 07: −360 % simulation fit without the clip, 91.2 % with it; offline
@@ -77,7 +77,7 @@ from numba import njit
 
 RADIUS = 0.9999  # largest root radius allowed in F_i and C (ident.pem.RHO_MAX)
 MAX_HALVINGS = 8  # step halvings tried before an update is rejected
-HUBER_K = 4.0  # ε enters the update clipped at this many running standard deviations
+HUBER_K = 6.0  # ε enters the update clipped at this many running standard deviations
 
 # status of a sample (Trace.status)
 NO_STATE, NO_UPDATE, UPDATED, SHRUNK, REJECTED = -1, 0, 1, 2, 3
