@@ -181,8 +181,9 @@ def test_sigkill_loses_at_most_a_second(session):
     assert all((r["id"], r["data"]) in sent_frames for _, r in raw)
 
 
-IDENTIFY_SPEED = 4  # the 400 s trip in 100 s; at 8x the emulated VM updated on only 287 of 1,269 bins (its
-# replay stalls: a silence longer than max_gap_s / speed restarts the filters)
+IDENTIFY_SPEED = 2  # the 400 s trip in 200 s; at 8x the emulated VM updated on only 287 of 1,269 bins (its
+# replay stalls: a silence longer than max_gap_s / speed restarts the filters), and at 4x the from-scratch
+# estimate diverged on one of two CI runs of the same commit (last-third fit −2019 %)
 IDENTIFY_ORDERS = "nb=2,2;nf=2,2;nk=3,0"  # a small output-error model: settles within minutes of the trip
 # The engine's messages the estimator reads (EEC1, LFE1) and the transport protocol carrying EC1 (reference
 # torque): the rest of the FMS traffic is left out to keep the emulated VM up with the sped-up replay.
