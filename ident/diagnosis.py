@@ -563,14 +563,13 @@ def held_out_scores(cv: dict, ds) -> dict:
 
 
 def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict) -> dict:
-    """The held-out scores with the candidate columns X (w domain) against `before` (held_out of the model as it
-    is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%], and β the
-    candidate's coefficients fitted on all the data."""
-    cv = held_out(model, run, X)
-    without, after = held_out_scores(before, ds), held_out_scores(cv, ds)
-    return {"rmse_without": without["rmse"], "rmse_with": after["rmse"],
-            "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / without["rmse"]),
-            "cycle_fuel_error_percent_without": without["cycle_fuel_error_percent"],
+    """The held-out scores with the candidate columns X (w domain) against `before` (held_out_scores of the
+    model as it is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%],
+    and β the candidate's coefficients fitted on all the data."""
+    after = held_out_scores(cv := held_out(model, run, X), ds)
+    return {"rmse_without": before["rmse"], "rmse_with": after["rmse"],
+            "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / before["rmse"]),
+            "cycle_fuel_error_percent_without": before["cycle_fuel_error_percent"],
             "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"], "_beta": cv["beta"]}
 
 
@@ -690,6 +689,7 @@ def accept_sequentially(rows: list[dict], run: Run, model: PolyModel, ds, alpha:
     tested) and still explains min_effect_percent, and (b) when verified, adding it on top of them still lowers
     the held-out RMS error by min_drop_percent. The others get `explained_by`."""
     accepted, QG, resid = [], run.QG, run.r
+    X_accepted, rmse_accepted = np.zeros((run.r.size, 0)), None  # verified columns accepted so far, their score
     for r in rows:
         if accepted:
             with _one_blas_thread():
@@ -698,16 +698,18 @@ def accept_sequentially(rows: list[dict], run: Run, model: PolyModel, ds, alpha:
                                 "estimated_drop_percent": 100.0 * (1.0 - left), "rmse_drop_percent": None}
             explained = test.log_p >= math.log(alpha / m) or 100.0 * (1.0 - left) < min_effect_percent
             if not explained and "_X" in r:
-                X_before = np.column_stack([a["_X"] for a in accepted if "_X" in a] or [np.zeros((run.r.size, 0))])
-                rmse = [held_out_scores(held_out(model, run, X), ds)["rmse"]
-                        for X in (X_before, np.column_stack([X_before, r["_X"]]))]
-                drop = 100.0 * (1.0 - rmse[1] / rmse[0])
+                if rmse_accepted is None:
+                    rmse_accepted = held_out_scores(held_out(model, run, X_accepted), ds)["rmse"]
+                rmse = held_out_scores(held_out(model, run, np.column_stack([X_accepted, r["_X"]])), ds)["rmse"]
+                drop = 100.0 * (1.0 - rmse / rmse_accepted)
                 r["conditional"]["rmse_drop_percent"] = drop
                 explained = drop < min_drop_percent
             if explained:
                 r["explained_by"] = accepted[0]["effect"]
                 continue
         accepted.append(r)
+        if "_X" in r:
+            X_accepted, rmse_accepted = np.column_stack([X_accepted, r["_X"]]), None
         with _one_blas_thread():
             QG = nuisance_basis(np.column_stack([QG, r["_raw"]]))
         resid = run.r - QG @ (QG.T @ run.r)
@@ -719,23 +721,24 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     """The whole diagnosis of `model` on dataset ds (module docstring); JSON-ready.
 
     Returns {model, data, compare (ident.validation.evaluate), held_out (held_out_scores of the model as it is,
-    linearised refit without each block: rmse [output unit], cycle_fuel_error_percent; None when no segment
-    outlasts the settling time), where_it_fails, test, candidates, verdict}.
+    linearised refit without each block: rmse [output unit], cycle_fuel_error_percent; None when it cannot be
+    scored), where_it_fails, test, candidates, verdict}.
     Each candidate (best first) has: effect (id for `fuelid identify --effect`), name, form, signals (DBC
     names), spns, statistic (the larger LM of its two tests), df, p_value (Bonferroni over the two tests),
     p_holm, test_significant (Holm at alpha), estimated_drop_percent (share of the simulation error its
     least-squares fit explains), conditional (its re-test given the effects accepted before it), explained_by,
     rmse_drop_percent (held-out RMS simulation error drop with it, linearised refit, None unless verified),
-    verification (held-out RMSE and cycle fuel errors without/with), significant (a missing effect: accepted
-    by `accept_sequentially` and, when verified, a held-out drop ≥ min_drop_percent), size, explanation,
-    physics, tests. The first n_verify accepted candidates are verified."""
+    verification (held-out RMSE and cycle fuel errors without/with, direction), significant (a missing effect:
+    when verified, a held-out drop ≥ min_drop_percent in the direction of its physics, then accepted by
+    `accept_sequentially`), size, explanation, physics, tests. At most n_verify of the candidates that pass the
+    tests and explain min_effect_percent are verified, by estimated drop."""
     run = run_model(model, ds)
     rows = rank_candidates(model, ds, run, candidates, alpha)
     for r in rows:
         r.update(rmse_drop_percent=None, verification=None, conditional=None, explained_by=None)
     testable = [r for r in rows if r["testable"]]
     try:  # the model as it is, scored on each block left out: the reference every verification is measured against
-        base = held_out(model, run, np.zeros((run.r.size, 0)))
+        base = held_out_scores(held_out(model, run, np.zeros((run.r.size, 0))), ds)
     except (ValueError, np.linalg.LinAlgError):
         base = None
     eligible = sorted((r for r in testable
@@ -749,10 +752,11 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             r["rmse_drop_percent"] = v["rmse_drop_percent"]
         except (ValueError, np.linalg.LinAlgError) as exc:
             r["verification"] = {"error": str(exc)}
-    unconfirmed = [r for r in eligible if r["verification"] is not None and not _confirmed(r, min_drop_percent)]
-    candidates = sorted((r for r in eligible if all(r is not u for u in unconfirmed)),
-                        key=lambda r: (r["verification"] is None, -_priority(r)))  # verified ones first
-    accepted = accept_sequentially(candidates, run, model, ds, alpha, min_effect_percent, min_drop_percent,
+    confirmed, unconfirmed = [], []
+    for r in eligible:
+        (confirmed if r["verification"] is None or _confirmed(r, min_drop_percent) else unconfirmed).append(r)
+    confirmed.sort(key=lambda r: (r["verification"] is None, -_priority(r)))  # verified ones first
+    accepted = accept_sequentially(confirmed, run, model, ds, alpha, min_effect_percent, min_drop_percent,
                                    max(len(testable), 1))
     for r in accepted:
         r["significant"] = True
@@ -790,7 +794,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         "model": {"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         "data": ds.summary() if hasattr(ds, "summary") else {},
         "compare": {**evaluate(model, ds), "unit": ds.output_unit},
-        "held_out": None if base is None else held_out_scores(base, ds),
+        "held_out": base,
         "where_it_fails": where_it_fails(model, ds, run),
         "test": {"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "
                            "the simulation errors; Newey-West robust, chi2(k); Bonferroni over the two, Holm "
