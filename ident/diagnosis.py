@@ -67,7 +67,10 @@ missing, y would contain Σ_l β_l x(t − l).
    warming up, a regeneration) is in many fitting blocks and scored on its own.
    A candidate is confirmed when the drop is at least min_drop_percent and the refit moves the fuel the way
    the effect's physics does (Effect.sign: more fuel during a regeneration, none on overrun; on trips with
-   nothing hidden the bus's clipping of negative fuel at 0 makes "overrun" look like *more* fuel).
+   nothing hidden the bus's clipping of negative fuel at 0 makes "overrun" look like *more* fuel): the change
+   adding it makes to the held-out simulated fuel covaries with the effect's first regressor x with that sign,
+   or with x·ŷ for an effect that scales the fuel (Effect.scales_fuel: air density is nearly constant within
+   a trip, and a trip's fuel level is not told apart from its estimated initial state).
    Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
    refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
    since a refit of the 30+ parameters on half the data adds its own noise to the comparison. A full refit is
@@ -562,15 +565,17 @@ def held_out_scores(cv: dict, ds) -> dict:
             "cycle_fuel_error_percent": error_table(cycle_fuel_error(np.where(ok, y, np.nan), ysim, ds.cycle, ds.Ts))}
 
 
-def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict) -> dict:
+def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict, before_ysim: np.ndarray) -> dict:
     """The held-out scores with the candidate columns X (w domain) against `before` (held_out_scores of the
-    model as it is): RMS simulation error [output unit] and cycle fuel error [%] without and with, the drop [%],
-    and β the candidate's coefficients fitted on all the data."""
+    model as it is, whose held-out simulation is before_ysim): RMS simulation error [output unit] and cycle fuel
+    error [%] without and with, the drop [%], β the candidate's coefficients fitted on all the data, and the
+    change of the held-out simulated fuel [output unit] that adding it makes (stacked like run.r)."""
     after = held_out_scores(cv := held_out(model, run, X), ds)
     return {"rmse_without": before["rmse"], "rmse_with": after["rmse"],
             "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / before["rmse"]),
             "cycle_fuel_error_percent_without": before["cycle_fuel_error_percent"],
-            "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"], "_beta": cv["beta"]}
+            "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"], "_beta": cv["beta"],
+            "_change": (cv["ysim"] - before_ysim)[run.index]}
 
 
 # ---- the diagnosis ---------------------------------------------------------------------------------------
@@ -642,17 +647,21 @@ def torque_path_columns(model: PolyModel, run: Run, x: np.ndarray) -> tuple[np.n
     return np.concatenate([c[0] for c in cols]), np.concatenate([c[1] for c in cols])
 
 
-def _verify_row(r: dict, model: PolyModel, ds, run: Run, base: dict) -> dict:
+def _verify_row(r: dict, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray) -> dict:
     """verify() the candidate of row r against the model as it is (with its torque-path column when its regressor
     is a torque); its explanation re-made from the refit's β."""
     effect, X, Xy = r["_effect"], r["_raw"], r["_x"]
     through_torque = effect.form == "input" and r["_reg"].units == (ds.input_units[1],)
     if through_torque:
         X, Xy = (np.column_stack(c) for c in zip((X, Xy), torque_path_columns(model, run, r["_reg"].x[:, 0])))
-    v = verify(run, X, model, ds, base)
+    v = verify(run, X, model, ds, base, base_ysim)
     r["_X"] = X  # for the conditional check on top of the candidates accepted before it
-    beta = v.pop("_beta")
-    v["direction"] = int(np.sign((Xy @ beta) @ r["_x"][:, 0]))  # does the fuel rise or fall with the effect?
+    beta, change = v.pop("_beta"), v.pop("_change")
+    # does the fuel rise or fall with the effect? The covariance of the change adding it makes to the held-out
+    # fuel (its own part and the model's re-fitted gains and offset together) with its first column x (for a
+    # regime: the mean change on minus off), or with x·ŷ when it scales the fuel (Effect.scales_fuel)
+    x0 = r["_x"][:, 0] * (run.ysim[run.index] if effect.scales_fuel else 1.0)
+    v["direction"] = int(np.sign((change - change.mean()) @ (x0 - x0.mean())))
     if v["rmse_drop_percent"] > 0 and effect.form != "shift":  # the held-out-checked refit measures it better
         n_lagged = r["_x"].shape[1]
         gains = beta[:n_lagged].reshape(len(effect.lags), -1).sum(axis=0)
@@ -738,9 +747,10 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         r.update(rmse_drop_percent=None, verification=None, conditional=None, explained_by=None)
     testable = [r for r in rows if r["testable"]]
     try:  # the model as it is, scored on each block left out: the reference every verification is measured against
-        base = held_out_scores(held_out(model, run, np.zeros((run.r.size, 0))), ds)
+        base_ysim = held_out(model, run, np.zeros((run.r.size, 0)))["ysim"]
+        base = held_out_scores({"y": run.y, "ysim": base_ysim}, ds)
     except (ValueError, np.linalg.LinAlgError):
-        base = None
+        base = base_ysim = None
     eligible = sorted((r for r in testable
                        if r["test_significant"] and r["estimated_drop_percent"] >= min_effect_percent),
                       key=lambda r: -_priority(r))
@@ -748,7 +758,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         raise ValueError("the model cannot be scored on held-out blocks of these data")
     for r in eligible[:n_verify]:
         try:
-            r["verification"] = v = _verify_row(r, model, ds, run, base)
+            r["verification"] = v = _verify_row(r, model, ds, run, base, base_ysim)
             r["rmse_drop_percent"] = v["rmse_drop_percent"]
         except (ValueError, np.linalg.LinAlgError) as exc:
             r["verification"] = {"error": str(exc)}

@@ -50,8 +50,11 @@ class Effect:
     A shift effect has no build: its test regressor is d/dt of the model's simulated output (the diagnosis
     makes it), since y(t − τ) ≈ y(t) − τ dy/dt. orders (nb, nf, nk) of each extra input when the effect is
     added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics);
-    sign the direction the physics moves the fuel when the effect's first regressor grows (+1 more fuel, −1 less,
-    0 either): a candidate fitted the other way is not this effect (ident.diagnosis)."""
+    sign the direction the physics moves the fuel when the effect's first regressor x grows (+1 more fuel, −1 less,
+    0 either): a candidate fitted the other way is not this effect (ident.diagnosis); scales_fuel when the effect
+    multiplies the fuel (regressors x, x·ñ, x·T̃), so that its sign shows in how the fuel moves with x·y: x can be
+    nearly constant over a trip (air density), and a trip's fuel level is not told apart from its initial
+    state."""
 
     id: str
     name: str
@@ -63,6 +66,7 @@ class Effect:
     orders: tuple[int, int, int] = (1, 1, 0)
     lags: tuple[int, ...] = (0, 1, 2)
     sign: int = 0
+    scales_fuel: bool = False
 
 
 @dataclass
@@ -311,11 +315,12 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("cold_engine", "cold engine (coolant temperature)",
            "Below operating temperature (the coolant's warm level, 80–90 °C) friction is higher and the ECU "
            "enriches: extra fuel grows with the coolant-temperature deficit and with the fuel itself.",
-           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1),
+           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1, scales_fuel=True),
     Effect("ambient", "ambient temperature and pressure",
            "Air density ρ = p/(R T) (ambient temperature, barometric pressure) changes charge air, boost and "
            "pumping work: thin (warm, high) air changes the fuel in proportion to the fuel.",
-           ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,), sign=+1),
+           ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,), sign=+1,
+           scales_fuel=True),
     Effect("engine_fan", "engine fan",
            "A viscous or clutched engine fan takes power ∝ (fan speed)³ from the crankshaft that the reported "
            "torque does not include.",

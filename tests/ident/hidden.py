@@ -123,31 +123,48 @@ class _Records:
             self.records.append((topic, log_time_ns, record))
 
 
-@functools.lru_cache(maxsize=None)
-def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitude: float | None = None):
-    """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of a simulated diesel trip with the
-    hidden `effect` (its default magnitude unless given) on the route the shipped effect trip uses
-    (sim.catalog.EFFECT_TRIPS; mixed cycle without an effect), decoded by fuelid's recorder; cached."""
-    from ident.dataset import build_dataset
+def _records(cfg):
+    """The decoded records of the simulated trip cfg (fuelid's recorder on its bus log) and its truth."""
     from logger.readers import read_frames
     from logger.recorder import Recorder
-    from sim.catalog import EFFECT_TRIPS
-    from sim.effects import EFFECTS
-    from sim.trip import TripConfig, simulate, write
+    from sim.trip import simulate, write
 
-    route = EFFECT_TRIPS.get(effect, {"cycle": "mixed"}) if effect else {"cycle": "mixed"}
-    effects = ((effect, EFFECTS[effect].default if magnitude is None else magnitude),) if effect else ()
-    trip = simulate(TripConfig(duration_s=duration_s, seed=seed, effects=effects, **route))
+    trip = simulate(cfg)
     with tempfile.TemporaryDirectory() as tmp:
         paths = write(trip, Path(tmp) / "trip.log.gz")
         sink = _Records()
         recorder = Recorder(sink)
         for frame in read_frames(paths["log"]):
             recorder.on_message_received(frame)
+    return sink.records, trip
+
+
+@functools.lru_cache(maxsize=None)
+def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitude: float | None = None,
+              routes_of: str | None = None):
+    """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
+    hidden `effect` (its default magnitude unless given) on the routes the shipped trips of effect `routes_of`
+    (default: `effect`) use (sim.catalog.EFFECT_TRIPS: one trip, two for ambient air, on days seed,
+    seed + SECOND_TRIP_SEED; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
+    arrays of several trips are concatenated, the summary is the first trip's; cached."""
+    from ident.dataset import build_dataset
+    from sim.catalog import EFFECT_TRIPS, SECOND_TRIP_SEED
+    from sim.effects import EFFECTS
+    from sim.trip import TripConfig
+
+    routes = EFFECT_TRIPS[routes_of or effect] if routes_of or effect else ({"cycle": "mixed"},)
+    effects = ((effect, EFFECTS[effect].default if magnitude is None else magnitude),) if effect else ()
+    records, trips = [], []
+    for j, route in enumerate(routes):
+        recs, trip = _records(TripConfig(duration_s=duration_s, seed=seed + j * SECOND_TRIP_SEED, effects=effects,
+                                         **route))
+        records += recs
+        trips.append(trip)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ds = build_dataset(sink.records)
-    return ds, trip.truth, trip.summary
+        ds = build_dataset(records)
+    truth = {k: np.concatenate([t.truth[k] for t in trips]) for k in trips[0].truth}
+    return ds, truth, trips[0].summary
 
 
 def identify(ds, structure: Structure = PAPER, effects=()) -> PolyModel:
