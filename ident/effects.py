@@ -36,6 +36,8 @@ from typing import Callable
 import numpy as np
 from scipy.ndimage import shift as _spline_shift
 
+from ident.polymodel import Structure
+
 RPM_TO_RAD_S = 2.0 * np.pi / 60.0
 
 # Signals computed from the fuel itself (the output): as a candidate they would "explain" fuel by fuel.
@@ -286,7 +288,7 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("fuel_delay", "fuel-signal delay",
            "The fuel-rate signal lags speed and torque (fuel-system and ECU filtering; seed 2 found 0.4 s): "
            "y_measured(t) = y(t − τ). Removed by advancing the fuel signal by τ.",
-           ("LFE1.EngFuelRate",), (183,), "shift", None, orders=(0, 0, 0), lags=(0,)),
+           ("LFE1.EngFuelRate",), (183,), "shift", None, orders=(0, 0, 0), lags=(0,), sign=+1),
     Effect("overrun_cutoff", "overrun fuel cut-off",
            "With the pedal released above idle speed the engine is motored and injects no fuel; a linear model "
            "extrapolates its torque gain to negative fuel instead.",
@@ -454,10 +456,14 @@ class EffectInputs:
 
     def extend(self, structure):
         """The model structure with one more input per extra column."""
-        from ident.polymodel import Structure
         nb, nf, nk = (tuple(o[j] for o in self.orders) for j in range(3))
         return Structure(nb=structure.nb + nb, nf=structure.nf + nf, nk=structure.nk + nk,
                          nc=structure.nc, nd=structure.nd, na=structure.na)
+
+
+DELAY_REFERENCE = Structure(nb=(2, 2), nf=(1, 1), nk=(0, 0))
+"""Seed 2's low-order model (output error, two taps and one pole per input, no dead time): the fuel delay is
+estimated and tested on it, since its dynamics cannot absorb a delay the way the paper's five torque taps do."""
 
 
 def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:

@@ -6,6 +6,7 @@ import pytest
 from scipy.signal import lfilter
 
 from fuelid.cli import main
+from ident.modelfile import load_model
 from ident.polymodel import PolyModel, simulate
 
 NS = 1_000_000_000
@@ -186,12 +187,16 @@ def test_identify_rejects_bad_orders(recording, tmp_path, capsys):
 def test_identify_adds_the_effects_a_diagnosis_named(recording, tmp_path, capsys):
     diagnosis = tmp_path / "diagnosis.json"  # as `fuelid diagnose --json` writes it, cut to what identify reads
     diagnosis.write_text(json.dumps({"candidates": [{"effect": "power_nonlinearity", "significant": True},
+                                                    {"effect": "fuel_delay", "spec": "fuel_delay=0.3",
+                                                     "significant": True},
                                                     {"effect": "idle_fuelling", "significant": False}]}))
     model = tmp_path / "after.json"
     spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
     assert main(["identify", str(recording), "--orders", spec, "--effects-from", str(diagnosis),
                  "-o", str(model), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["effects"] == ["power_nonlinearity"]
+    out = json.loads(capsys.readouterr().out)
+    assert out["effects"] == ["power_nonlinearity", "fuel_delay"], out["effects"]
+    assert load_model(model).info["effect_parameters"] == {"fuel_delay": 0.3}  # the shift the diagnosis found
 
     diagnosis.write_text('{"verdict": "no candidates here"}')
     assert main(["identify", str(recording), "--effects-from", str(diagnosis), "-o", str(model)]) == 1

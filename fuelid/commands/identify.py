@@ -60,10 +60,11 @@ def add_arguments(p):
 
 
 def significant_effects(path: str) -> list[str]:
-    """The effect ids a saved `fuelid diagnose --json` result names as missing, strongest first."""
+    """The effects a saved `fuelid diagnose --json` result names as missing, strongest first, as `--effect` takes
+    them (a fuel delay with the shift found: fuel_delay=0.36)."""
     try:
         candidates = json.loads(Path(path).read_text())["candidates"]
-        return [c["effect"] for c in candidates if c["significant"]]
+        return [c.get("spec", c["effect"]) for c in candidates if c["significant"]]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise FuelidError(f"--effects-from {path}: not a `fuelid diagnose --json` result ({exc})") from exc
 
