@@ -365,10 +365,15 @@ def run_model(model: PolyModel, ds) -> Run:
 def candidate_columns(model: PolyModel, ds, run: Run, effect: fx.Effect):
     """(Regressors on the dataset grid, their prewhitened lagged image ψ_x stacked over the run's segments after
     their first run.warm samples, the lagged unfiltered columns likewise); None when the effect's signals are not
-    logged."""
+    logged. An effect that scales the fuel (Effect.scales_fuel) has the columns x and x·ŷ (x its first regressor,
+    ŷ the model's simulated fuel)."""
     reg = effect.build(ds)
     if reg is None:
         return None
+    if effect.scales_fuel:
+        x = reg.x[:, 0]
+        reg = fx.Regressors(np.column_stack([x, x * run.ysim]), (reg.names[0], f"{reg.names[0]} x model fuel"),
+                            (reg.units[0], f"{reg.units[0]}.{ds.output_unit}"))
     psi, raw = [], []
     for seg in run.segs:
         x = lagged(np.nan_to_num(reg.x[seg]), effect.lags)
@@ -479,7 +484,8 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
             ds, run: Run) -> tuple[str, dict]:
     """One sentence an engineer acts on, and the size of the effect (JSON-ready), from its estimated fuel
     contribution [output unit] on the grid and its steady-state gain per regressor column [output unit per
-    column unit] (for the shift: −τ [s]); torque_models the fitted models whose torque path gives the inertia
+    column unit] (for the shift: −τ [s]); torque_models the fitted models whose steady-state gains give the
+    relative change of an effect that scales the fuel (Effect.scales_fuel), and whose torque path gives the inertia
     J: the contribution of J_bus dω/dt [Nm] is J/J_bus times what the torque path makes of it, so
     J = J_bus ⟨c, c_T⟩ / ⟨c_T, c_T⟩ (least squares over the samples, c_T = torque_response)."""
     unit = ds.output_unit
@@ -493,8 +499,8 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
         tau = -float(gains[0])
         size["delay_s"] = tau
         way = "lags" if tau > 0 else "leads"
-        return f"the fuel signal {way} speed and torque by about {abs(tau):.2f} s beyond what the model's dynamics " \
-               f"absorb; {act}", size
+        return f"the fuel signal {way} speed and torque by about {abs(tau):.2f} s ({sig}; first-order estimate on " \
+               f"seed 2's low-order model); {act}", size
     if effect.id == "inertia" and ds.input_units[1] == "Nm" and reg.units[0] == "Nm":
         J_bus = float(np.nanmedian(ds.extra["EC1.EngMomentOfInertia"]))
         c_T = torque_response(torque_models, reg.x[:, 0])[ok]
@@ -517,6 +523,14 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
             word = "higher" if extra > 0 else "lower"
             return f"fuel is {abs(extra):.2f} {unit}{pct} {word} than the model whenever {effect.name} is on " \
                    f"({sig}); {act}", size
+    if effect.scales_fuel and effect.form != "regime":  # columns x, x·ŷ of fuel × (1 + m x)
+        # m is x·ŷ's coefficient, not read from x's own: x can be nearly constant over a trip, where a trip's fuel
+        # level is not told apart from its initial state
+        m = float(gains[1])
+        step, per = (0.1, f"10 % of {reg.names[0]}") if reg.units[0] == "1" else (10.0, f"10 {reg.units[0]} of {reg.names[0]}")
+        size["relative_change_per_unit"] = m
+        return f"fuel is {100 * abs(m) * step:.1f} % {'higher' if m > 0 else 'lower'} per {per} ({sig}), in proportion " \
+               f"to the fuel itself; {act}", size
     if reg.x.shape[1] == 1:
         size["gain_per_unit"] = float(gains[0])
         return f"fuel changes by {gains[0]:+.3g} {unit} per {reg.units[0] or 'unit'} of {reg.names[0]} ({sig}) " \

@@ -54,9 +54,10 @@ class Effect:
     added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics);
     sign the direction the physics moves the fuel when the effect's first regressor x grows (+1 more fuel, −1 less,
     0 either): a candidate fitted the other way is not this effect (ident.diagnosis); scales_fuel when the effect
-    multiplies the fuel (regressors x, x·ñ, x·T̃), so that its sign shows in how the fuel moves with x·y: x can be
-    nearly constant over a trip (air density), and a trip's fuel level is not told apart from its initial
-    state."""
+    multiplies the fuel, y (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no
+    injection at all on overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient
+    of y (1 + m x) at m = 0, dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃
+    with their own dynamics) are what a refit adds."""
 
     id: str
     name: str
@@ -180,12 +181,22 @@ def _idle_speed(ds) -> float:
 
 
 def _overrun(ds):
+    """Motoring: the reported (indicated) torque at most 1 % of the reference torque (its resolution), above idle
+    speed, pedal released (EEC2), and the driveline closed — not while the clutch is open (CCVS1 SPN 598) or a
+    gear change is under way (ETC2 selected ≠ current gear, and the bin either side): there the torque dips to
+    0 but the wheels do not drive the engine, and the fuel still follows its last demand."""
     n, T = ds.u[:, 0], ds.u[:, 1]
-    low = 0.5 * ds.u0[1] if ds.u0[1] > 0 else 0.0  # torque below half the idle (friction) torque
-    on = (T <= low) & (n > _idle_speed(ds) + 100.0)
+    on = (T <= _percent_torque_in_model_unit(ds, 1.0)[0]) & (n > _idle_speed(ds) + 100.0)
     released = _pedal_released(ds)
     if released is not None:
         on &= released
+    clutch = _signal(ds, "CCVS1.ClutchSwitch")
+    if clutch is not None:
+        on &= clutch != 1
+    gear, selected = _signal(ds, "ETC2.TransCurrentGear"), _signal(ds, "ETC2.TransSelectedGear")
+    if gear is not None and selected is not None:
+        shifting = (selected != gear) | np.r_[False, np.diff(gear) != 0]
+        on &= ~(shifting | np.r_[shifting[1:], False] | np.r_[False, shifting[:-1]])
     return regime(ds, on, "overrun")
 
 
@@ -292,8 +303,9 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("overrun_cutoff", "overrun fuel cut-off",
            "With the pedal released above idle speed the engine is motored and injects no fuel; a linear model "
            "extrapolates its torque gain to negative fuel instead.",
-           ("EEC1.ActualEngPercentTorque", "EEC2.AccelPedalPos1", "EEC1.EngSpeed"), (513, 91, 190), "regime",
-           _overrun, lags=(0,), sign=-1),
+           ("EEC1.ActualEngPercentTorque", "EEC2.AccelPedalPos1", "EEC1.EngSpeed", "CCVS1.ClutchSwitch",
+            "ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (513, 91, 190, 598, 523, 524), "regime",
+           _overrun, lags=(0,), sign=-1, scales_fuel=True),
     Effect("power_nonlinearity", "speed × torque (power) nonlinearity",
            "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
            "term is the first missing term of the map.",
@@ -313,7 +325,8 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "While the diesel particulate filter regenerates actively (DPFC1 SPN 3700 = 1) the engine injects "
            "extra (post-injection) fuel that produces no torque.",
            ("DPFC1.DPFActiveRegenStatus",), (3700,), "regime",
-           _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,), sign=+1),
+           _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,), sign=+1,
+           scales_fuel=True),
     Effect("cold_engine", "cold engine (coolant temperature)",
            "Below operating temperature (the coolant's warm level, 80–90 °C) friction is higher and the ECU "
            "enriches: extra fuel grows with the coolant-temperature deficit and with the fuel itself.",
