@@ -366,7 +366,8 @@ def candidate_columns(model: PolyModel, ds, run: Run, effect: fx.Effect):
     """(Regressors on the dataset grid, their prewhitened lagged image ψ_x stacked over the run's segments after
     their first run.warm samples, the lagged unfiltered columns likewise); None when the effect's signals are not
     logged. An effect that scales the fuel (Effect.scales_fuel) has the columns x and x·ŷ (x its first regressor,
-    ŷ the model's simulated fuel)."""
+    ŷ the model's simulated fuel); a torque the bus does not report (Effect.torque), the fuel the model's torque
+    path makes of it, B_T/(A F_T) x."""
     reg = effect.build(ds)
     if reg is None:
         return None
@@ -377,6 +378,8 @@ def candidate_columns(model: PolyModel, ds, run: Run, effect: fx.Effect):
     psi, raw = [], []
     for seg in run.segs:
         x = lagged(np.nan_to_num(reg.x[seg]), effect.lags)
+        if effect.torque:
+            x = lfilter(model.B[1], np.convolve(model.A, model.F[1]), x, axis=0)
         psi.append(lfilter(model.D, model.C, x, axis=0)[run.warm:])
         raw.append(x[run.warm:])
     return reg, np.vstack(psi), np.vstack(raw)
@@ -531,6 +534,11 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
         size["relative_change_per_unit"] = m
         return f"fuel is {100 * abs(m) * step:.1f} % {'higher' if m > 0 else 'lower'} per {per} ({sig}), in proportion " \
                f"to the fuel itself; {act}", size
+    if effect.torque:
+        size["torque_scale"] = float(gains[0])
+        per = reg.units[0].split("/")[-1] if "/" in reg.units[0] else ""
+        return f"fuel burns for a torque the bus does not report: {reg.names[0]} × {gains[0]:.3g} {per} ({sig}); " \
+               f"{act}", size
     if reg.x.shape[1] == 1:
         size["gain_per_unit"] = float(gains[0])
         return f"fuel changes by {gains[0]:+.3g} {unit} per {reg.units[0] or 'unit'} of {reg.names[0]} ({sig}) " \
@@ -794,7 +802,7 @@ def _verify_row(r: dict, model: PolyModel, ds, run: Run, base: dict, base_ysim: 
             + (f"this model's own dynamics absorb it (held-out RMS error {-own:+.1f} % with it)" if own < 2.0 else
                f"this model's held-out RMS error falls {own:.1f} % with it") + f"; add effect {r['spec']}")
         return v
-    through_torque = effect.form == "input" and r["_reg"].units == (ds.input_units[1],)
+    through_torque = effect.form == "input" and r["_reg"].units == (ds.input_units[1],) and not effect.torque
     if through_torque:
         X, Xy = (np.column_stack(c) for c in zip((X, Xy), torque_path_columns(model, run, r["_reg"].x[:, 0])))
     v = verify(run, X, model, ds, base, base_ysim)

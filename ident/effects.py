@@ -57,7 +57,9 @@ class Effect:
     multiplies the fuel, y (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no
     injection at all on overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient
     of y (1 + m x) at m = 0, dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃
-    with their own dynamics) are what a refit adds."""
+    with their own dynamics) are what a refit adds; torque when the regressor is a torque (in the model's torque
+    unit per unit of its coefficient) the engine delivers and the bus does not report: the fuel burns for it
+    through the model's torque path, and the diagnosis tests that one column, B_T/F_T x."""
 
     id: str
     name: str
@@ -70,6 +72,7 @@ class Effect:
     lags: tuple[int, ...] = (0, 1, 2)
     sign: int = 0
     scales_fuel: bool = False
+    torque: bool = False
 
 
 @dataclass
@@ -272,12 +275,24 @@ def _ambient(ds):
 
 
 def _fan(ds):
+    """The fan's torque per kW of its power at full speed, T = 1000 (s/100)³ / ω [Nm/kW] (its power grows with
+    the cube of its speed s [%], ω the engine speed [rad/s]), in the model's torque unit per kW; from the drive
+    state (engaged: full speed) when the speed is not sent."""
     fan = _signal(ds, "FD.EstPercentFanSpeed")
-    if fan is not None:  # fan power grows with the cube of its speed
-        return Regressors(((fan / 100.0) ** 3)[:, None], ("(fan speed/100 %)^3",), ("1",))
-    state = _signal(ds, "FD.FanDriveState")
-    return None if state is None else Regressors(((state > 0) & (state < 15)).astype(float)[:, None],
-                                                 ("fan engaged",), ("1",))
+    if fan is not None:
+        share = (fan / 100.0) ** 3
+    else:
+        state = _signal(ds, "FD.FanDriveState")
+        if state is None:
+            return None
+        share = ((state > 0) & (state < 15)).astype(float)
+    torque_nm = 1000.0 * share / (np.maximum(ds.u[:, 0], 300.0) * RPM_TO_RAD_S)
+    if ds.input_units[1] == "Nm":
+        return Regressors(torque_nm[:, None], ("fan torque per kW of fan power at full speed",), ("Nm/kW",))
+    ref = _reference_torque(ds)
+    return None if not ref else Regressors((100.0 * torque_nm / ref)[:, None],
+                                           ("fan torque per kW of fan power at full speed",),
+                                           (f"{ds.input_units[1]}/kW",))
 
 
 def _percent_input(name: str, label: str, absolute: bool = False):
@@ -295,7 +310,7 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "The bus reports net (flywheel) torque, but fuel burns for the indicated torque, which also "
            "accelerates the crankshaft and flywheel: T_ind = T_net + J dω/dt, ω [rad/s], J [kg·m²] (seed 2's EB*).",
            ("EEC1.EngSpeed", "EC1.EngMomentOfInertia"), (190, 1794), "input", _inertia, orders=(2, 1, 0),
-           sign=+1),
+           lags=(0,), sign=+1, torque=True),
     Effect("fuel_delay", "fuel-signal delay",
            "The fuel-rate signal lags speed and torque (fuel-system and ECU filtering; seed 2 found 0.4 s): "
            "y_measured(t) = y(t − τ). Removed by advancing the fuel signal by τ.",
@@ -339,7 +354,8 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("engine_fan", "engine fan",
            "A viscous or clutched engine fan takes power ∝ (fan speed)³ from the crankshaft that the reported "
            "torque does not include.",
-           ("FD.EstPercentFanSpeed", "FD.FanDriveState"), (975, 977), "input", _fan, sign=+1),
+           ("FD.EstPercentFanSpeed", "FD.FanDriveState"), (975, 977), "input", _fan, lags=(0,), sign=+1,
+           torque=True),
     Effect("retarder", "retarder / engine brake",
            "While the retarder or engine brake works (ERC1 SPN 520) no fuel is injected and the engine absorbs "
            "torque.",
