@@ -534,10 +534,10 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
         # m is x·ŷ's coefficient, not read from x's own: x can be nearly constant over a trip, where a trip's fuel
         # level is not told apart from its initial state
         m = float(gains[1])
-        step, per = (0.1, f"10 % of {reg.names[0]}") if reg.units[0] == "1" else (10.0, f"10 {reg.units[0]} of {reg.names[0]}")
+        step, per = (0.1, "10 %") if reg.units[0] == "1" else (10.0, f"10 {reg.units[0]}")
         size["relative_change_per_unit"] = m
-        return f"fuel is {100 * abs(m) * step:.1f} % {'higher' if m > 0 else 'lower'} per {per} ({sig}), in proportion " \
-               f"to the fuel itself; {act}", size
+        return f"fuel is {100 * abs(m) * step:.1f} % {'higher' if m > 0 else 'lower'} per {per} of {reg.names[0]} " \
+               f"({sig}), in proportion to the fuel itself; {act}", size
     if effect.torque:
         size["torque_scale"] = float(gains[0])
         per = reg.units[0].split("/")[-1] if "/" in reg.units[0] else ""
@@ -817,7 +817,7 @@ def _verify_row(r: dict, model: PolyModel, ds, run: Run, base: dict, base_ysim: 
     # regime: the mean change on minus off), or with x·ŷ when it scales the fuel (Effect.scales_fuel)
     x0 = r["_x"][:, 0] * (run.ysim[run.index] if effect.scales_fuel else 1.0)
     v["direction"] = int(np.sign((change - change.mean()) @ (x0 - x0.mean())))
-    if v["rmse_drop_percent"] > 0 and effect.form != "shift":  # the held-out-checked refit measures it better
+    if v["rmse_drop_percent"] > 0:  # the held-out-checked refit measures it better
         n_lagged = r["_x"].shape[1]
         gains = beta[:n_lagged].reshape(len(effect.lags), -1).sum(axis=0)
         if through_torque:
