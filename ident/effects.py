@@ -49,8 +49,8 @@ class Effect:
     """One physical effect (module docstring). `build(ds)` returns its regressors: an N × k array with one
     name and unit per column, or None when the signals it needs are not in the data.
 
-    A shift effect has no build: its test regressor is d/dt of the model's simulated output (the diagnosis
-    makes it), since y(t − τ) ≈ y(t) − τ dy/dt. orders (nb, nf, nk) of each extra input when the effect is
+    A shift effect has no build: its test regressor is d/dt of the simulated fuel of seed 2's low-order model
+    DELAY_REFERENCE, which cannot absorb a delay (the diagnosis makes it), since y(t − τ) ≈ y(t) − τ dy/dt. orders (nb, nf, nk) of each extra input when the effect is
     added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics);
     sign the direction the physics moves the fuel when the effect's first regressor x grows (+1 more fuel, −1 less,
     0 either): a candidate fitted the other way is not this effect (ident.diagnosis); scales_fuel when the effect
