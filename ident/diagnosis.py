@@ -528,6 +528,12 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
                 size["percent_change_when_on"] = 100 * extra / base
                 pct = f" ({100 * extra / base:+.0f} %)"
             word = "higher" if extra > 0 else "lower"
+            if effect.id.startswith("state:"):  # indicators of a bus signal's values, against its most frequent one
+                others = [f"{name}: {float(c[(x > 0.5) & ok].mean()):+.2f} {unit}"
+                          for name, x in zip(reg.names[1:], reg.x[:, 1:].T) if ((x > 0.5) & ok).any()]
+                return f"fuel is {abs(extra):.2f} {unit}{pct} {word} whenever {reg.names[0]}" \
+                       + (f" ({'; '.join(others)})" if others else "") \
+                       + f", relative to the signal's most frequent value ({sig}); {act}", size
             return f"fuel is {abs(extra):.2f} {unit}{pct} {word} than the model whenever {effect.name} is on " \
                    f"({sig}); {act}", size
     if effect.scales_fuel and effect.form != "regime":  # columns x, x·ŷ of fuel × (1 + m x)

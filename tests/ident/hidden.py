@@ -10,7 +10,8 @@ should never be flagged. Hidden effects:
 - "dpf_regeneration": fuel +11 % while DPFC1.DPFActiveRegenStatus = 1 (two 4-minute regenerations);
 - "inertia": the bus torque is net of J dω/dt (J = 3.2 kg·m², EC1 SPN 1794), fuel follows the indicated one;
 - "cold_engine": +0.04 L/h per K of coolant below 80 °C (a cold start warming up);
-- "fuel_delay": the fuel signal lags by `delay_s` (fractional, spline-interpolated).
+- "fuel_delay": the fuel signal lags by `delay_s` (fractional, spline-interpolated);
+- "unlisted": +1.5 L/h while XX.UnknownState = 2 (an auxiliary load no built-in effect describes).
 
 `simulated` gives the same from the truck simulator (sim/) through the bus and fuelid's own decoder, with the
 simulator's truth, for the acceptance tests of issue 7 (tests/ident/test_hidden_effects.py).
@@ -95,6 +96,8 @@ def make(effect: str | None = None, n: int = 8000, seed: int = 0, noise: float =
         "XX.UnknownSignal": walk(1.0),
         "XX.UnknownState": np.floor(_held(n, rng, 0, 3, (5, 60))),
     }
+    if effect == "unlisted":
+        y = y + (1.5 if size is None else size) * (extra["XX.UnknownState"] == 2)
     return Dataset(Ts=TS, t=t, u=np.column_stack([speed, torque]), y=y, input_names=("EEC1.EngSpeed", "EngTorque"),
                    input_units=("rpm", "Nm"), output_name="LFE1.EngFuelRate", output_unit="L/h",
                    u0=np.array([600.0, 112.0]), y0=2.5, valid=np.ones(n, bool),

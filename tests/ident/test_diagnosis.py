@@ -105,6 +105,15 @@ def test_hidden_effect_is_found_first_explained_and_verified(effect, check):
         assert key in top
 
 
+def test_an_effect_nobody_listed_is_found_and_named_by_its_bus_signal():
+    """Fuel 1.5 L/h higher while an unknown ECU state is 2: found as that signal's state, by its DBC name."""
+    ds = hidden.make("unlisted", seed=1)
+    out = dg.diagnose(fitted(ds), ds)
+    top = out["candidates"][0]
+    assert top["effect"] == "state:XX.UnknownState" and top["significant"], out["verdict"]
+    assert top["verification"]["rmse_drop_percent"] > 5 and "XX.UnknownState" in top["explanation"]
+
+
 def test_a_fuel_signal_delay_is_named_with_its_size_though_the_model_absorbs_it():
     """A 0.4 s delay, tested on seed 2's reference model, which cannot absorb it; the model's own taps absorb part
     of it (with the paper's five torque taps, all: tests/ident/test_hidden_effects.py)."""
