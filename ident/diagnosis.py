@@ -491,8 +491,7 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
             ds, run: Run) -> tuple[str, dict]:
     """One sentence an engineer acts on, and the size of the effect (JSON-ready), from its estimated fuel
     contribution [output unit] on the grid and its steady-state gain per regressor column [output unit per
-    column unit] (for the shift: −τ [s]); torque_models the fitted models whose steady-state gains give the
-    relative change of an effect that scales the fuel (Effect.scales_fuel), and whose torque path gives the inertia
+    column unit] (for the shift: −τ [s]); torque_models the fitted models whose torque path gives the inertia
     J: the contribution of J_bus dω/dt [Nm] is J/J_bus times what the torque path makes of it, so
     J = J_bus ⟨c, c_T⟩ / ⟨c_T, c_T⟩ (least squares over the samples, c_T = torque_response)."""
     unit = ds.output_unit
@@ -616,24 +615,28 @@ def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict, before_y
     error [%] without and with, the drop [%], β the candidate's coefficients fitted on all the data, and the
     change of the held-out simulated fuel [output unit] that adding it makes (stacked like run.r)."""
     after = held_out_scores(cv := held_out(model, run, X), ds)
+    return {**without_with(before, after), "_beta": cv["beta"], "_change": (cv["ysim"] - before_ysim)[run.index]}
+
+
+def without_with(before: dict, after: dict) -> dict:
+    """Two held_out_scores side by side: RMS simulation error [output unit] and cycle fuel error [%] without and
+    with, and the RMS error's drop [%]."""
     return {"rmse_without": before["rmse"], "rmse_with": after["rmse"],
             "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / before["rmse"]),
             "cycle_fuel_error_percent_without": before["cycle_fuel_error_percent"],
-            "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"], "_beta": cv["beta"],
-            "_change": (cv["ysim"] - before_ysim)[run.index]}
+            "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"]}
 
 
 # ---- the fuel-signal delay: tested on a model that cannot absorb it ----------------------------------------
 
 @dataclass
 class Reference:
-    """Seed 2's low-order model (fx.DELAY_REFERENCE) fitted by PEM to the run's fuel advanced by delay_s [s] on
-    the run's segments: its simulation errors r with the basis Q of their nuisance columns (its simulation
+    """Seed 2's low-order model (fx.DELAY_REFERENCE) fitted by PEM to the run's fuel (advanced by a shift, see
+    `reference_fit`) on the run's segments: its simulation errors r with the basis Q of their nuisance columns (its simulation
     gradient, an offset, each segment's initial state) projected out, stacked like run.r; ysim its simulated fuel
     on the dataset grid."""
 
     model: PolyModel
-    delay_s: float
     r: np.ndarray
     Q: np.ndarray
     ysim: np.ndarray
@@ -660,7 +663,7 @@ def reference_fit(ds, run: Run, delay_s: float = 0.0, init: PolyModel | None = N
     with _one_blas_thread():
         Q = nuisance_basis(np.column_stack([np.vstack(Zs), block_diag(*ICs)]))
     r = np.concatenate(rs)
-    return Reference(m, delay_s, r - Q @ (Q.T @ r), Q, ysim)
+    return Reference(m, r - Q @ (Q.T @ r), Q, ysim)
 
 
 def shift_test(ds, run: Run, ref: Reference) -> tuple[ScoreTest, float, np.ndarray]:
@@ -700,10 +703,7 @@ def verify_shift(ref: Reference, model: PolyModel, ds, run: Run, before: dict) -
     dw = np.concatenate([lfilter(model.A, [1.0], dy[a:b]) for a, b in zip(ends - run.lens, ends)])  # w has A y
     shifted = dataclasses.replace(run, r=run.r + dw - run.QG @ (run.QG.T @ dw), y=y)
     after = held_out_scores(held_out(model, shifted, np.zeros((run.r.size, 0))), ds)
-    return {"rmse_without": before["rmse"], "rmse_with": after["rmse"],
-            "rmse_drop_percent": 100.0 * (1.0 - after["rmse"] / before["rmse"]),
-            "cycle_fuel_error_percent_without": before["cycle_fuel_error_percent"],
-            "cycle_fuel_error_percent_with": after["cycle_fuel_error_percent"], "direction": int(np.sign(tau)),
+    return {**without_with(before, after), "direction": int(np.sign(tau)),
             "reference": {"structure": str(fx.DELAY_REFERENCE), "delay_s": tau, "rmse_without": without,
                           "rmse_with": with_, "rmse_drop_percent": 100.0 * (1.0 - with_ / without),
                           "sweep_s": sweep["shifts_s"], "sweep_rmse": sweep["scores"]}}
