@@ -18,9 +18,9 @@ from pathlib import Path
 import can
 import cantools
 
-from dbc import FMS_DBC
-from logger.recorder import Recorder, open_writer
-from logger.tp import bam_frames
+from fuelid.dbc import FMS_DBC
+from fuelid.logger.recorder import Recorder, open_writer
+from fuelid.logger.tp import bam_frames
 
 PERIODS_S = {"EEC1": 0.02, "EEC2": 0.05, "LFE1": 0.1, "CCVS1": 0.1, "ETC2": 0.1, "EEC3": 0.25,
              "AMB": 1.0, "ET1": 1.0, "DPFC1": 1.0, "FD": 1.0, "LFC1": 1.0, "HRLFC": 1.0}

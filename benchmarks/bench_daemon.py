@@ -26,8 +26,8 @@ from pathlib import Path
 import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from logger.config import LoggerConfig  # noqa: E402
-from logger.daemon import Daemon  # noqa: E402
+from fuelid.logger.config import LoggerConfig  # noqa: E402
+from fuelid.logger.daemon import Daemon  # noqa: E402
 from tests.logger import traffic  # noqa: E402
 
 TICK = os.sysconf("SC_CLK_TCK")
@@ -94,8 +94,8 @@ def estimator_cost(model: Path, seconds: float = 600.0) -> dict:
     bin over `seconds` of FMS-rate EEC1 (20 ms) and LFE1 (100 ms) records from a driving-like signal."""
     import math
 
-    from ident.live import LiveEstimator
-    from ident.modelfile import load_model
+    from fuelid.ident.live import LiveEstimator
+    from fuelid.ident.modelfile import load_model
 
     live = LiveEstimator.from_model(load_model(model))
     live.prepare()
@@ -120,7 +120,7 @@ def paper_model(path: Path) -> Path:
     traffic mix sends no EC1 reference torque), as model.json."""
     import dataclasses
 
-    from ident.modelfile import save_model
+    from fuelid.ident.modelfile import save_model
     from tests.ident.online_data import diesel_truth
 
     model = diesel_truth()

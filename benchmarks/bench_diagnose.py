@@ -5,7 +5,7 @@ acceptance run on more seeds than the test suite.
     python benchmarks/bench_diagnose.py --acceptance     # every hidden effect on --seeds seeds, --null-seeds null trips, --null-pairs null pairs
     python benchmarks/bench_diagnose.py --acceptance --first-seed 4000 --first-null-seed 300 --null-seeds 30  # fresh seeds
 
-Trips are simulated diesel trips (sim/) decoded by fuelid's recorder (tests/ident/hidden.py), identified with the
+Trips are simulated diesel trips (fuelid/sim/) decoded by fuelid's recorder (tests/ident/hidden.py), identified with the
 paper's orders; the 90-minute trip hides a DPF regeneration. Times are wall-clock on whatever machine runs it.
 """
 import argparse
@@ -17,8 +17,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ident import diagnosis as dg  # noqa: E402
-from ident import effects as fx  # noqa: E402
+from fuelid.ident import diagnosis as dg  # noqa: E402
+from fuelid.ident import effects as fx  # noqa: E402
 from tests.ident import hidden  # noqa: E402
 
 EFFECTS = ["dpf_regeneration", "inertia", "power_nonlinearity", "overrun_cutoff", "cold_engine", "engine_fan",

@@ -28,7 +28,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from fleet.jobs import JobRunner  # noqa: E402
+from fuelid.fleet.jobs import JobRunner  # noqa: E402
 from fuelid.cli import main as fuelid  # noqa: E402
 
 CYCLES = ("mixed", "motorway", "urban", "rural")
@@ -36,7 +36,7 @@ CYCLES = ("mixed", "motorway", "urban", "rural")
 
 def trucks(n: int, minutes: tuple[float, float], cache: Path) -> list[dict]:
     """The n simulated trucks' MCAP files in cache (made when missing): [{truck, mcap, minutes, bytes}]."""
-    from sim.trip import TripConfig, simulate, write
+    from fuelid.sim.trip import TripConfig, simulate, write
 
     cache.mkdir(parents=True, exist_ok=True)
     out = []

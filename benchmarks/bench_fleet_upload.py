@@ -22,8 +22,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fleet import auth, db  # noqa: E402
-from logger.upload import upload_file  # noqa: E402
+from fuelid.fleet import auth, db  # noqa: E402
+from fuelid.logger.upload import upload_file  # noqa: E402
 from tests.fleet.conftest import free_port, make_mcap  # noqa: E402
 
 

@@ -23,11 +23,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ident.kalman import ParameterKalman  # noqa: E402
-from ident.pem import pem  # noqa: E402
-from ident.polymodel import simulate  # noqa: E402
-from ident.rpem import RPEM  # noqa: E402
-from ident.validation import fit_percent  # noqa: E402
+from fuelid.ident.kalman import ParameterKalman  # noqa: E402
+from fuelid.ident.pem import pem  # noqa: E402
+from fuelid.ident.polymodel import simulate  # noqa: E402
+from fuelid.ident.rpem import RPEM  # noqa: E402
+from fuelid.ident.validation import fit_percent  # noqa: E402
 from tests.ident.online_data import diesel_truth  # noqa: E402
 from tests.ident.synthetic import paper_data  # noqa: E402
 

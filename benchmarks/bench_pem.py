@@ -103,8 +103,8 @@ def assess(polys, u_val, y_val, y0_val):
     """Validation fit [%] (vs measured, vs noise-free) and the largest root radius of F, C, D."""
     import numpy as np
 
-    from ident.polymodel import PolyModel, simulate
-    from ident.validation import fit_percent
+    from fuelid.ident.polymodel import PolyModel, simulate
+    from fuelid.ident.validation import fit_percent
 
     m = PolyModel(A=[1.0], B=polys["B"], F=polys["F"], C=polys["C"], D=polys["D"], Ts=0.3,
                   nk=[int(np.argmax(np.asarray(b) != 0)) for b in polys["B"]])
@@ -135,8 +135,8 @@ def main():
     import numpy as np
 
     sys.path.insert(0, str(HERE.parent))
-    from ident.modelfile import load_paper_model
-    from ident.pem import pem
+    from fuelid.ident.modelfile import load_paper_model
+    from fuelid.ident.pem import pem
     from tests.ident.synthetic import paper_data, true_model
 
     paper = load_paper_model("diesel_scania_p320")

@@ -6,9 +6,9 @@ import can
 import pytest
 
 from fuelid.cli import main
-from ident.dataset import build_dataset
-from logger.flowmeter import CaptureWriter
-from logger.mcap_log import read_messages, read_metadata
+from fuelid.ident.dataset import build_dataset
+from fuelid.logger.flowmeter import CaptureWriter
+from fuelid.logger.mcap_log import read_messages, read_metadata
 
 
 def convert(capsys, *args):

@@ -6,8 +6,8 @@ import pytest
 from scipy.signal import lfilter
 
 from fuelid.cli import main
-from ident.modelfile import load_model
-from ident.polymodel import PolyModel, simulate
+from fuelid.ident.modelfile import load_model
+from fuelid.ident.polymodel import PolyModel, simulate
 
 NS = 1_000_000_000
 TS = 0.3
@@ -46,7 +46,7 @@ def trip(n=4000, seed=0):
 def write_mcap(path, n=4000, seed=0, gap=(0, 0)):
     """EEC1, LFE1, CCVS1 every 100 ms (each grid value three times), EC1 every 5 s; nothing logged in the grid
     samples range(*gap)."""
-    from logger.mcap_log import McapLogWriter
+    from fuelid.logger.mcap_log import McapLogWriter
 
     speed, pct, y, v = trip(n, seed)
     with McapLogWriter(path, metadata={"truck": "test"}, fsync=False) as w:
@@ -78,7 +78,7 @@ def test_dataset_command_csv_and_json(recording, tmp_path, capsys):
     assert summary["samples"] == 4000 and summary["valid_samples"] == 4000
     assert summary["inputs"][1]["unit"] == "Nm" and summary["output"]["unit"] == "L/h"
     assert summary["operating_point"]["u0"][0] == pytest.approx(600, abs=2)
-    from ident.dataset import load_dataset
+    from fuelid.ident.dataset import load_dataset
     ds = load_dataset(out)
     speed, pct, y, v = trip()
     np.testing.assert_allclose(ds.u[:, 0], speed, rtol=1e-9)
@@ -93,7 +93,7 @@ def test_bad_inputs_one_line_errors(tmp_path, capsys):
     assert "not an MCAP file" in err and len(err.strip().splitlines()) == 1
     assert main(["dataset", str(tmp_path / "missing.mcap"), "-o", str(tmp_path / "d.csv")]) == 1
     assert main(["dataset", str(bad), "-o", str(tmp_path / "d.txt")]) == 1
-    from logger.mcap_log import McapLogWriter
+    from fuelid.logger.mcap_log import McapLogWriter
     nofuel = tmp_path / "nofuel.mcap"
     with McapLogWriter(nofuel, metadata={}, fsync=False) as w:
         w.add_channel("/j1939/EEC1", {"type": "object"})
@@ -104,7 +104,7 @@ def test_bad_inputs_one_line_errors(tmp_path, capsys):
 
 
 def test_identify_and_compare(recording, tmp_path, capsys):
-    pytest.importorskip("ident.modelfile")
+    pytest.importorskip("fuelid.ident.modelfile")
     model = tmp_path / "m.json"
     spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
     assert main(["identify", str(recording), "--orders", spec, "-o", str(model), "--json"]) == 0

@@ -6,7 +6,7 @@ import json
 import pytest
 
 from fuelid.cli import main
-from ident.modelfile import load_model
+from fuelid.ident.modelfile import load_model
 
 
 @pytest.fixture(scope="module")

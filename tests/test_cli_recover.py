@@ -4,7 +4,7 @@ import json
 import pytest
 
 from fuelid import cli
-from logger.mcap_log import RAW_SCHEMA, McapLogWriter, read_messages
+from fuelid.logger.mcap_log import RAW_SCHEMA, McapLogWriter, read_messages
 
 
 @pytest.fixture(autouse=True)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from fuelid.cli import main
-from ident.dataset import build_dataset
-from ident.modelfile import load_model
-from ident.polymodel import simulate
-from ident.validation import fit_percent
+from fuelid.ident.dataset import build_dataset
+from fuelid.ident.modelfile import load_model
+from fuelid.ident.polymodel import simulate
+from fuelid.ident.validation import fit_percent
 
 LOGS = Path(__file__).resolve().parents[1] / "replay_logs"
 CYCLES = [f"diesel_cycle_{i:02d}" for i in range(1, 12)]
@@ -91,7 +91,7 @@ EFFECTS = (("inertia", 3.2), ("overrun_cutoff", 1.0), ("gear_shift", 0.3), ("fue
 def simulated_dataset(cycle: str, duration_s: float, seed: int):
     """A trip of the simulator with EFFECTS, as the dataset of its 0.3 s truth series (reported torque, measured
     fuel, vehicle speed; no bus in between, which keeps this test fast)."""
-    from sim.trip import TripConfig, simulate
+    from fuelid.sim.trip import TripConfig, simulate
 
     z = simulate(TripConfig(cycle=cycle, duration_s=duration_s, seed=seed, effects=EFFECTS)).truth
     ns = (z["t_s"] * 1e9).round().astype(np.int64) + 1000
@@ -110,10 +110,10 @@ def test_physical_effects_do_not_open_the_papers_map_gap():
     1.5 h trip and tested on four 30-min cycles: fuelid stays within the paper's 2.4 %, and the map stays as
     close (measured: fuelid 0.71 %, map 0.65 % RMS) — these effects barely move integrated fuel, so the paper's
     8.1 % must come from what the simulator does not have (see README, Accuracy on the shipped data)."""
-    from ident.baseline import engine_map
-    from ident.identify import identify_model
-    from ident.polymodel import Structure
-    from ident.validation import error_table, evaluate, evaluate_static
+    from fuelid.ident.baseline import engine_map
+    from fuelid.ident.identify import identify_model
+    from fuelid.ident.polymodel import Structure
+    from fuelid.ident.validation import error_table, evaluate, evaluate_static
 
     ident = simulated_dataset("mixed", 5400, 101)
     model = identify_model(ident, Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11))

@@ -29,9 +29,9 @@ def run(args) -> int:
     from fuelid.commands.dataset import build, build_for_models
     from fuelid.commands.identify import format_table
     from fuelid.errors import FuelidError
-    from ident.baseline import engine_map, seed2_baselines
-    from ident.modelfile import load_model
-    from ident.validation import evaluate, evaluate_static
+    from fuelid.ident.baseline import engine_map, seed2_baselines
+    from fuelid.ident.modelfile import load_model
+    from fuelid.ident.validation import evaluate, evaluate_static
 
     wanted = [b.strip().lower() for b in args.baselines.split(",") if b.strip()]
     unknown = sorted(set(wanted) - set(BASELINES))

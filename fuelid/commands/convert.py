@@ -21,9 +21,9 @@ def add_arguments(p):
 def run(args) -> int:
     from fuelid.errors import FuelidError
     from fuelid.progress import progress
-    from logger.flowmeter import Calibration, capture_readings
-    from logger.readers import open_frames
-    from logger.recorder import Recorder, open_writer
+    from fuelid.logger.flowmeter import Calibration, capture_readings
+    from fuelid.logger.readers import open_frames
+    from fuelid.logger.recorder import Recorder, open_writer
 
     inputs = [Path(p) for p in args.inputs]
     for path in inputs + ([Path(args.flowmeter)] if args.flowmeter else []):

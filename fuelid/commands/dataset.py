@@ -22,7 +22,7 @@ def build(args, paths):
     """The Dataset of `paths` with the options of add_dataset_arguments."""
     import warnings
 
-    from ident.dataset import build_dataset
+    from fuelid.ident.dataset import build_dataset
 
     with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
         warnings.simplefilter("ignore", UserWarning)
@@ -59,7 +59,7 @@ def add_arguments(p):
 
 def run(args) -> int:
     from fuelid.errors import FuelidError
-    from ident.dataset import save_dataset
+    from fuelid.ident.dataset import save_dataset
 
     if not args.output.endswith((".csv", ".mat")):
         raise FuelidError(f"{args.output}: output must end in .csv or .mat")

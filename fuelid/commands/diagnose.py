@@ -55,8 +55,8 @@ def format_report(result: dict, top: int = 8) -> str:
 def run(args) -> int:
     from fuelid.commands.dataset import build_for_models
     from fuelid.errors import FuelidError
-    from ident.diagnosis import diagnose
-    from ident.modelfile import load_model
+    from fuelid.ident.diagnosis import diagnose
+    from fuelid.ident.modelfile import load_model
 
     model = load_model(args.model)
     ds = build_for_models(args, args.inputs, [(args.model, model)])

@@ -19,7 +19,7 @@ def add_arguments(p):
 def run(args) -> int:
     from pathlib import Path
 
-    from fleet.client import FleetClient
+    from fuelid.fleet.client import FleetClient
 
     client = FleetClient(*server_and_token(args))
     wanted = [("model.json", args.output), ("report.html", args.report), ("diagnosis.json", args.diagnosis)]

@@ -73,9 +73,9 @@ def run(args) -> int:
     import dataclasses
 
     from fuelid.commands.dataset import build
-    from ident.identify import identify_model
-    from ident.modelfile import save_model
-    from ident.polymodel import Structure
+    from fuelid.ident.identify import identify_model
+    from fuelid.ident.modelfile import save_model
+    from fuelid.ident.polymodel import Structure
 
     t_start = time.perf_counter()
     if args.effects_from:
@@ -85,7 +85,7 @@ def run(args) -> int:
     t_data = time.perf_counter()
     search = None
     if structure is None:  # the lowest orders passing the paper's residual tests, then the fit with effects
-        from ident.orders import search_dataset_orders
+        from fuelid.ident.orders import search_dataset_orders
 
         search = search_dataset_orders(ds, args.min_segment)
         structure = search.structure

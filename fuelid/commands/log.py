@@ -48,8 +48,8 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from logger.config import LoggerConfig
-    from logger.daemon import Daemon
+    from fuelid.logger.config import LoggerConfig
+    from fuelid.logger.daemon import Daemon
 
     overrides = {k: getattr(args, k) for k in (
         "interface", "channel", "bitrate", "listen_only", "serial_port", "serial_baudrate", "flow_gain",

@@ -40,9 +40,9 @@ def run(args) -> int:
     from fuelid.commands.identify import parse_orders
     from fuelid.errors import FuelidError
     from fuelid.progress import progress
-    from ident.modelfile import load_model, save_model
-    from ident.polymodel import Structure
-    from ident.validation import evaluate
+    from fuelid.ident.modelfile import load_model, save_model
+    from fuelid.ident.polymodel import Structure
+    from fuelid.ident.validation import evaluate
 
     prior = load_model(args.prior) if args.prior else None
     structure = Structure(**parse_orders(args.orders or "paper")) if args.orders or not prior else prior.structure
@@ -132,8 +132,8 @@ def make_estimator(args, structure, ds, prior):
     """The estimator the options ask for: from the prior (ident.live.prior_estimator), else an RPEM from scratch
     at the data's operating point."""
     from fuelid.errors import FuelidError
-    from ident.live import prior_estimator
-    from ident.rpem import RPEM
+    from fuelid.ident.live import prior_estimator
+    from fuelid.ident.rpem import RPEM
 
     if prior is not None:
         return prior_estimator(prior, method=args.method, forgetting=args.forgetting, drift=args.drift,

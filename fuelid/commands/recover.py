@@ -14,7 +14,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from logger.mcap_log import recover
+    from fuelid.logger.mcap_log import recover
 
     output = args.output or args.input.with_name(f"{args.input.stem}.recovered.mcap")
     stats = recover(args.input, output)

@@ -18,7 +18,7 @@ def add_arguments(p):
 def run(args) -> int:
     import time
 
-    from fleet.client import FleetClient
+    from fuelid.fleet.client import FleetClient
 
     client = FleetClient(*server_and_token(args))
     jobs = client.refit(None if args.all else args.truck)

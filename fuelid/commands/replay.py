@@ -23,7 +23,7 @@ def add_arguments(p):
 
 def run(args) -> int:
     from fuelid.errors import FuelidError
-    from logger.replay import PtyMeter, replay
+    from fuelid.logger.replay import PtyMeter, replay
 
     if not args.inputs and not args.flowmeter:
         raise FuelidError("nothing to replay: give CAN recordings and/or --flowmeter CAPTURE")

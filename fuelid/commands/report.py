@@ -27,7 +27,7 @@ def add_arguments(p):
 
 def truck_name(paths) -> str | None:
     """The truck named in the recordings' fuelid MCAP metadata (VIN when seen), several joined by ', '."""
-    from logger.mcap_log import read_metadata
+    from fuelid.logger.mcap_log import read_metadata
 
     names = []
     for p in paths:
@@ -60,9 +60,9 @@ def saved_diagnosis(path: str, model_path: str, data_paths: list[str]) -> dict:
 def run(args) -> int:
     from fuelid.commands.dataset import build_for_models
     from fuelid.errors import FuelidError
-    from ident.diagnosis import diagnose
-    from ident.modelfile import load_model
-    from ident.report import write_report
+    from fuelid.ident.diagnosis import diagnose
+    from fuelid.ident.modelfile import load_model
+    from fuelid.ident.report import write_report
 
     model_paths = [p for p in args.inputs if p.endswith(".json")]
     data_paths = [p for p in args.inputs if not p.endswith(".json")]

@@ -30,7 +30,7 @@ def run(args) -> int:
 
     import uvicorn
 
-    from fleet.app import MiB, Settings, create_app
+    from fuelid.fleet.app import MiB, Settings, create_app
     from fuelid.errors import FuelidError
 
     if args.max_upload_mb <= 0 or args.refit_window_h <= 0:

@@ -32,7 +32,7 @@ def add_arguments(p):
 
 
 def _listing() -> dict:
-    from sim import catalog, effects, fuel, route
+    from fuelid.sim import catalog, effects, fuel, route
 
     return {"truths": list(fuel.TRUTHS), "cycles": list(route.CYCLE_NAMES),
             "effects": {n: {"default": e.default, "unit": e.unit, "spns": list(e.spns)}
@@ -42,8 +42,8 @@ def _listing() -> dict:
 
 def _config(args):
     from fuelid.errors import FuelidError
-    from sim.effects import parse_effects
-    from sim.trip import TripConfig
+    from fuelid.sim.effects import parse_effects
+    from fuelid.sim.trip import TripConfig
 
     try:
         effects = tuple(parse_effects(args.effect).items())
@@ -56,7 +56,7 @@ def _config(args):
 
 def _run_one(cfg, output: Path, label: str) -> dict:
     from fuelid.progress import progress
-    from sim import trip
+    from fuelid.sim import trip
 
     bar = progress(total=len(STAGES) + (not cfg.diesel), desc=label, unit="step")  # + meter stage (gas)
     t0 = time.perf_counter()
@@ -75,7 +75,7 @@ def _run_one(cfg, output: Path, label: str) -> dict:
 
 def run(args) -> int:
     from fuelid.errors import FuelidError
-    from sim import catalog
+    from fuelid.sim import catalog
 
     if args.list:
         listing = _listing()

@@ -16,8 +16,8 @@ def add_arguments(p):
 
 def run(args) -> int:
     from fuelid.errors import FuelidError
-    from logger.config import LoggerConfig
-    from logger.daemon import read_status
+    from fuelid.logger.config import LoggerConfig
+    from fuelid.logger.daemon import read_status
 
     path = LoggerConfig.load(args.config, status_file=args.status_file).status_file
     try:

@@ -39,7 +39,7 @@ def run(args) -> int:
 
 
 def _offline(args):
-    from fleet import auth, db
+    from fuelid.fleet import auth, db
     from fuelid.errors import FuelidError
 
     engine = db.open_database(args.data_dir, args.database_url)
@@ -58,7 +58,7 @@ def _offline(args):
 
 
 def _online(args):
-    from fleet.client import FleetClient
+    from fuelid.fleet.client import FleetClient
     from fuelid.commands.upload import server_and_token
 
     client = FleetClient(*server_and_token(args))

@@ -20,7 +20,7 @@ def _utc(ns) -> str:
 
 
 def run(args) -> int:
-    from fleet.client import FleetClient
+    from fuelid.fleet.client import FleetClient
 
     client = FleetClient(*server_and_token(args))
     if args.truck is None:

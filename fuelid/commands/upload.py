@@ -1,4 +1,4 @@
-"""fuelid upload: send MCAP files to the fleet server (resumable, by sha256; logger/upload.py)."""
+"""fuelid upload: send MCAP files to the fleet server (resumable, by sha256; fuelid/logger/upload.py)."""
 import os
 
 from fuelid.output import print_json
@@ -35,7 +35,7 @@ def add_arguments(p):
 def run(args) -> int:
     import sys
 
-    from logger.upload import UploadError, upload_with_retry
+    from fuelid.logger.upload import UploadError, upload_with_retry
 
     server, token = server_and_token(args)
     results, failed = [], 0

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from fleet import auth, db
-from logger.mcap_log import RAW_SCHEMA, McapLogWriter
+from fuelid.fleet import auth, db
+from fuelid.logger.mcap_log import RAW_SCHEMA, McapLogWriter
 
 REPO = Path(__file__).resolve().parents[2]
 POSTGRES_URL_FILE = Path(os.environ.get("TMPDIR", "/tmp")) / "fuelid-test-postgres-url"

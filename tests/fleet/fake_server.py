@@ -14,7 +14,7 @@ from pathlib import Path
 
 import uvicorn
 
-from fleet.app import MiB, Settings, create_app
+from fuelid.fleet.app import MiB, Settings, create_app
 
 
 def fake_identify(truck: str, mcap_paths: list[str], out_dir: str, previous_model: str | None = None) -> dict:

@@ -7,9 +7,9 @@ import time
 import pytest
 import sqlalchemy as sa
 
-from fleet import db
+from fuelid.fleet import db
 from fuelid.cli import main as fuelid
-from logger.upload import Rejected, request, request_json, upload_file
+from fuelid.logger.upload import Rejected, request, request_json, upload_file
 from tests.fleet.conftest import Server, make_mcap
 
 

@@ -7,10 +7,10 @@ import sys
 import time
 import urllib.request
 
-from fleet import auth, db
+from fuelid.fleet import auth, db
 from fuelid.cli import main as fuelid
-from ident.modelfile import load_model
-from logger.mcap_log import read_metadata
+from fuelid.ident.modelfile import load_model
+from fuelid.logger.mcap_log import read_metadata
 from tests.fleet.conftest import REPO, free_port
 
 

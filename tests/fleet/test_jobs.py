@@ -3,17 +3,17 @@ import json
 
 import pytest
 
-from fleet.jobs import JobError, JobRunner, identify_truck
+from fuelid.fleet.jobs import JobError, JobRunner, identify_truck
 from fuelid.cli import main
-from ident.modelfile import load_model
-from logger.mcap_log import McapLogWriter
+from fuelid.ident.modelfile import load_model
+from fuelid.logger.mcap_log import McapLogWriter
 
 SMALL = "nb=2,2;nf=1,1;nk=3,0;nc=1;nd=1"  # a cheap structure for the cluster test: its subject is the plumbing
 
 
 def simulated_mcap(folder, seed: int, duration_s: float = 900.0):
     """A diesel truck's trip of duration_s [s] from the simulator, converted to MCAP as `fuelid convert` does."""
-    from sim.trip import TripConfig, simulate, write
+    from fuelid.sim.trip import TripConfig, simulate, write
 
     log = folder / f"truck{seed}.log.gz"
     write(simulate(TripConfig(duration_s=duration_s, seed=seed)), log)

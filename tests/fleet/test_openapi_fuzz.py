@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from logger.upload import upload_file
+from fuelid.logger.upload import upload_file
 from tests.fleet.conftest import Server, make_mcap
 
 CHECKS = "not_a_server_error,status_code_conformance,content_type_conformance,response_schema_conformance"

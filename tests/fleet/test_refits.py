@@ -1,5 +1,5 @@
 """Which of a truck's files a refit uses: its newest recorded hours, never an empty selection."""
-from fleet.refits import newest_files
+from fuelid.fleet.refits import newest_files
 
 H_NS = 3600 * 10**9
 

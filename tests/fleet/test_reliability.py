@@ -7,8 +7,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import sqlalchemy as sa
 
-from fleet import db
-from logger.upload import request_json, upload_file, upload_with_retry
+from fuelid.fleet import db
+from fuelid.logger.upload import request_json, upload_file, upload_with_retry
 from tests.fleet.conftest import Server, make_mcap
 
 

@@ -13,7 +13,7 @@ should never be flagged. Hidden effects:
 - "fuel_delay": the fuel signal lags by `delay_s` (fractional, spline-interpolated);
 - "unlisted": +1.5 L/h while XX.UnknownState = 2 (an auxiliary load no built-in effect describes).
 
-`simulated` gives the same from the truck simulator (sim/) through the bus and fuelid's own decoder, with the
+`simulated` gives the same from the truck simulator (fuelid/sim/) through the bus and fuelid's own decoder, with the
 simulator's truth, for the acceptance tests of issue 7 (tests/ident/test_hidden_effects.py).
 """
 from __future__ import annotations
@@ -28,9 +28,9 @@ import numpy as np
 from scipy.ndimage import shift as spline_shift
 from scipy.signal import lfilter
 
-from ident.dataset import Dataset
-from ident.pem import pem
-from ident.polymodel import PolyModel, Structure
+from fuelid.ident.dataset import Dataset
+from fuelid.ident.pem import pem
+from fuelid.ident.polymodel import PolyModel, Structure
 
 TS = 0.3
 J = 3.2  # kg·m²
@@ -128,9 +128,9 @@ class _Records:
 
 def _records(cfg):
     """The decoded records of the simulated trip cfg (fuelid's recorder on its bus log) and its truth."""
-    from logger.readers import read_frames
-    from logger.recorder import Recorder
-    from sim.trip import simulate, write
+    from fuelid.logger.readers import read_frames
+    from fuelid.logger.recorder import Recorder
+    from fuelid.sim.trip import simulate, write
 
     trip = simulate(cfg)
     with tempfile.TemporaryDirectory() as tmp:
@@ -150,10 +150,10 @@ def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitu
     (default: `effect`) use (sim.catalog.EFFECT_TRIPS: one trip, two for ambient air, on days seed,
     seed + SECOND_TRIP_SEED; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
     arrays of several trips are concatenated, the summary is the first trip's; cached."""
-    from ident.dataset import build_dataset
-    from sim.catalog import EFFECT_TRIPS, SECOND_TRIP_SEED
-    from sim.effects import EFFECTS
-    from sim.trip import TripConfig
+    from fuelid.ident.dataset import build_dataset
+    from fuelid.sim.catalog import EFFECT_TRIPS, SECOND_TRIP_SEED
+    from fuelid.sim.effects import EFFECTS
+    from fuelid.sim.trip import TripConfig
 
     routes = EFFECT_TRIPS[routes_of or effect] if routes_of or effect else ({"cycle": "mixed"},)
     effects = ((effect, EFFECTS[effect].default if magnitude is None else magnitude),) if effect else ()
@@ -172,7 +172,7 @@ def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitu
 
 def identify(ds, structure: Structure = PAPER, effects=()) -> PolyModel:
     """The model `fuelid identify` makes of ds (paper orders by default) with the effects added."""
-    from ident.effects import apply_effects
+    from fuelid.ident.effects import apply_effects
 
     fx = apply_effects(ds, list(effects), structure=structure)
     u = np.hstack([ds.u, fx.u])

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from ident.polymodel import PolyModel, simulate
+from fuelid.ident.polymodel import PolyModel, simulate
 from tests.conftest import REPO
 from tests.ident.synthetic import paper_data, true_model
 
@@ -27,7 +27,7 @@ def fleet_prior(truth: PolyModel) -> PolyModel:
     """The offline PEM model (with its covariance) of independent data (seed 2): the fleet model to start from."""
     import warnings
 
-    from ident.pem import pem
+    from fuelid.ident.pem import pem
 
     u, y, _ = paper_data(truth, n=12000, seed=2, sigma_e=SIGMA_E)
     with warnings.catch_warnings():
@@ -51,7 +51,7 @@ def drifting_data(truth: PolyModel, n: int, step: float = 0.05, seed: int = 1, n
 
 def dc_gains(theta_rows, structure) -> np.ndarray:
     """B_i(1)/F_i(1) per input for each row of θ snapshots (k × m)."""
-    from ident.polymodel import from_theta
+    from fuelid.ident.polymodel import from_theta
 
     out = []
     for th in theta_rows:
@@ -61,6 +61,6 @@ def dc_gains(theta_rows, structure) -> np.ndarray:
 
 
 def sim_fit(model, u, y) -> float:
-    from ident.validation import fit_percent
+    from fuelid.ident.validation import fit_percent
 
     return fit_percent(y, simulate(model, u))

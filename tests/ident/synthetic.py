@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
-from ident.pem import stabilize
-from ident.polymodel import PolyModel, simulate
+from fuelid.ident.pem import stabilize
+from fuelid.ident.polymodel import PolyModel, simulate
 
 TS = 0.3
 

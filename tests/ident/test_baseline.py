@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from ident.baseline import (EngineMap, engine_map, fuel_shift_sweep, inertia_sweep, lwr, outside_share, seed2_baselines,
+from fuelid.ident.baseline import (EngineMap, engine_map, fuel_shift_sweep, inertia_sweep, lwr, outside_share, seed2_baselines,
                             static_inputs, static_model, steady_points)
-from ident.dataset import VEHICLE_SPEED, Dataset
+from fuelid.ident.dataset import VEHICLE_SPEED, Dataset
 
 TS = 0.3
 

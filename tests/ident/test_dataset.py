@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from ident.dataset import build_dataset, load_dataset, save_dataset
+from fuelid.ident.dataset import build_dataset, load_dataset, save_dataset
 
 NS = 1_000_000_000
 
@@ -171,7 +171,7 @@ def test_export_round_trip(tmp_path, suffix):
 
 
 def _write_mcap(path, records):
-    from logger.mcap_log import McapLogWriter
+    from fuelid.logger.mcap_log import McapLogWriter
     with McapLogWriter(path, metadata={"truck": "test"}, fsync=False) as writer:
         for topic, log_ns, rec in records:
             if not writer.has_channel(topic):

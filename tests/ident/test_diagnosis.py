@@ -8,8 +8,8 @@ import pytest
 from scipy.signal import lfilter
 from scipy.stats import chi2, kstest
 
-from ident import diagnosis as dg
-from ident.pem import pem
+from fuelid.ident import diagnosis as dg
+from fuelid.ident.pem import pem
 from tests.ident import hidden
 
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ident import effects as fx
+from fuelid.ident import effects as fx
 from tests.ident import hidden
 
 
@@ -17,7 +17,7 @@ def test_builtin_effects_are_documented_with_signals_and_spns():
 
 
 def test_effect_ids_match_the_simulator():
-    sim_effects = pytest.importorskip("sim.effects")
+    sim_effects = pytest.importorskip("fuelid.sim.effects")
     assert set(sim_effects.EFFECTS) <= set(fx.EFFECTS)
 
 

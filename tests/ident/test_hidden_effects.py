@@ -15,8 +15,8 @@ import warnings
 import numpy as np
 import pytest
 
-from ident import diagnosis as dg
-from ident.effects import DELAY_REFERENCE, estimate_fuel_delay
+from fuelid.ident import diagnosis as dg
+from fuelid.ident.effects import DELAY_REFERENCE, estimate_fuel_delay
 from tests.ident import hidden
 
 FLOOR_TOLERANCE = 1.05
@@ -83,7 +83,7 @@ def test_fuel_signal_lag_on_real_driving_logs(name, real_log, tmp_path):
     """The lag of LFE1's fuel rate (SPN 183) behind speed and torque on 30 s of real driving: the same sweep on
     a 0.1 s grid finds 0.19–0.20 s (an independent analysis: 0.16–0.18 s, ../shared/real_logs/SOURCES.md)."""
     from fuelid.cli import main
-    from ident.dataset import build_dataset
+    from fuelid.ident.dataset import build_dataset
 
     mcap = tmp_path / "real.mcap"
     assert main(["convert", str(real_log(name)), "-o", str(mcap), "--json"]) == 0

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
 
-from ident.kalman import GainTracker, ParameterKalman, gain_drift_Q
-from ident.rpem import covariance_update, gain
+from fuelid.ident.kalman import GainTracker, ParameterKalman, gain_drift_Q
+from fuelid.ident.rpem import covariance_update, gain
 from tests.ident.online_data import (DRIFT_SEEDS, SIGMA_E, dc_gains, diesel_truth, drifting_data, fleet_prior,
                                     sim_fit)
 from tests.ident.synthetic import paper_data

@@ -6,8 +6,8 @@ import sys
 import numpy as np
 import pytest
 
-from ident.live import LiveEstimator
-from ident.polymodel import Structure
+from fuelid.ident.live import LiveEstimator
+from fuelid.ident.polymodel import Structure
 from tests.conftest import REPO
 from tests.ident.online_data import DRIFT_SEEDS, SIGMA_E, diesel_truth, drifting_data, fleet_prior
 from tests.ident.synthetic import paper_data
@@ -28,7 +28,7 @@ def records(u, y, ts=0.3, t0=1000.0, skip=(), fuel_na_every=500):
 
 
 def test_live_estimator_tracks_and_writes(tmp_path):
-    from ident.modelfile import load_model
+    from fuelid.ident.modelfile import load_model
 
     truth = diesel_truth()
     truth.input_units, truth.output_unit, truth.u0 = ("rpm", "%"), "L/h", (600.0, 0.0)
@@ -99,14 +99,14 @@ def test_imports_lightly(tmp_path):
     (scipy.linalg) with its array functions."""
     code = """import sys, ident.live
 print(any(m.startswith('scipy') for m in sys.modules))
-from ident.modelfile import load_model
+from fuelid.ident.modelfile import load_model
 live = ident.live.LiveEstimator.from_model(load_model(sys.argv[1]), snapshot_path=sys.argv[2])
 for k in range(100):
     live.feed('/j1939/EEC1', 0.1 * k, {'sa': 0, 'EngSpeed': 900.0 + k, 'ActualEngPercentTorque': 30.0})
     live.feed('/j1939/LFE1', 0.1 * k, {'sa': 0, 'EngFuelRate': 10.0})
 live.snapshot()
 print('scipy.signal' in sys.modules, 'scipy.linalg' in sys.modules)"""
-    from ident.modelfile import save_model
+    from fuelid.ident.modelfile import save_model
 
     truth = diesel_truth()
     truth.input_units, truth.output_unit = ("rpm", "%"), "L/h"

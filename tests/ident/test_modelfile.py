@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from ident.modelfile import PAPER_MODELS, load_model, load_paper_model, save_model
-from ident.pem import pem
-from ident.polymodel import PolyModel, Structure, simulate
+from fuelid.ident.modelfile import PAPER_MODELS, load_model, load_paper_model, save_model
+from fuelid.ident.pem import pem
+from fuelid.ident.polymodel import PolyModel, Structure, simulate
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,8 @@
 import numpy as np
 from scipy.signal import lfilter
 
-from ident.orders import estimate_delays, residual_tests, search_orders
-from ident.polymodel import PolyModel, simulate
+from fuelid.ident.orders import estimate_delays, residual_tests, search_orders
+from fuelid.ident.polymodel import PolyModel, simulate
 
 TRUTH = PolyModel(A=[1], B=[[0, 0, 0.6, 0.3], [0.4, 0.2]], F=[[1, -0.8], [1, -1.1, 0.5]], C=[1, 0.5],
                   D=[1, -0.9], Ts=0.3, nk=(2, 0))

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from ident.modelfile import PAPER_MODELS, load_paper_model
-from ident.pem import at_stability_bound, pem, prediction_errors, stabilize
-from ident.polymodel import PolyModel, Structure, simulate
-from ident.validation import fit_percent
+from fuelid.ident.modelfile import PAPER_MODELS, load_paper_model
+from fuelid.ident.pem import at_stability_bound, pem, prediction_errors, stabilize
+from fuelid.ident.polymodel import PolyModel, Structure, simulate
+from fuelid.ident.validation import fit_percent
 from tests.ident.synthetic import minimal_truth, paper_data, true_model
 
 

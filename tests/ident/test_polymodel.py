@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from ident.polymodel import PolyModel, Structure, from_theta, parameter_names, predict, residuals, simulate
+from fuelid.ident.polymodel import PolyModel, Structure, from_theta, parameter_names, predict, residuals, simulate
 
 
 def model(**kw):

@@ -8,11 +8,11 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from ident import diagnosis as dg
-from ident import report as rp
-from ident.effects import apply_effects
-from ident.pem import pem
-from ident.validation import evaluate
+from fuelid.ident import diagnosis as dg
+from fuelid.ident import report as rp
+from fuelid.ident.effects import apply_effects
+from fuelid.ident.pem import pem
+from fuelid.ident.validation import evaluate
 from tests.ident import hidden
 
 

@@ -5,8 +5,8 @@ import warnings
 import numpy as np
 import pytest
 
-from ident.polymodel import Structure
-from ident.rpem import NO_STATE, NO_UPDATE, RPEM, _stable
+from fuelid.ident.polymodel import Structure
+from fuelid.ident.rpem import NO_STATE, NO_UPDATE, RPEM, _stable
 from tests.ident.online_data import SIGMA_E, diesel_truth, fleet_prior, sim_fit
 from tests.ident.synthetic import paper_data
 
@@ -39,7 +39,7 @@ def test_schur_cohn_matches_roots():
 
 @pytest.mark.parametrize("seed", [0, 5])  # seed 5: 69 % with the earlier λ0 = 0.999 (ident.rpem docstring)
 def test_converges_to_offline_pem_from_scratch(truth, seed):
-    from ident.pem import pem
+    from fuelid.ident.pem import pem
 
     u, y, _ = paper_data(truth, n=12000, seed=seed, sigma_e=SIGMA_E)
     with warnings.catch_warnings():

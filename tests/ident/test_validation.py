@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from ident.validation import autocorr_test, crosscorr_test, cycle_fuel_error, error_table, fit_percent, rmse
+from fuelid.ident.validation import autocorr_test, crosscorr_test, cycle_fuel_error, error_table, fit_percent, rmse
 
 
 def test_autocorr_accepts_white_noise_at_roughly_the_nominal_rate():

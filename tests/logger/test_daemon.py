@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from fuelid.cli import main
-from logger import daemon as daemon_mod
-from logger.config import LoggerConfig
-from logger.daemon import Daemon
-from logger.mcap_log import RAW_SCHEMA, McapLogWriter, raw_record, read_messages, read_metadata
-from logger.recorder import open_writer
-from logger.replay import replay
+from fuelid.logger import daemon as daemon_mod
+from fuelid.logger.config import LoggerConfig
+from fuelid.logger.daemon import Daemon
+from fuelid.logger.mcap_log import RAW_SCHEMA, McapLogWriter, raw_record, read_messages, read_metadata
+from fuelid.logger.recorder import open_writer
+from fuelid.logger.replay import replay
 from tests.logger import traffic
 
 
@@ -300,7 +300,7 @@ def _fit(measured, model) -> float:
 def test_identify_from_scratch_converges_in_the_log(tmp_path, trip):
     """The replayed trip (its recorded timestamps kept) makes /ident/* channels in every rotated file; the
     model identified from scratch fits the later part of the trip better than the start; model.json loads."""
-    from ident.modelfile import load_model
+    from fuelid.ident.modelfile import load_model
 
     run = Running(tmp_path, "identify", preserve_timestamps=True, identify=True, snapshot_s=60.0, rotate_s=2.0)
     sent = replay([trip], run.tx, speed=200).frames
@@ -328,7 +328,7 @@ def test_identify_from_scratch_converges_in_the_log(tmp_path, trip):
 
 
 def test_identify_errors_never_stop_the_logging(tmp_path, drive, monkeypatch, caplog):
-    from ident.live import LiveEstimator
+    from fuelid.ident.live import LiveEstimator
 
     path, msgs = drive
 

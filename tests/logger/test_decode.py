@@ -6,8 +6,8 @@ import can
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from logger.decode import INVALID_STATUSES, Decoder, message_schema
-from logger.j1939 import make_id
+from fuelid.logger.decode import INVALID_STATUSES, Decoder, message_schema
+from fuelid.logger.j1939 import make_id
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from logger.flowmeter import (
+from fuelid.logger.flowmeter import (
     MAX_LINE,
     Calibration,
     CaptureWriter,
@@ -20,7 +20,7 @@ from logger.flowmeter import (
     read_capture,
     unescape,
 )
-from logger.mcap_log import FLOWMETER_SCHEMA
+from fuelid.logger.mcap_log import FLOWMETER_SCHEMA
 
 CAL = Calibration()
 

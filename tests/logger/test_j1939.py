@@ -1,7 +1,7 @@
 """29-bit identifier parsing (J1939-21 PDU1/PDU2) and the source preference table."""
 from hypothesis import given, strategies as st
 
-from logger.j1939 import (DEFAULT_SOURCE_PREFERENCE, GLOBAL_ADDRESS, PGN_TP_CM, PGN_TP_DT, J1939Id,
+from fuelid.logger.j1939 import (DEFAULT_SOURCE_PREFERENCE, GLOBAL_ADDRESS, PGN_TP_CM, PGN_TP_DT, J1939Id,
                           make_id, parse_id, preferred_source)
 
 

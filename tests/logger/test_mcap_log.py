@@ -12,8 +12,8 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
 from fuelid.errors import FuelidError
-from logger.flowmeter import parse_line
-from logger.mcap_log import (
+from fuelid.logger.flowmeter import parse_line
+from fuelid.logger.mcap_log import (
     FLOWMETER_SCHEMA,
     RAW_SCHEMA,
     McapLogWriter,

@@ -7,8 +7,8 @@ import can
 import pytest
 
 from fuelid.errors import FuelidError
-from logger.decode import Decoder
-from logger.readers import open_frames, parse_candump_l, parse_candump_ta, read_frames
+from fuelid.logger.decode import Decoder
+from fuelid.logger.readers import open_frames, parse_candump_l, parse_candump_ta, read_frames
 
 FRAMES = [
     can.Message(timestamp=1700000000.0 + k * 0.01, arbitration_id=aid, is_extended_id=True,

@@ -6,9 +6,9 @@ import can
 import pytest
 
 from fuelid.cli import main
-from logger.flowmeter import SerialFlowMeter, read_capture
-from logger.recorder import Recorder, open_writer
-from logger.replay import PtyMeter, recorded_frames, replay
+from fuelid.logger.flowmeter import SerialFlowMeter, read_capture
+from fuelid.logger.recorder import Recorder, open_writer
+from fuelid.logger.replay import PtyMeter, recorded_frames, replay
 from tests.logger import traffic
 
 

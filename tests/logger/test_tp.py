@@ -5,9 +5,9 @@ import can
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from logger.decode import Decoder
-from logger.j1939 import PGN_TP_CM, make_id
-from logger.tp import TransportReassembler, bam_frames, rts_cts_frames
+from fuelid.logger.decode import Decoder
+from fuelid.logger.j1939 import PGN_TP_CM, make_id
+from fuelid.logger.tp import TransportReassembler, bam_frames, rts_cts_frames
 
 EC1, VI = 65251, 65260
 PAYLOAD = bytes(range(100, 139))  # 39 bytes, 6 packets

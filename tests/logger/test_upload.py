@@ -3,7 +3,7 @@ waits for the network with backoff, and deletes a local file only after the serv
 import json
 import time
 
-from logger.upload import UploadQueue
+from fuelid.logger.upload import UploadQueue
 from tests.fleet.conftest import Server, make_mcap
 
 
@@ -63,7 +63,7 @@ def test_queue_keeps_files_without_delete_after_upload(tmp_path):
 
 def test_daemon_uploads_every_closed_file(tmp_path, capsys):
     from fuelid.cli import main
-    from logger.replay import replay
+    from fuelid.logger.replay import replay
     from tests.logger import traffic
     from tests.logger.test_daemon import Running
 

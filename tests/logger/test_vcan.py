@@ -16,9 +16,9 @@ import can
 import numpy as np
 
 from fuelid.cli import main
-from logger.j1939 import parse_id
-from logger.mcap_log import read_messages
-from logger.readers import read_frames
+from fuelid.logger.j1939 import parse_id
+from fuelid.logger.mcap_log import read_messages
+from fuelid.logger.readers import read_frames
 from tests.conftest import REPO
 from tests.logger import traffic
 from tests.logger.vcan import run_with_vcan
@@ -226,7 +226,7 @@ def identify_session(tmp_path_factory):
     build = ("import numpy as np; from ident.polymodel import Structure; from ident.rpem import RPEM; "
              "RPEM(Structure((2, 2), (2, 2), (3, 0)), 0.3).update(np.empty((0, 2)), np.empty(0))")
     subprocess.run([sys.executable, "-c", build], cwd=REPO, env=env, check=True)
-    subprocess.run([sys.executable, "-m", "compileall", "-q", "ident"], cwd=REPO, check=True)  # read-only in the VM
+    subprocess.run([sys.executable, "-m", "compileall", "-q", "fuelid/ident"], cwd=REPO, check=True)  # read-only in the VM
     script = IDENTIFY_SCRIPT.replace("@ORDERS@", IDENTIFY_ORDERS).replace("@SPEED@", str(IDENTIFY_SPEED))
     result = run_with_vcan(script, work, timeout_s=900)
     if result.returncode != 0:
@@ -256,6 +256,6 @@ def test_identify_on_replayed_trip_converges(identify_session):
 
     first, last = fit(measured[:third], simulated[:third]), fit(measured[-third:], simulated[-third:])
     assert last > 60.0 and last > first, (first, last)
-    from ident.modelfile import load_model
+    from fuelid.ident.modelfile import load_model
 
     assert load_model(work / "ident" / "model.json").structure.nf == (2, 2)

@@ -6,7 +6,7 @@ from pathlib import Path
 import can
 import cantools
 
-from dbc import FMS_DBC
+from fuelid.dbc import FMS_DBC
 
 VIN = "YV2RT40A5KB123456"
 # message name -> (period [s], source address)

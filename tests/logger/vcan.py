@@ -81,7 +81,7 @@ def run_with_vcan(script: str, workdir: Path, timeout_s: float = 900) -> Result:
     pylib.mkdir(exist_ok=True)
     (pylib / "asammdf.py").write_text(_NO_ASAMMDF)
     # The VM cannot write the host's __pycache__ folders: compile the project's modules beforehand.
-    subprocess.run([sys.executable, "-m", "compileall", "-q", "fuelid", "logger", "dbc"], cwd=REPO, check=True)
+    subprocess.run([sys.executable, "-m", "compileall", "-q", "fuelid"], cwd=REPO, check=True)
     out, rc = workdir / "vm-output.txt", workdir / "vm-rc"
     rc.unlink(missing_ok=True)
     wrapper = workdir / "vm-wrapper.sh"

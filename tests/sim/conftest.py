@@ -3,7 +3,7 @@ import functools
 
 import pytest
 
-from sim.trip import TripConfig, simulate
+from fuelid.sim.trip import TripConfig, simulate
 
 
 @functools.lru_cache(maxsize=None)

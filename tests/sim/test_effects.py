@@ -6,8 +6,8 @@ without it, on the noise-free truth.
 import numpy as np
 import pytest
 
-from sim import effects as fx
-from sim.engine import ENGINES
+from fuelid.sim import effects as fx
+from fuelid.sim.engine import ENGINES
 
 BASE = dict(cycle="mixed", duration_s=600.0, seed=31)
 

@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim import fuel
+from fuelid.sim import fuel
 
 PAPER_JSON = Path(__file__).resolve().parents[3] / "shared" / "design" / "paper_models.json"
 

@@ -5,11 +5,11 @@ import cantools
 import numpy as np
 import pytest
 
-from dbc import FMS_DBC
+from fuelid.dbc import FMS_DBC
 from fuelid.cli import main
-from logger.mcap_log import read_messages
-from sim import gateway
-from sim.trip import TripConfig, simulate, write
+from fuelid.logger.mcap_log import read_messages
+from fuelid.sim import gateway
+from fuelid.sim.trip import TripConfig, simulate, write
 
 DB = cantools.database.load_file(FMS_DBC)
 

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from sim import gearbox
-from sim.drive import NEUTRAL
-from sim.engine import ENGINES
-from sim.trip import TripConfig, simulate, write
+from fuelid.sim import gearbox
+from fuelid.sim.drive import NEUTRAL
+from fuelid.sim.engine import ENGINES
+from fuelid.sim.trip import TripConfig, simulate, write
 
 
 def test_same_seed_gives_byte_identical_files(tmp_path):

@@ -1,0 +1,425 @@
+"""The fleet server's HTTP API (FastAPI; OpenAPI description at /openapi.json, docs at /docs).
+
+All endpoints are under /api/v1 and take `Authorization: Bearer <token>` (fleet.auth). Missing or unknown
+token → 401; a role not allowed → 403. Upload protocol: fuelid/logger/upload.py and docs/fleet-api.md.
+"""
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import logging
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Callable, Literal
+
+from fastapi import Depends, FastAPI, HTTPException, Path as PathParam, Query, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, JSONResponse
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from pydantic import BaseModel, Field
+from starlette.requests import ClientDisconnect
+
+from fuelid.fleet import auth, db
+from fuelid.fleet.refits import RefitManager, dask_runner_factory
+from fuelid.fleet.storage import HEX64, BlobStore, UploadRefused, inspect_mcap
+from fuelid import __version__
+
+log = logging.getLogger("fuelid.fleet")
+MiB = 1 << 20
+
+
+@dataclass
+class Settings:
+    """Server configuration: `data_dir` (blobs, job scratch, the SQLite database unless `database_url`),
+    upload size limit [bytes], Dask scheduler address (None: a LocalCluster of `workers` processes), and
+    the debounce after new data before a truck's refit [s] (None: no refits on new data), and how much of a
+    truck's newest recorded time a refit uses [s]."""
+
+    data_dir: Path
+    database_url: str | None = None
+    max_upload_bytes: int = 1024 * MiB
+    scheduler: str | None = None
+    workers: int | None = None
+    refit_after_s: float | None = 600.0
+    refit_window_s: float = 24 * 3600.0
+
+
+# --- response models (the OpenAPI description, checked by the schemathesis tests) ---
+
+class Health(BaseModel):
+    status: str
+    version: str
+
+
+class TokenIn(BaseModel):
+    role: Literal["admin", "engineer", "truck"]
+    truck: str | None = Field(None, pattern=auth.TRUCK_PATTERN, description="required for role truck only")
+    name: str = Field("", max_length=200, description="who or what holds the token")
+
+
+class TokenInfo(BaseModel):
+    id: int
+    role: str
+    truck: str | None
+    name: str
+    created_unix_s: float
+    revoked_unix_s: float | None = None
+
+
+class NewToken(BaseModel):
+    id: int
+    token: str = Field(description="the secret; shown only in this reply")
+    role: str
+    truck: str | None
+    name: str
+
+
+class UploadState(BaseModel):
+    sha256: str
+    size_bytes: int
+    offset: int = Field(description="bytes of the file the server holds; the next PUT starts here")
+    stored: bool
+    status: str
+    truck: str | None = None
+
+
+class FileInfo(BaseModel):
+    sha256: str
+    truck: str
+    size_bytes: int
+    start_ns: int | None = Field(description="first message log time [ns since the epoch]")
+    end_ns: int | None = Field(description="last message log time [ns since the epoch]")
+    messages: int
+    uploaded_unix_s: float
+
+
+class StoredFile(FileInfo):
+    status: str
+    offset: int
+    stored: bool
+
+
+class TruckInfo(BaseModel):
+    truck: str
+    files: int
+    size_bytes: int
+    start_ns: int | None
+    end_ns: int | None
+    latest_model_version: int | None
+
+
+class ModelInfo(BaseModel):
+    truck: str
+    version: int
+    job_id: int | None
+    created_unix_s: float
+    model_sha256: str
+    diagnosis_sha256: str
+    report_sha256: str | None
+    metrics: dict
+    n_samples: int | None
+    duration_s: float | None = Field(description="data the model was identified on [s]")
+    top_effect: str | None
+
+
+class JobInfo(BaseModel):
+    id: int
+    truck: str
+    reason: str
+    status: str
+    created_unix_s: float
+    started_unix_s: float | None
+    finished_unix_s: float | None
+    error: str | None
+    model_version: int | None
+
+
+class Detail(BaseModel):
+    detail: str = Field(description="what went wrong, one line")
+
+
+ERRORS = {400: {"model": Detail, "description": "unparsable request"},
+          401: {"model": Detail, "description": "missing or unknown token"},
+          403: {"model": Detail, "description": "the token's role may not do this"},
+          422: {"model": Detail, "description": "invalid parameters or body"}}
+NOT_FOUND = {404: {"model": Detail, "description": "no such truck, version or job"}}
+Truck = Annotated[str, PathParam(pattern=auth.TRUCK_PATTERN, description="truck id (VIN or fleet number)")]
+Sha256 = Annotated[str, PathParam(pattern=HEX64, description="sha256 of the whole file, lower-case hex")]
+
+
+def create_app(settings: Settings, runner_factory: Callable[[], object] | None = None) -> FastAPI:
+    """The ASGI app. `runner_factory` makes the job runner (default: fleet.jobs.JobRunner on Dask)."""
+    data_dir = Path(settings.data_dir)
+    data_dir.mkdir(parents=True, exist_ok=True)
+    engine = db.open_database(data_dir, settings.database_url)
+    store = BlobStore(data_dir)
+    swept = store.sweep(db.registered_hashes(engine))
+    interrupted = db.fail_interrupted_jobs(engine)
+    if swept or interrupted:
+        log.warning("startup: removed %d unregistered blobs, marked %d interrupted jobs failed", swept, interrupted)
+    refits = RefitManager(engine, store, data_dir / "jobs",
+                          runner_factory or dask_runner_factory(settings.scheduler, settings.workers),
+                          settings.refit_after_s, settings.refit_window_s)
+    upload_locks: dict[Path, asyncio.Lock] = {}
+
+    @asynccontextmanager
+    async def lifespan(_app):
+        yield
+        await run_in_threadpool(refits.close)  # stops the Dask cluster with the server
+
+    app = FastAPI(title="fuelid fleet", version=__version__, lifespan=lifespan,
+                  description="Truck MCAP uploads, per-truck fuel-model registry and identification jobs.")
+    app.state.engine, app.state.store, app.state.refits = engine, store, refits
+
+    @app.exception_handler(RequestValidationError)
+    async def one_line_validation_error(_request, exc: RequestValidationError):
+        # Every error body is {"detail": "<one line>"}, which the clients print as it is.
+        parts = [f"{'.'.join(str(x) for x in e.get('loc', ()))}: {e.get('msg')}" for e in exc.errors()]
+        return JSONResponse({"detail": "; ".join(parts) or "invalid request"}, status_code=422)
+    bearer = HTTPBearer(auto_error=False, description="fuelid token (`fuelid token create`)")
+
+    def principal(creds: HTTPAuthorizationCredentials | None = Depends(bearer)) -> auth.Principal:
+        who = auth.authenticate(engine, creds.credentials) if creds else None
+        if who is None:
+            raise HTTPException(401, "missing or unknown token", headers={"WWW-Authenticate": "Bearer"})
+        return who
+
+    def role(*allowed: str):
+        def check(who: auth.Principal = Depends(principal)) -> auth.Principal:
+            if who.role not in allowed:
+                raise HTTPException(403, f"a {who.role} token may not do this (needs {' or '.join(allowed)})")
+            return who
+        return check
+
+    admin, reader, uploader = role("admin"), role("admin", "engineer"), role("admin", "truck")
+
+    def known_truck(truck: str) -> None:
+        if not db.truck_exists(engine, truck):
+            raise HTTPException(404, f"no truck {truck}")
+
+    @app.get("/api/v1/health", response_model=Health, tags=["service"])
+    def health():
+        """Liveness, no token needed."""
+        return {"status": "ok", "version": __version__}
+
+    # --- tokens ---
+
+    @app.post("/api/v1/tokens", response_model=NewToken, status_code=201, responses=ERRORS, tags=["tokens"])
+    def create_token(body: TokenIn, _=Depends(admin)):
+        """Create a token (admin). The secret is in this reply only."""
+        try:
+            return auth.create_token(engine, body.role, body.truck, body.name)
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+
+    @app.get("/api/v1/tokens", response_model=list[TokenInfo], responses=ERRORS, tags=["tokens"])
+    def list_tokens(_=Depends(admin)):
+        return auth.list_tokens(engine)
+
+    @app.delete("/api/v1/tokens/{token_id}", response_model=TokenInfo,
+                responses={**ERRORS, **NOT_FOUND, 409: {"model": Detail, "description": "revoking itself"}},
+                tags=["tokens"])
+    def revoke_token(token_id: Annotated[int, PathParam(ge=1, le=2**31 - 1)], who=Depends(admin)):
+        if token_id == who.token_id:  # an admin locking itself out would leave no way back but the database
+            raise HTTPException(409, "a token cannot revoke itself; use another admin token")
+        if not auth.revoke_token(engine, token_id):
+            raise HTTPException(404, f"no live token {token_id}")
+        return next(t for t in auth.list_tokens(engine) if t["id"] == token_id)
+
+    # --- uploads ---
+
+    def claimed_truck(who: auth.Principal, truck: str | None) -> str | None:
+        if who.role == "truck":
+            if truck not in (None, who.truck):
+                raise HTTPException(403, f"this token uploads for truck {who.truck} only, not {truck}")
+            return who.truck
+        return truck
+
+    def stored_reply(row: dict, truck: str | None, status: str) -> dict:
+        if truck is not None and row["truck"] != truck:
+            raise HTTPException(403, f"this file is stored for truck {row['truck']}, not {truck}")
+        return {**row, "status": status, "offset": row["size_bytes"], "stored": True}
+
+    def check_size(size: int) -> None:
+        if size > settings.max_upload_bytes:
+            raise HTTPException(413, f"file of {size} B exceeds the server's limit of "
+                                     f"{settings.max_upload_bytes} B")
+
+    upload_errors = {**ERRORS, 413: {"model": Detail, "description": "file larger than the server accepts"}}
+
+    @app.get("/api/v1/uploads/{sha256}", response_model=UploadState, responses=upload_errors, tags=["uploads"])
+    def upload_state(sha256: Sha256, size: Annotated[int, Query(ge=1, le=2**62)],
+                     truck: Annotated[str | None, Query(pattern=auth.TRUCK_PATTERN)] = None,
+                     who=Depends(uploader)):
+        """How much of a file the server holds: `offset` bytes of a partial upload, or `stored`."""
+        truck = claimed_truck(who, truck)
+        check_size(size)
+        row = db.get_file(engine, sha256)
+        if row is not None:
+            return stored_reply(row, truck, "already stored")
+        part = store.partial(sha256, truck or "admin")
+        offset = part.stat().st_size if part.exists() else 0
+        return {"sha256": sha256, "size_bytes": size, "offset": offset, "stored": False, "status": "partial",
+                "truck": truck}
+
+    @app.put("/api/v1/uploads/{sha256}", response_model=StoredFile, status_code=201, tags=["uploads"],
+             openapi_extra={"requestBody": {"required": True, "content": {"application/octet-stream": {
+                 "schema": {"type": "string", "format": "binary"}}}}},
+             responses={**upload_errors,
+                        200: {"model": StoredFile, "description": "already stored (nothing changed)"},
+                        202: {"model": UploadState, "description": "bytes appended; send the rest from `offset`"},
+                        409: {"model": UploadState, "description": "`offset` is not where the upload stands"},
+                        422: {"model": Detail, "description": "invalid parameters, not a complete MCAP file, "
+                                                              "or hash mismatch"}})
+    async def upload(request: Request, sha256: Sha256, size: Annotated[int, Query(ge=1, le=2**62)],
+                     offset: Annotated[int, Query(ge=0, le=2**62)] = 0,
+                     truck: Annotated[str | None, Query(pattern=auth.TRUCK_PATTERN)] = None,
+                     who=Depends(uploader)):
+        """Append the body at byte `offset` of the file `sha256` of `size` bytes. When the last byte arrives
+        the file is checked (sha256, complete MCAP, its truck) and stored: 201; or refused with nothing kept."""
+        truck = claimed_truck(who, truck)
+        check_size(size)
+        row = await run_in_threadpool(db.get_file, engine, sha256)
+        if row is not None:
+            return JSONResponse(stored_reply(row, truck, "already stored"), status_code=200)
+        part = store.partial(sha256, truck or "admin")
+        lock = upload_locks.setdefault(part, asyncio.Lock())
+        if lock.locked():  # the same upload is still arriving on another connection
+            held = part.stat().st_size if part.exists() else 0
+            return _state(409, sha256, size, held, truck, "another request is uploading this file")
+        async with lock:
+            held = part.stat().st_size if part.exists() else 0
+            if offset != held:
+                return _state(409, sha256, size, held, truck, f"offset {offset} but the server holds {held} B")
+            try:
+                held = await _receive(request, part, size - held)
+            except ClientDisconnect:  # what arrived stays for the resume
+                return _state(202, sha256, size, part.stat().st_size, truck, "partial")
+            except UploadRefused as exc:
+                raise HTTPException(exc.status, str(exc)) from None
+            if held < size:
+                return _state(202, sha256, size, held, truck, "partial")
+            try:
+                row = await run_in_threadpool(_store_upload, engine, store, part, sha256, truck)
+            except UploadRefused as exc:
+                raise HTTPException(exc.status, str(exc)) from None
+            finally:
+                upload_locks.pop(part, None)
+        refits.data_arrived(row["truck"])
+        return {**row, "status": "stored", "offset": size, "stored": True}
+
+    # --- the registry ---
+
+    @app.get("/api/v1/trucks", response_model=list[TruckInfo], responses=ERRORS, tags=["registry"])
+    def trucks(_=Depends(reader)):
+        """Every truck: files, bytes, message time range [ns], latest model version."""
+        return db.list_trucks(engine)
+
+    @app.get("/api/v1/trucks/{truck}/files", response_model=list[FileInfo], responses={**ERRORS, **NOT_FOUND},
+             tags=["registry"])
+    def truck_files(truck: Truck, _=Depends(reader)):
+        known_truck(truck)
+        return db.list_files(engine, truck)
+
+    @app.get("/api/v1/trucks/{truck}/models", response_model=list[ModelInfo], responses={**ERRORS, **NOT_FOUND},
+             tags=["registry"])
+    def truck_models(truck: Truck, _=Depends(reader)):
+        """Model versions of a truck with their validation metrics."""
+        known_truck(truck)
+        return db.list_models(engine, truck)
+
+    artifacts = {"model.json": ("model_sha256", "application/json"),
+                 "diagnosis.json": ("diagnosis_sha256", "application/json"),
+                 "report.html": ("report_sha256", "text/html")}
+
+    @app.get("/api/v1/trucks/{truck}/models/{version}/{artifact}", tags=["registry"],
+             responses={**ERRORS, **NOT_FOUND, 200: {"content": {"application/json": {}, "text/html": {}},
+                                                     "description": "the file"}})
+    def model_artifact(truck: Truck, version: Annotated[str, PathParam(pattern=r"^(latest|[1-9][0-9]{0,8})$")],
+                       artifact: Literal["model.json", "diagnosis.json", "report.html"], _=Depends(reader)):
+        """A model version's model.json, diagnosis.json or report.html (`latest` or a version number)."""
+        model = db.get_model(engine, truck, None if version == "latest" else int(version))
+        if model is None:
+            raise HTTPException(404, f"truck {truck} has no model version {version}")
+        column, media = artifacts[artifact]
+        if model[column] is None:
+            raise HTTPException(404, f"model version {model['version']} of {truck} has no {artifact}")
+        return FileResponse(store.path(model[column]), media_type=media,
+                            headers={"X-Model-Version": str(model["version"])})
+
+    # --- jobs ---
+
+    @app.post("/api/v1/trucks/{truck}/refit", response_model=JobInfo, status_code=202,
+              responses={**ERRORS, **NOT_FOUND}, tags=["jobs"])
+    def refit_truck(truck: Truck, _=Depends(reader)):
+        """Identify the truck's model again on all its files (a job; poll /api/v1/jobs/{id})."""
+        known_truck(truck)
+        return refits.request(truck, "request")
+
+    @app.post("/api/v1/refit", response_model=list[JobInfo], status_code=202, responses=ERRORS, tags=["jobs"])
+    def refit_fleet(_=Depends(reader)):
+        """A job for every truck with files."""
+        return [refits.request(t["truck"], "fleet") for t in db.list_trucks(engine) if t["files"]]
+
+    @app.get("/api/v1/jobs", response_model=list[JobInfo], responses=ERRORS, tags=["jobs"])
+    def jobs(truck: Annotated[str | None, Query(pattern=auth.TRUCK_PATTERN)] = None,
+             active: bool = False, _=Depends(reader)):
+        """Recent jobs (newest first), optionally of one truck or only queued/running ones."""
+        return db.list_jobs(engine, truck=truck, active_only=active)
+
+    @app.get("/api/v1/jobs/{job_id}", response_model=JobInfo, responses={**ERRORS, **NOT_FOUND}, tags=["jobs"])
+    def job(job_id: Annotated[int, PathParam(ge=1, le=2**31 - 1)], _=Depends(reader)):
+        row = db.get_job(engine, job_id)
+        if row is None:
+            raise HTTPException(404, f"no job {job_id}")
+        return row
+
+    return app
+
+
+def _state(status: int, sha256: str, size: int, offset: int, truck: str | None, detail: str) -> JSONResponse:
+    return JSONResponse({"sha256": sha256, "size_bytes": size, "offset": offset, "stored": False,
+                         "status": "partial", "truck": truck, "detail": detail}, status_code=status)
+
+
+async def _receive(request: Request, part: Path, room: int) -> int:
+    """Append the request body to `part` (at most `room` bytes; more → 413); return the bytes now held."""
+    with open(part, "ab") as f:
+        written = 0
+        async for chunk in request.stream():
+            written += len(chunk)
+            if written > room:
+                f.truncate(f.tell())
+                raise UploadRefused(413, f"body runs {written - room}+ B past the declared size")
+            f.write(chunk)
+        f.flush()
+        return f.tell()
+
+
+def _store_upload(engine, store: BlobStore, part: Path, sha256: str, truck: str | None) -> dict:
+    """Check the complete partial upload and store it; on any refusal the partial file is deleted."""
+    try:
+        h = hashlib.sha256()
+        with open(part, "rb") as f:
+            while block := f.read(MiB):
+                h.update(block)
+        if h.hexdigest() != sha256:
+            raise UploadRefused(422, f"content hash {h.hexdigest()} differs from the declared {sha256}; "
+                                     "upload again from offset 0")
+        info = inspect_mcap(part)
+        if not auth.valid_truck(info.truck):
+            raise UploadRefused(422, f"the file's truck id {info.truck!r} is not a valid truck id")
+        if truck is not None and info.truck != truck:
+            raise UploadRefused(403, f"the file is from truck {info.truck}, not {truck}")
+        size = part.stat().st_size
+        store.commit(part, sha256)
+        for other in store.incoming.glob(f"{sha256}-*.part"):  # the same file half-sent by another uploader
+            other.unlink(missing_ok=True)
+    except BaseException:
+        part.unlink(missing_ok=True)
+        raise
+    db.add_file(engine, sha256=sha256, truck=info.truck, size_bytes=size, start_ns=info.start_ns,
+                end_ns=info.end_ns, messages=info.messages)
+    return db.get_file(engine, sha256)

@@ -1,0 +1,216 @@
+"""Per-truck identification jobs and fleet-wide refits on Dask.
+
+`identify_truck` is one job: the truck's MCAP files → dataset (ident.dataset) → Box-Jenkins model by PEM through
+`fuelid identify`'s own code path (ident.identify.identify_model) → diagnosis (ident.diagnosis.diagnose) →
+model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
+function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
+
+Held-out evidence: the model is fitted on all the truck's data (the newest file included) and the diagnosis
+runs on the same data, because its score tests are by construction tests at the fitted model; what needs
+unseen data is measured by refits: diagnose verifies candidate effects by a linearised refit scored on each
+60-s block left out of the fit, and scores the model itself the same way (the diagnosis's `held_out`),
+reported as metrics["held_out"] next to the in-sample metrics.
+
+`JobRunner` runs jobs on a Dask LocalCluster of worker processes (the default: one single-threaded worker per
+core) or on an existing cluster through its scheduler address. Each job limits BLAS/OpenMP to one thread, so
+n workers on n cores never oversubscribe (pem's narrow N × 41 problems are slower with more BLAS threads), and
+each worker imports the identification stack once when it starts, not per job. The MCAP paths must be
+readable by the workers (same host, or storage shared with the cluster).
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import time
+import uuid
+import warnings
+from pathlib import Path
+
+from fuelid.errors import FuelidError
+
+
+class JobError(FuelidError):
+    """A truck's data cannot give a model (no files, no fuel signal, too little valid data...): one line why."""
+
+
+def _write_json(path: Path, obj) -> None:
+    """obj as strict JSON (NaN → null) through a temporary file renamed over path: no reader sees half a file."""
+    from fuelid.output import json_safe
+
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(json_safe(obj), indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _report(out: Path, model, diagnosis: dict, ds, truck: str, files: list[str]) -> tuple[str | None, str | None]:
+    """(report.html path, None) by ident.report.write_report, or (None, why) when the report fails: the model
+    and diagnosis are the job's product, the report only shows them."""
+    from fuelid.ident.report import write_report
+
+    path = out / "report.html"
+    try:
+        write_report(path, model, ds, diagnosis=diagnosis, truck=truck, files=files)
+    except Exception as exc:  # noqa: BLE001 - a broken report must not lose the model
+        return None, f"report.html not written: {_one_line(exc)}"
+    return str(path), None
+
+
+def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: str = "paper",
+                   previous_model: str | None = None) -> dict:
+    """Identify and diagnose one truck's fuel model from its MCAP files; write out_dir/model.json,
+    out_dir/diagnosis.json and out_dir/report.html.
+
+    orders: 'paper' or a SPEC as `fuelid identify --orders`. previous_model: the truck's current model.json;
+    PEM starts from it when it has the same structure (a refit then needs fewer iterations) and its metrics on
+    the same data are returned as previous_metrics (is the new version better?).
+    Returns (JSON-ready) {"truck", "model_path", "diagnosis_path", "report_path" (None when the report failed: see warnings),
+    "metrics": {"fit_percent": {simulation, prediction} [%], "rmse": {simulation, prediction} [unit],
+    "cycle_fuel_error_percent": {cycle id: E, mean, rms} [%], "unit", "held_out": {"rmse_simulation" [unit],
+    "cycle_fuel_error_percent": {mean, rms} [%]} or None},
+    "previous_metrics" (same keys but held_out, or None), "n_samples" (identification samples, Ts = 0.3 s),
+    "duration_s" (valid data [s]), "wall_s" and "cpu_s" (this job's wall and CPU time [s]), "phases_s" (wall time
+    [s] of dataset, identify, diagnose with the held-out refits, write of the files and report), "top_effect"
+    (the id of the significant missing effect, or None), "warnings"}. Raises JobError for unusable data, with a
+    one-line message.
+    """
+    from threadpoolctl import threadpool_limits
+
+    from fuelid.commands.identify import parse_orders
+    from fuelid.output import json_safe
+    from fuelid.ident.dataset import build_dataset
+    from fuelid.ident.diagnosis import diagnose
+    from fuelid.ident.identify import identify_model
+    from fuelid.ident.modelfile import load_model, save_model
+    from fuelid.ident.polymodel import Structure
+    from fuelid.ident.validation import evaluate
+
+    t_start, cpu_start = time.perf_counter(), time.process_time()
+    paths = [str(p) for p in mcap_paths]
+    if not paths:
+        raise JobError(f"{truck}: no recordings to identify on")
+    missing = [p for p in paths if not os.path.isfile(p)]
+    if missing:
+        raise JobError(f"{truck}: no such recording {missing[0]}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    model_path, diagnosis_path = out / "model.json", out / "diagnosis.json"
+    phases = {}
+
+    def lap(name):  # wall time [s] of each phase, for the fleet-scaling sketch
+        phases[name] = time.perf_counter() - t_start - sum(phases.values())
+
+    with threadpool_limits(1):  # one BLAS/OpenMP thread: the cluster runs one job per core
+        try:
+            structure = Structure(**parse_orders(orders))
+            with warnings.catch_warnings():  # the dataset keeps its warnings in ds.notes
+                warnings.simplefilter("ignore", UserWarning)
+                ds = build_dataset(paths)
+            lap("dataset")
+            previous = load_model(previous_model) if previous_model else None
+            model = identify_model(ds, structure, files=paths, init=previous)
+            lap("identify")
+            diagnosis = diagnose(model, ds)
+            lap("diagnose")
+        except (FuelidError, ValueError) as exc:  # diagnose raises ValueError when no segment is long enough
+            raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None
+        previous_metrics = None
+        if previous is not None and abs(previous.Ts - ds.Ts) < 1e-9:
+            try:
+                previous_metrics = evaluate(previous, ds)
+            except FuelidError:  # another fuel unit or effects whose signals this data lacks: not comparable
+                pass
+        save_model(model, model_path)
+        diagnosis["data"]["files"] = paths
+        diagnosis["model"]["file"] = str(model_path)
+        _write_json(diagnosis_path, diagnosis)
+        report_path, report_error = _report(out, model, diagnosis, ds, truck, paths)
+        lap("write")
+
+    def metrics(m):
+        return {"fit_percent": m["fit_percent"], "rmse": m["rmse"],
+                "cycle_fuel_error_percent": m["cycle_fuel_error_percent"], "unit": ds.output_unit}
+
+    top = diagnosis["candidates"][0] if diagnosis["candidates"] else None
+    return json_safe({
+        "truck": truck,
+        "model_path": str(model_path),
+        "diagnosis_path": str(diagnosis_path),
+        "report_path": report_path,
+        "metrics": {**metrics(model.validation), "held_out": diagnosis["held_out"] and {
+            "rmse_simulation": diagnosis["held_out"]["rmse"],
+            "cycle_fuel_error_percent": diagnosis["held_out"]["cycle_fuel_error_percent"]}},
+        "previous_metrics": previous_metrics and metrics(previous_metrics),
+        "n_samples": model.training["identification_samples"],
+        "duration_s": model.training["valid_duration_s"],
+        "wall_s": time.perf_counter() - t_start,
+        "cpu_s": time.process_time() - cpu_start,
+        "phases_s": phases,
+        "top_effect": top["effect"] if top and top["significant"] else None,
+        "warnings": ds.notes + list(model.info.get("warnings", [])) + ([report_error] if report_error else []),
+    })
+
+
+def _warm_up() -> None:
+    """Import the identification stack once per worker process (a second or more with plotly), so no job pays
+    for it. Nothing on this path is numba-compiled (only the online RPEM is)."""
+    for name in ("fuelid.ident.dataset", "fuelid.ident.identify", "fuelid.ident.diagnosis", "fuelid.ident.modelfile", "fuelid.ident.report"):
+        importlib.import_module(name)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text if isinstance(exc, FuelidError) else f"{type(exc).__name__}: {text}".rstrip(": ")
+
+
+class JobRunner:
+    """Identification jobs on Dask: a LocalCluster of `n_workers` processes (default one per core) with
+    `threads_per_worker` threads each when scheduler is None, else the cluster at `scheduler` ("tcp://host:8786").
+    A context manager; close() shuts down a LocalCluster it started (never a remote cluster)."""
+
+    def __init__(self, scheduler: str | None = None, n_workers: int | None = None, threads_per_worker: int = 1):
+        from distributed import Client, LocalCluster
+
+        self._cluster = None
+        if scheduler is None:
+            # no dashboard: several runners (tests, a server and a CLI refit) must not fight over port 8787
+            self._cluster = LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
+                                         processes=True, dashboard_address=None)
+            self.client = Client(self._cluster)
+        else:
+            try:
+                self.client = Client(scheduler, timeout="10s")
+            except OSError as exc:
+                raise FuelidError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        self.client.run(_warm_up)
+
+    def submit(self, truck: str, mcap_paths: list[str], out_dir: str, **kw):
+        """A distributed.Future of identify_truck(truck, mcap_paths, out_dir, **kw). Bigger trucks get a
+        higher priority: started first, the longest jobs do not end up alone at the end of a refit."""
+        paths = [str(p) for p in mcap_paths]
+        size = sum(os.path.getsize(p) for p in paths if os.path.isfile(p))
+        return self.client.submit(identify_truck, truck, paths, str(out_dir), **kw, pure=False,
+                                  key=f"identify-{truck}-{uuid.uuid4().hex[:8]}", priority=size >> 20)
+
+    def refit_all(self, tasks: list[dict]) -> list[dict]:
+        """Run identify_truck(**task) for every task on the cluster; results in the order of tasks, a failed
+        truck as {"truck", "error": one line} (its exception is not raised)."""
+        futures = [self.submit(**task) for task in tasks]
+        results = []
+        for task, future in zip(tasks, futures):
+            try:
+                results.append(future.result())
+            except Exception as exc:  # JobError, a worker killed, a bug: reported per truck, the refit goes on
+                results.append({"truck": task["truck"], "error": _one_line(exc)})
+        return results
+
+    def close(self) -> None:
+        self.client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+    def __enter__(self) -> JobRunner:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,123 @@
+"""Content-addressed file storage and the checks an uploaded file passes before it is stored.
+
+Layout under the data directory: `blobs/<first 2 hex>/<sha256>` holds every stored file (uploads, model.json,
+diagnosis.json, report.html) under its own hash, so no path ever comes from a request; `incoming/` holds
+partial uploads (`<sha256>-<uploader key>.part`) until their last byte arrives. A finished upload is checked,
+fsync'd and renamed into `blobs/` in one step, and only then registered in the database, so a crash at any
+moment leaves either nothing visible or a complete file; `sweep` removes blobs a crash left unregistered.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from fuelid.logger.durable import fsync_path
+
+HEX64 = r"^[0-9a-f]{64}$"
+
+
+class UploadRefused(Exception):
+    """An upload that fails a check: HTTP `status` and a one-line reason."""
+
+    def __init__(self, status: int, message: str):
+        super().__init__(message)
+        self.status = status
+
+
+class BlobStore:
+    """Files by sha256 under `root/blobs`, partial uploads under `root/incoming`."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        self.blobs = self.root / "blobs"
+        self.incoming = self.root / "incoming"
+        self.blobs.mkdir(parents=True, exist_ok=True)
+        self.incoming.mkdir(parents=True, exist_ok=True)
+
+    def path(self, sha256: str) -> Path:
+        return self.blobs / sha256[:2] / sha256
+
+    def partial(self, sha256: str, uploader: str) -> Path:
+        """The partial upload of `sha256` by `uploader` (hashed: uploaders never share or name a path)."""
+        key = hashlib.sha256(uploader.encode()).hexdigest()[:16]
+        return self.incoming / f"{sha256}-{key}.part"
+
+    def commit(self, src: Path, sha256: str) -> Path:
+        """Move the complete file `src` (on the same file system) to its blob path, durably."""
+        dst = self.path(sha256)
+        dst.parent.mkdir(exist_ok=True)
+        with open(src, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(src, dst)
+        fsync_path(dst.parent)
+        return dst
+
+    def put_file(self, path: str | Path) -> str:
+        """Store a copy of the file at `path`; return its sha256."""
+        data = Path(path).read_bytes()
+        sha256 = hashlib.sha256(data).hexdigest()
+        if not self.path(sha256).exists():
+            tmp = self.incoming / f"{sha256}.{os.getpid()}.tmp"
+            tmp.write_bytes(data)
+            self.commit(tmp, sha256)
+        return sha256
+
+    def sweep(self, registered: set[str]) -> int:
+        """Delete blobs no database row names (a crash between rename and insert) and stray temporaries;
+        return how many files went. Partial uploads stay: their uploads resume."""
+        removed = 0
+        for p in list(self.blobs.glob("*/*")) + list(self.incoming.glob("*.tmp")):
+            if p.suffix == ".tmp" or p.name not in registered:
+                p.unlink(missing_ok=True)
+                removed += 1
+        return removed
+
+
+@dataclass
+class McapInfo:
+    """What the registry keeps of an uploaded MCAP file: its truck, message time range [ns] and count."""
+
+    truck: str
+    start_ns: int | None
+    end_ns: int | None
+    messages: int
+
+
+def inspect_mcap(path: str | Path) -> McapInfo:
+    """Check an uploaded file is a complete fuelid MCAP log and read what the registry keeps.
+
+    The rule: MCAP magic at both ends, a footer and summary that mcap's reader parses with a chunk index and
+    statistics (a chunk index when it holds messages: a log of a silent bus has none), and a `fuelid` metadata record naming the truck. A file cut before its footer (a power cut
+    the daemon did not recover) is refused: `fuelid recover` turns it into a complete file to upload. The
+    bytes themselves are vouched for by the sha256 the client sent and the server recomputed."""
+    from mcap.reader import SeekingReader
+
+    from fuelid.logger.mcap_log import MAGIC, METADATA_NAME
+
+    with open(path, "rb") as f:
+        if f.read(len(MAGIC)) != MAGIC:
+            raise UploadRefused(422, "not an MCAP file")
+        f.seek(-len(MAGIC), os.SEEK_END)
+        if f.read(len(MAGIC)) != MAGIC:
+            raise UploadRefused(422, "truncated MCAP file (no footer); run `fuelid recover` on it and upload the result")
+        f.seek(0)
+        try:
+            reader = SeekingReader(f)
+            summary = reader.get_summary()
+            # the last `fuelid` record wins, as in logger.mcap_log.read_metadata (the VIN once seen)
+            fuelid = [dict(m.metadata) for m in reader.iter_metadata() if m.name == METADATA_NAME]
+        except Exception as exc:  # mcap, struct and decoding errors alike: a damaged summary
+            raise UploadRefused(422, f"damaged MCAP summary or metadata ({type(exc).__name__})") from exc
+    if summary is None or summary.statistics is None:
+        raise UploadRefused(422, "MCAP file without statistics in its summary")
+    if summary.statistics.message_count and not summary.chunk_indexes:  # empty logs (bus silent) have none
+        raise UploadRefused(422, "MCAP file with messages but no chunk index")
+    truck = fuelid[-1].get("truck") if fuelid else None
+    if not truck:
+        raise UploadRefused(422, "the MCAP file names no truck (metadata 'fuelid' has no 'truck')")
+    stats = summary.statistics
+    has = stats.message_count > 0
+    return McapInfo(truck=truck, start_ns=stats.message_start_time if has else None,
+                    end_ns=stats.message_end_time if has else None, messages=stats.message_count)

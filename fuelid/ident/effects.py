@@ -1,0 +1,573 @@
+"""Physical effects a two-input (engine speed, torque) fuel model lacks: the library the diagnosis tests.
+
+An effect is a named piece of physics with the bus signals that reveal it (DBC names ``MESSAGE.Signal`` and
+their SPNs) and the way it enters the Box-Jenkins model
+
+    y(t) = Σ_i B_i/F_i u_i(t − nk_i) + C/D e(t):
+
+- ``input``        an extra MISO input with its own B/F/nk (e.g. J dω/dt for inertia, a coolant-temperature
+                   deficit, retarder torque);
+- ``nonlinearity`` a static function of the model's own inputs fed as an extra input (speed × torque power);
+- ``regime``       an on/off state I(t) ∈ {0, 1} that changes the fuelling: extra inputs I, I·ñ, I·T̃ (an
+                   offset and a change of both gains while the state is on; ñ, T̃ deviations of engine speed
+                   [rpm] and torque [Nm] from the operating point), e.g. DPF active regeneration or overrun
+                   fuel cut-off;
+- ``shift``        a time shift of the fuel signal itself (sub-sample): y(t) is replaced by y(t + τ) with
+                   cubic-spline fractional-delay interpolation; τ is estimated by seed 2's sweep (±1 s in
+                   0.1 s steps, refined by a parabola through the best three) or given.
+
+`EFFECTS` holds the built-in effects; `generic_effects(ds)` adds one candidate per further decoded bus signal
+in Dataset.extra — its level and its rate of change (continuous signals) or its state (enumerations with few
+values) — so an effect nobody listed is still found and named by its DBC signal and SPN. Effect ids are the
+same as the simulator's (`fuelid simulate --effect ID=MAG`): the diagnosis says "add effect ID" and
+`fuelid identify --effect ID` adds it.
+
+Regressors are plain arrays on the Dataset grid (N samples, Ts [s]); samples where a signal is unknown are
+NaN, and `columns` fills a bus signal's short gaps by holding its last value (what the ECU last said), and
+leading unknowns by its first value.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.ndimage import shift as _spline_shift
+
+from fuelid.ident.polymodel import Structure
+
+RPM_TO_RAD_S = 2.0 * np.pi / 60.0
+
+# Signals computed from the fuel itself (the output): as a candidate they would "explain" fuel by fuel.
+OUTPUT_DERIVED_SPNS = frozenset({183, 184, 182, 250, 5053, 5054})
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One physical effect (module docstring). `build(ds)` returns its regressors: an N × k array with one
+    name and unit per column, or None when the signals it needs are not in the data.
+
+    A shift effect has no build: its test regressor is d/dt of the simulated fuel of seed 2's low-order model
+    DELAY_REFERENCE, which cannot absorb a delay (the diagnosis makes it), since y(t − τ) ≈ y(t) − τ dy/dt. orders (nb, nf, nk) of each extra input when the effect is
+    added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics);
+    sign the direction the physics moves the fuel when the effect's first regressor x grows (+1 more fuel, −1 less,
+    0 either): a candidate fitted the other way is not this effect (ident.diagnosis); scales_fuel when the effect
+    multiplies the fuel, y (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no
+    injection at all on overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient
+    of y (1 + m x) at m = 0, dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃
+    with their own dynamics) are what a refit adds; torque when the regressor is a torque (in the model's torque
+    unit per unit of its coefficient) the engine delivers and the bus does not report: the fuel burns for it
+    through the model's torque path, and the diagnosis tests that one column, B_T/F_T x."""
+
+    id: str
+    name: str
+    physics: str
+    signals: tuple[str, ...]
+    spns: tuple[int, ...]
+    form: str
+    build: Callable | None = field(default=None, compare=False, repr=False)
+    orders: tuple[int, int, int] = (1, 1, 0)
+    lags: tuple[int, ...] = (0, 1, 2)
+    sign: int = 0
+    scales_fuel: bool = False
+    torque: bool = False
+
+
+@dataclass
+class Regressors:
+    """Columns x (N × k) of one effect on the dataset grid with a name and a unit per column."""
+
+    x: np.ndarray
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+
+
+# ---- helpers over dataset arrays ------------------------------------------------------------------------
+
+@functools.lru_cache(maxsize=1)
+def _dbc_spns() -> dict[str, int]:
+    import cantools
+
+    from fuelid.dbc import FMS_DBC
+
+    db = cantools.database.load_file(str(FMS_DBC))
+    return {f"{m.name}.{s.name}": s.spn for m in db.messages for s in m.signals if s.spn is not None}
+
+
+def spn_of(signal: str) -> int | None:
+    """The SPN of a DBC signal named MESSAGE.Signal (fuelid/dbc/fms.dbc), None when it has none."""
+    return _dbc_spns().get(signal)
+
+
+def held(x) -> np.ndarray:
+    """x with NaN samples replaced by the last finite value before them (the first finite value at the start);
+    all-NaN stays all-NaN."""
+    x = np.asarray(x, float)
+    ok = np.isfinite(x)
+    if not ok.any():
+        return x.copy()
+    idx = np.where(ok, np.arange(x.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    idx[: np.argmax(ok)] = np.argmax(ok)
+    return x[idx]
+
+
+def _signal(ds, name: str) -> np.ndarray | None:
+    """A bus signal of ds.extra, held across gaps; None when absent or never valid."""
+    x = ds.extra.get(name)
+    if x is None or not np.isfinite(x[ds.valid]).any():
+        return None
+    return held(x)
+
+
+def rate(x, t) -> np.ndarray:
+    """dx/dt by central differences over the sample times t [s] (unit of x per s); NaN next to gaps."""
+    return np.gradient(np.asarray(x, float), np.asarray(t, float))
+
+
+def deviations(ds) -> tuple[np.ndarray, np.ndarray]:
+    """ñ = speed − u0 [rpm] and T̃ = torque − u0 [Nm or %] from the dataset's operating point."""
+    du = ds.u - ds.u0
+    return du[:, 0], du[:, 1]
+
+
+def regime(ds, on: np.ndarray, label: str) -> Regressors:
+    """Regressors of an on/off regime: I, I·ñ, I·T̃ (offset and gain changes while the state is on)."""
+    n, T = deviations(ds)
+    i = np.asarray(on, float)
+    return Regressors(np.column_stack([i, i * n, i * T]), (label, f"{label} x speed", f"{label} x torque"),
+                      ("1", ds.input_units[0], ds.input_units[1]))
+
+
+def _reference_torque(ds) -> float | None:
+    ref = _signal(ds, "EC1.EngReferenceTorque")
+    return None if ref is None else float(np.median(ref))
+
+
+def _percent_torque_in_model_unit(ds, pct: np.ndarray) -> tuple[np.ndarray, str]:
+    """A J1939 percent-of-reference-torque signal in the unit of the model's torque input (Nm when known)."""
+    ref = _reference_torque(ds)
+    if ds.input_units[1] == "Nm" and ref:
+        return pct * ref / 100.0, "Nm"
+    return pct, "%"
+
+
+# ---- the built-in effects --------------------------------------------------------------------------------
+
+def _inertia(ds):
+    domega = rate(ds.u[:, 0] * RPM_TO_RAD_S, ds.t)
+    J = _signal(ds, "EC1.EngMomentOfInertia")
+    if J is not None and np.nanmedian(J) > 0:
+        return Regressors((float(np.nanmedian(J)) * domega)[:, None], ("J_EC1 dω/dt",), ("Nm",))
+    return Regressors(domega[:, None], ("dω/dt",), ("rad/s2",))
+
+
+def _power(ds):
+    n, T = ds.u[:, 0], ds.u[:, 1]
+    n0, T0 = ds.u0
+    if ds.input_units[1] == "Nm":
+        p = RPM_TO_RAD_S * ((n * T) - (n0 * T0)) / 1000.0
+        return Regressors(p[:, None], ("engine power",), ("kW",))
+    return Regressors((n * T - n0 * T0)[:, None], ("speed x torque",), (f"rpm.{ds.input_units[1]}",))
+
+
+def _pedal_released(ds) -> np.ndarray | None:
+    pedal = _signal(ds, "EEC2.AccelPedalPos1")
+    return None if pedal is None else pedal < 1.0
+
+
+def _idle_speed(ds) -> float:
+    idle = _signal(ds, "EC1.EngSpeedAtIdlePoint1")
+    return float(np.median(idle)) if idle is not None else float(ds.u0[0])
+
+
+def _overrun(ds):
+    """Motoring: the reported (indicated) torque at most 1 % of the reference torque (its resolution), above idle
+    speed, pedal released (EEC2), and the driveline closed — not while the clutch is open (CCVS1 SPN 598) or a
+    gear change is under way (ETC2 selected ≠ current gear, and the bin either side): there the torque dips to
+    0 but the wheels do not drive the engine, and the fuel still follows its last demand."""
+    n, T = ds.u[:, 0], ds.u[:, 1]
+    on = (T <= _percent_torque_in_model_unit(ds, 1.0)[0]) & (n > _idle_speed(ds) + 100.0)
+    released = _pedal_released(ds)
+    if released is not None:
+        on &= released
+    clutch = _signal(ds, "CCVS1.ClutchSwitch")
+    if clutch is not None:
+        on &= clutch != 1
+    gear, selected = _signal(ds, "ETC2.TransCurrentGear"), _signal(ds, "ETC2.TransSelectedGear")
+    if gear is not None and selected is not None:
+        shifting = (selected != gear) | np.r_[False, np.diff(gear) != 0]
+        on &= ~(shifting | np.r_[shifting[1:], False] | np.r_[False, shifting[:-1]])
+    return regime(ds, on, "overrun")
+
+
+def _idle(ds):
+    on = np.abs(ds.u[:, 0] - _idle_speed(ds)) <= 50.0
+    v = _signal(ds, "CCVS1.WheelBasedVehicleSpeed")
+    if v is not None:
+        on &= v < 2.0
+    released = _pedal_released(ds)
+    if released is not None:
+        on &= released
+    return regime(ds, on, "idle")
+
+
+def _gear_shift(ds, after_s: float = 1.5):
+    """Two states of a gear change (ETC2): during the shift (selected ≠ current gear: torque ramped down, clutch
+    open, engine synchronised) an offset; for after_s [s] after the clutch closes into the new gear (the current
+    gear changes to a non-zero one), when torque ramps up with low boost, a regime (offset and gain changes)."""
+    gear = _signal(ds, "ETC2.TransCurrentGear")
+    if gear is None:
+        return None
+    closes = np.flatnonzero((np.diff(gear) != 0) & (gear[1:] > 0)) + 1
+    after = np.zeros(len(gear), bool)
+    width = max(int(round(after_s / ds.Ts)), 1)
+    for k in closes:
+        after[k: k + width] = True
+    selected = _signal(ds, "ETC2.TransSelectedGear")
+    during = (selected != gear) if selected is not None else (gear == 0) & (ds.u[:, 0] > _idle_speed(ds) + 100.0)
+    reg = regime(ds, after & ~during, "after a shift")
+    return Regressors(np.column_stack([reg.x, during]), reg.names + ("shifting",), reg.units + ("1",))
+
+
+def _state(name, active: Callable, label: str):
+    def build(ds):
+        x = _signal(ds, name)
+        return None if x is None else regime(ds, active(x), label)
+    return build
+
+
+def _warm_coolant_c(theta: np.ndarray) -> float:
+    """The coolant temperature the thermostat holds once warm [°C]: the 90th percentile of the trip's coolant
+    temperature, at least 80 °C (thermostats open at 80–90 °C; a trip that never warms up still has a deficit)."""
+    return max(80.0, float(np.percentile(theta, 90)))
+
+
+def _cold(ds):
+    """Deficit Δθ = max(θ_warm − θ, 0) [K] of the coolant below its warm level (`_warm_coolant_c`) and, since
+    friction and enrichment scale the fuel, Δθ·ñ and Δθ·T̃."""
+    theta = _signal(ds, "ET1.EngCoolantTemp")
+    if theta is None:
+        return None
+    deficit = np.maximum(_warm_coolant_c(theta[ds.valid]) - theta, 0.0)
+    n, T = deviations(ds)
+    return Regressors(np.column_stack([deficit, deficit * n, deficit * T]),
+                      ("coolant deficit", "coolant deficit x speed", "coolant deficit x torque"),
+                      ("K", f"K.{ds.input_units[0]}", f"K.{ds.input_units[1]}"))
+
+
+def _ambient(ds):
+    """Relative air-density deficit δ = 1 − ρ/ρ_ref, ρ = p/(R T) from barometric pressure [kPa] and ambient
+    temperature [°C] (ρ_ref at 15 °C and 101.325 kPa; a missing one held at its reference), and δ·ñ, δ·T̃:
+    thin air changes the fuel in proportion to the fuel itself."""
+    temp, press = _signal(ds, "AMB.AmbientAirTemp"), _signal(ds, "AMB.BarometricPress")
+    if temp is None and press is None:
+        return None
+    temp = np.full(len(ds.t), 15.0) if temp is None else temp
+    press = np.full(len(ds.t), 101.325) if press is None else press
+    delta = 1.0 - (press / 101.325) * (288.15 / (temp + 273.15))
+    n, T = deviations(ds)
+    return Regressors(np.column_stack([delta, delta * n, delta * T]),
+                      ("air-density deficit", "air-density deficit x speed", "air-density deficit x torque"),
+                      ("1", ds.input_units[0], ds.input_units[1]))
+
+
+def _fan(ds):
+    """The fan's torque per kW of its power at full speed, T = 1000 (s/100)³ / ω [Nm/kW] (its power grows with
+    the cube of its speed s [%], ω the engine speed [rad/s]), in the model's torque unit per kW; from the drive
+    state (engaged: full speed) when the speed is not sent."""
+    fan = _signal(ds, "FD.EstPercentFanSpeed")
+    if fan is not None:
+        share = (fan / 100.0) ** 3
+    else:
+        state = _signal(ds, "FD.FanDriveState")
+        if state is None:
+            return None
+        share = ((state > 0) & (state < 15)).astype(float)
+    torque_nm = 1000.0 * share / (np.maximum(ds.u[:, 0], 300.0) * RPM_TO_RAD_S)
+    if ds.input_units[1] == "Nm":
+        return Regressors(torque_nm[:, None], ("fan torque per kW of fan power at full speed",), ("Nm/kW",))
+    ref = _reference_torque(ds)
+    return None if not ref else Regressors((100.0 * torque_nm / ref)[:, None],
+                                           ("fan torque per kW of fan power at full speed",),
+                                           (f"{ds.input_units[1]}/kW",))
+
+
+def _percent_input(name: str, label: str, absolute: bool = False):
+    def build(ds):
+        pct = _signal(ds, name)
+        if pct is None:
+            return None
+        x, unit = _percent_torque_in_model_unit(ds, np.abs(pct) if absolute else pct)
+        return Regressors(x[:, None], (label,), (unit,))
+    return build
+
+
+EFFECTS: dict[str, Effect] = {e.id: e for e in [
+    Effect("inertia", "rotational inertia",
+           "The bus reports net (flywheel) torque, but fuel burns for the indicated torque, which also "
+           "accelerates the crankshaft and flywheel: T_ind = T_net + J dω/dt, ω [rad/s], J [kg·m²] (seed 2's EB*).",
+           ("EEC1.EngSpeed", "EC1.EngMomentOfInertia"), (190, 1794), "input", _inertia, orders=(2, 1, 0),
+           lags=(0,), sign=+1, torque=True),
+    Effect("fuel_delay", "fuel-signal delay",
+           "The fuel-rate signal lags speed and torque (fuel-system and ECU filtering; seed 2 found 0.4 s): "
+           "y_measured(t) = y(t − τ). Removed by advancing the fuel signal by τ.",
+           ("LFE1.EngFuelRate",), (183,), "shift", None, orders=(0, 0, 0), lags=(0,), sign=+1),
+    Effect("overrun_cutoff", "overrun fuel cut-off",
+           "With the pedal released above idle speed the engine is motored and injects no fuel; a linear model "
+           "extrapolates its torque gain to negative fuel instead.",
+           ("EEC1.ActualEngPercentTorque", "EEC2.AccelPedalPos1", "EEC1.EngSpeed", "CCVS1.ClutchSwitch",
+            "ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (513, 91, 190, 598, 523, 524), "regime",
+           _overrun, lags=(0,), sign=-1, scales_fuel=True),
+    Effect("power_nonlinearity", "speed × torque (power) nonlinearity",
+           "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
+           "term is the first missing term of the map.",
+           ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque"), (190, 513), "nonlinearity", _power, orders=(2, 1, 0)),
+    Effect("idle_fuelling", "idle fuelling",
+           "At idle (vehicle stopped, pedal released) the idle governor fuels to hold speed against friction "
+           "and auxiliaries, a different regime from driving.",
+           ("EEC1.EngSpeed", "CCVS1.WheelBasedVehicleSpeed", "EEC2.AccelPedalPos1", "EC1.EngSpeedAtIdlePoint1"),
+           (190, 84, 91, 188), "regime", _idle, lags=(0,)),
+    Effect("gear_shift", "gear-shift transients",
+           "During a gear change (ETC2 selected ≠ current gear) traction is interrupted and the engine speed "
+           "synchronised; for a moment after the clutch closes into the new gear the torque ramps up with low "
+           "boost: more fuel per torque. Torque and fuel do not follow the steady relation in either.",
+           ("ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (523, 524), "regime", _gear_shift, lags=(0,),
+           sign=+1),
+    Effect("dpf_regeneration", "DPF active regeneration",
+           "While the diesel particulate filter regenerates actively (DPFC1 SPN 3700 = 1) the engine injects "
+           "extra (post-injection) fuel that produces no torque.",
+           ("DPFC1.DPFActiveRegenStatus",), (3700,), "regime",
+           _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,), sign=+1,
+           scales_fuel=True),
+    Effect("cold_engine", "cold engine (coolant temperature)",
+           "Below operating temperature (the coolant's warm level, 80–90 °C) friction is higher and the ECU "
+           "enriches: extra fuel grows with the coolant-temperature deficit and with the fuel itself.",
+           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1, scales_fuel=True),
+    Effect("ambient", "ambient temperature and pressure",
+           "Air density ρ = p/(R T) (ambient temperature, barometric pressure) changes charge air, boost and "
+           "pumping work: thin (warm, high) air changes the fuel in proportion to the fuel.",
+           ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,), sign=+1,
+           scales_fuel=True),
+    Effect("engine_fan", "engine fan",
+           "A viscous or clutched engine fan takes power ∝ (fan speed)³ from the crankshaft that the reported "
+           "torque does not include.",
+           ("FD.EstPercentFanSpeed", "FD.FanDriveState"), (975, 977), "input", _fan, lags=(0,), sign=+1,
+           torque=True),
+    Effect("retarder", "retarder / engine brake",
+           "While the retarder or engine brake works (ERC1 SPN 520) no fuel is injected and the engine absorbs "
+           "torque.",
+           ("ERC1.ActualRetarderPercentTorque",), (520,), "input",
+           _percent_input("ERC1.ActualRetarderPercentTorque", "retarder torque", absolute=True)),
+    Effect("pto", "power take-off",
+           "A PTO (CCVS1 PTO governor state SPN 976 active) drives equipment from the engine, usually at a "
+           "governed speed: a different fuelling regime.",
+           ("CCVS1.PTOGovernorState",), (976,), "regime",
+           _state("CCVS1.PTOGovernorState", lambda x: (x > 0) & (x < 31), "PTO active"), lags=(0,)),
+    Effect("friction", "engine friction",
+           "Nominal friction torque (EEC3 SPN 514) changes with speed and temperature; fuel burns for it.",
+           ("EEC3.NominalFrictionPercentTorque",), (514,), "input",
+           _percent_input("EEC3.NominalFrictionPercentTorque", "friction torque")),
+]}
+ALIASES = {"coolant_temperature": "cold_engine", "fan": "engine_fan"}
+
+
+# ---- generic candidates: every other decoded bus signal -------------------------------------------------
+
+def _generic_build(signal: str, kind: str, values=()):
+    def build(ds):
+        x = _signal(ds, signal)
+        if x is None:
+            return None
+        if kind == "level":
+            return Regressors(x[:, None], (signal,), ("",))
+        if kind == "rate":
+            return Regressors(rate(x, ds.t)[:, None], (f"d/dt {signal}",), ("1/s",))
+        return Regressors(np.column_stack([x == v for v in values]).astype(float),
+                          tuple(f"{signal} = {v:g}" for v in values), ("1",) * len(values))
+    return build
+
+
+def generic_effects(ds, max_states: int = 16) -> list[Effect]:
+    """Candidates from every bus signal in ds.extra that no built-in effect uses and that is not computed from
+    the fuel (OUTPUT_DERIVED_SPNS, the flow meter): ``level:SIG`` and ``rate:SIG`` for continuous signals,
+    ``state:SIG`` (indicators of its three most frequent non-modal values) for integer signals with at most
+    max_states values. Signals valid on less than half of the valid samples, or constant, are left out."""
+    claimed = {s for e in EFFECTS.values() for s in e.signals}
+    out = []
+    for sig in sorted(ds.extra):
+        spn = spn_of(sig)
+        if sig in claimed or sig.startswith("flowmeter.") or spn in OUTPUT_DERIVED_SPNS:
+            continue
+        x = ds.extra[sig][ds.valid]
+        fin = x[np.isfinite(x)]
+        if fin.size < 0.5 * max(x.size, 1) or np.ptp(fin) == 0:
+            continue
+        spns = (spn,) if spn is not None else ()
+        vals, counts = np.unique(fin, return_counts=True)
+        if np.all(vals == np.round(vals)) and vals.size <= max_states:
+            states = tuple(float(v) for v in vals[np.argsort(-counts)][1:4])
+            out.append(Effect(f"state:{sig}", f"state of {sig}", f"Bus signal {sig} in each of its states.",
+                              (sig,), spns, "regime", _generic_build(sig, "state", states), lags=(0,)))
+        else:
+            out.append(Effect(f"level:{sig}", f"level of {sig}", f"Bus signal {sig} (its value).",
+                              (sig,), spns, "input", _generic_build(sig, "level")))
+            out.append(Effect(f"rate:{sig}", f"rate of change of {sig}", f"Bus signal {sig} (its time derivative).",
+                              (sig,), spns, "input", _generic_build(sig, "rate")))
+    return out
+
+
+def get_effect(effect_id: str, ds=None) -> Effect:
+    """The effect with this id: built-in (or an alias), else a generic ``level:``/``rate:``/``state:SIG``
+    (needs ds to see the signal)."""
+    effect_id = ALIASES.get(effect_id, effect_id)
+    if effect_id in EFFECTS:
+        return EFFECTS[effect_id]
+    if ds is not None:
+        for e in generic_effects(ds):
+            if e.id == effect_id:
+                return e
+    known = ", ".join(EFFECTS)
+    raise ValueError(f"unknown effect {effect_id!r}: built in are {known}; any logged signal SIG also as "
+                     "level:SIG, rate:SIG or state:SIG")
+
+
+def parse_effect(spec: str) -> tuple[str, float | None]:
+    """'ID' or 'ID=VALUE' (fuel_delay=0.4 fixes the shift [s]) → (id, value or None)."""
+    name, _, value = spec.partition("=")
+    return ALIASES.get(name.strip(), name.strip()), (float(value) if value else None)
+
+
+# ---- the fuel-signal time shift ------------------------------------------------------------------------
+
+def shift_signal(y, shift_samples: float, segments=None) -> np.ndarray:
+    """y(t + s·Ts): y advanced by s samples (fractional allowed) by cubic-spline interpolation, separately in
+    each segment (slices; default the whole array); the samples within |s| of a segment's end are held."""
+    y = np.asarray(y, float)
+    out = np.full_like(y, np.nan)
+    for seg in segments or [slice(0, y.size)]:
+        out[seg] = _spline_shift(y[seg], -shift_samples, order=3, mode="nearest")
+    return out
+
+
+def sweep_fuel_shift(score: Callable[[float], float], shifts_s=None) -> dict:
+    """Seed 2's fuel-shift sensitivity sweep: score(τ) [any error, e.g. RMSE] for each advance τ [s] of the
+    fuel signal (default −1…1 s in 0.1 s steps), the best τ refined by a parabola through the best point
+    and its neighbours. Returns {"shifts_s", "scores", "best_s"}."""
+    shifts = np.round(np.arange(-1.0, 1.0001, 0.1), 10) if shifts_s is None else np.asarray(shifts_s, float)
+    scores = np.array([score(float(s)) for s in shifts])
+    k = int(np.nanargmin(scores))
+    best = shifts[k]
+    if 0 < k < shifts.size - 1:
+        s0, s1, s2 = scores[k - 1: k + 2]
+        curv = s0 - 2 * s1 + s2
+        if curv > 0:
+            best = shifts[k] + 0.5 * (s0 - s2) / curv * (shifts[k + 1] - shifts[k])
+    return {"shifts_s": shifts.tolist(), "scores": scores.tolist(), "best_s": float(best)}
+
+
+# ---- effects as model inputs ---------------------------------------------------------------------------
+
+@dataclass
+class EffectInputs:
+    """What `apply_effects` gives a fit: extra inputs u (N × k) with names, units and orders (nb, nf, nk) per
+    column, the fuel y (advanced by the fuel-delay shift when that effect is on) and the effect parameters."""
+
+    u: np.ndarray
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    orders: tuple[tuple[int, int, int], ...]
+    y: np.ndarray
+    effects: tuple[str, ...]
+    parameters: dict
+
+    def extend(self, structure):
+        """The model structure with one more input per extra column."""
+        nb, nf, nk = (tuple(o[j] for o in self.orders) for j in range(3))
+        return Structure(nb=structure.nb + nb, nf=structure.nf + nf, nk=structure.nk + nk,
+                         nc=structure.nc, nd=structure.nd, na=structure.na)
+
+
+DELAY_REFERENCE = Structure(nb=(2, 2), nf=(1, 1), nk=(0, 0))
+"""Seed 2's low-order model (output error, two taps and one pole per input, no dead time): the fuel delay is
+estimated and tested on it, since its dynamics cannot absorb a delay the way the paper's five torque taps do."""
+
+
+def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
+    """Seed 2's sweep with the model itself: for each advance τ [s] the fuel is shifted, the model of `structure`
+    on inputs u (N × m) refitted by PEM (warm-started from the fit at τ = 0) on the valid segments, and its
+    simulation RMSE [fuel unit] taken; `sweep_fuel_shift` picks τ."""
+    import warnings
+
+    from fuelid.ident.pem import pem
+    from fuelid.ident.polymodel import simulate
+    from fuelid.ident.validation import rmse
+
+    segs = ds.segments()
+    idx = np.concatenate([np.arange(s.start, s.stop) for s in segs])
+    u0 = np.r_[ds.u0, np.zeros(u.shape[1] - 2)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        base = pem(u[idx], ds.y[idx], structure, ds.Ts, u0=u0, y0=ds.y0)
+
+        def score(tau):
+            y = shift_signal(ds.y, tau / ds.Ts, segs)[idx]
+            m = pem(u[idx], y, structure, ds.Ts, init=base, u0=u0, y0=ds.y0, max_iter=20)
+            return rmse(y, simulate(m, u[idx]))
+
+        return sweep_fuel_shift(score, shifts_s)
+
+
+def apply_effects(ds, ids, parameters: dict | None = None, structure=None) -> EffectInputs:
+    """Extra inputs and shifted fuel for the effects `ids` ("ID" or "ID=VALUE") on dataset ds.
+
+    parameters: {"fuel_delay": τ [s]} the fuel advance; when fuel_delay is asked for without τ, τ is estimated
+    by `estimate_fuel_delay` with the model structure `structure` (speed, torque inputs; required then).
+    Raises ValueError for an unknown id or an effect whose signals are not logged.
+    """
+    parameters = dict(parameters or {})
+    cols, names, units, orders, used = [], [], [], [], []
+    y = np.asarray(ds.y, float)
+    shift = None
+    for raw in ids:
+        eid, value = parse_effect(raw)
+        effect = get_effect(eid, ds)
+        used.append(effect.id)
+        if effect.form == "shift":
+            shift = value if value is not None else parameters.get(effect.id, "sweep")
+            continue
+        reg = effect.build(ds)
+        if reg is None:
+            raise ValueError(f"effect {effect.id}: its signals ({', '.join(effect.signals)}) are not in the data")
+        cols.append(reg.x)
+        names += [f"{effect.id}: {n}" for n in reg.names]
+        units += list(reg.units)
+        orders += [effect.orders] * reg.x.shape[1]
+    u = np.hstack(cols) if cols else np.zeros((len(y), 0))
+    if shift == "sweep":
+        if structure is None:
+            raise ValueError("fuel_delay needs its shift: give fuel_delay=SECONDS (or a structure to sweep with)")
+        ext = EffectInputs(u, (), (), tuple(orders), y, (), {}).extend(structure)
+        shift = estimate_fuel_delay(ds, np.hstack([ds.u, u]), ext)["best_s"]
+    if shift is not None:
+        parameters["fuel_delay"] = float(shift)
+        y = shift_signal(y, shift / ds.Ts, ds.segments())
+    return EffectInputs(u, tuple(names), tuple(units), tuple(orders), y, tuple(used), parameters)
+
+
+def at_operating_point(ds, model):
+    """ds with the model's speed and torque operating point u0 (regime columns are deviations from it)."""
+    return dataclasses.replace(ds, u0=np.asarray(model.u0[:2], float))
+
+
+def model_data(model, ds) -> tuple[np.ndarray, np.ndarray]:
+    """(u, y) on which `model` runs: the dataset's speed and torque plus the extra inputs of the effects the
+    model includes (model.effects, shift from model.info['effect_parameters']; regimes use the model's
+    operating point), and the (shifted) fuel."""
+    fx = apply_effects(at_operating_point(ds, model), model.effects, model.info.get("effect_parameters"))
+    u = np.hstack([ds.u, fx.u])
+    if u.shape[1] != len(model.B):
+        raise ValueError(f"model has {len(model.B)} inputs but the data and its effects give {u.shape[1]}")
+    return u, fx.y

@@ -1,0 +1,315 @@
+"""Live online identification inside the logger daemon: decoded J1939/flow-meter records in, /ident/* out.
+
+`LiveEstimator.feed(topic, t, record)` takes the records the daemon writes (`/j1939/EEC1`, `/j1939/EC1`,
+`/j1939/LFE1`, `/flowmeter`; t the receive time [s]) and resamples them on the fly to the estimator's grid,
+as ident.dataset does offline: bins [t0 + kTs, t0 + (k+1)Ts), each signal averaged over its valid samples in
+the bin, a bin without one not available (NaN; the estimator holds inputs for up to max_gap_s). Torque [Nm] =
+EEC1.ActualEngPercentTorque [%] × EC1.EngReferenceTorque [Nm] / 100 (a model in % uses the percentage). Fuel:
+/flowmeter flow_kg_h for a model in kg/h, else LFE1.EngFuelRate [L/h]. Only the engine's records (source
+address engine_sa, default 0x00) are used; null (not available) values are no sample. A silence longer than
+max_gap_s (engine off, logger restart) restarts the estimator's filters.
+
+Replay at `speed` × real time (fuelid replay --speed): receive times run `speed` times faster than the
+recording, so the grid step and max_gap_s are divided by `speed` on the receive-time axis; the estimator still
+sees Ts-spaced samples of the recorded trip.
+
+Starting from a prior model (`from_model`) the estimator runs from the first bin. From scratch
+(`from_scratch`) the operating point (u0, y0) the model's deviations are taken from (ident.dataset: the idle
+point) is not known yet: bins are only watched until idle_min_s of complete bins with the engine speed within
+idle_tol_rpm of idle_rpm, whose mean inputs and fuel become (u0, y0); then the RPEM starts from θ = 0.
+
+Every closed bin once the estimator runs gives records for the daemon to write (topic, receive time [s], record):
+
+    /ident/prediction  {t, predicted, simulated, measured, unit}   ŷ(t|t−1), the model's simulation and the
+                       measured fuel [output unit] (null when not available)
+    /ident/residual    {t, eps, status, unit}                       ε = measured − predicted; status as
+                       ident.rpem.Trace (−1 no state, 0 no update, 1 updated, 2 shrunk step, 3 rejected)
+    /ident/parameters  {t, names, theta, dc_gain, fuel_change_pct, fuel_change_ci95_pct, lam, trace_P, dtheta,
+                        fit_prediction_pct, fit_simulation_pct, updates, noise_variance}   every parameters_every_s
+
+dc_gain G_i(1) = B_i(1)/F_i(1) [output unit per input unit]; fuel_change_pct how much the steady-state fuel
+at the mean operating point has moved since the prior, 100 (Σ_i G_i(1) ū_i / Σ_i G⁰_i(1) ū_i − 1) with ū the
+mean deviation inputs so far and G⁰ the prior's gains (null from scratch): the drift of the fuel system
+(injector wear, fuel quality, meter calibration) the estimator tracks; fuel_change_ci95_pct its 95 %
+confidence half-width from the estimator's parameter covariance (`fuel_change`). From a prior the default
+estimator (`from_model`, adapt='gain') is ident.kalman.GainTracker: only the common fuel gain adapts, so
+fuel_change_pct = 100 (g − 1) at any operating point.
+
+Every snapshot_every_s (receive time) the current model is written to snapshot_path (model.json, atomically);
+`snapshot()` writes it on demand (the daemon at shutdown). This module imports numpy only; ident.rpem (numba)
+comes with the estimator, ident.polymodel and ident.modelfile (no SciPy) with the first snapshot.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+PREDICTION_SCHEMA = {"type": "object", "properties": {
+    "t": {"type": "number"}, "predicted": {"type": ["number", "null"]}, "simulated": {"type": ["number", "null"]},
+    "measured": {"type": ["number", "null"]}, "unit": {"type": "string"}}}
+RESIDUAL_SCHEMA = {"type": "object", "properties": {
+    "t": {"type": "number"}, "eps": {"type": ["number", "null"]}, "status": {"type": "integer"},
+    "unit": {"type": "string"}}}
+PARAMETERS_SCHEMA = {"type": "object", "properties": {
+    "t": {"type": "number"}, "names": {"type": "array", "items": {"type": "string"}},
+    "theta": {"type": "array", "items": {"type": "number"}},
+    "dc_gain": {"type": "array", "items": {"type": ["number", "null"]}},
+    "fuel_change_pct": {"type": ["number", "null"]}, "fuel_change_ci95_pct": {"type": ["number", "null"]},
+    "lam": {"type": "number"}, "trace_P": {"type": "number"}, "dtheta": {"type": "number"},
+    "fit_prediction_pct": {"type": ["number", "null"]}, "fit_simulation_pct": {"type": ["number", "null"]},
+    "updates": {"type": "integer"}, "noise_variance": {"type": ["number", "null"]}}}
+SCHEMAS = {"/ident/prediction": PREDICTION_SCHEMA, "/ident/residual": RESIDUAL_SCHEMA,
+           "/ident/parameters": PARAMETERS_SCHEMA}
+
+
+def _num(x):
+    """A float for JSON, None for NaN/inf."""
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _blocks(structure):
+    """Index ranges of the B_i and F_i coefficients in θ (order of ident.polymodel.parameter_names, na = 0)."""
+    nb = np.cumsum([0, *structure.nb])
+    nf = nb[-1] + np.cumsum([0, *structure.nf])
+    return [(slice(nb[i], nb[i + 1]), slice(nf[i], nf[i + 1])) for i in range(structure.n_inputs)]
+
+
+def dc_gains(theta, structure) -> np.ndarray:
+    """G_i(1) = B_i(1)/F_i(1) per input from θ [output unit per input unit]."""
+    return np.array([theta[b].sum() / (1.0 + theta[f].sum()) for b, f in _blocks(structure)])
+
+
+def fuel_change(theta, cov, structure, gain0, du) -> tuple[float, float]:
+    """The steady-state fuel change c = Σ_i G_i(1) ū_i / Σ_i G⁰_i(1) ū_i − 1 [%] at mean deviation inputs ū,
+    and its 95 % confidence half-width 1.96 √(∇cᵀ Σ_θ ∇c) [%] (delta method, Σ_θ = cov the θ covariance):
+    ∂c/∂b_i,l = ū_i / (F_i(1) S⁰),  ∂c/∂f_i,k = −G_i(1) ū_i / (F_i(1) S⁰),  S⁰ = Σ_i G⁰_i(1) ū_i."""
+    gains = dc_gains(theta, structure)
+    s0 = gain0 @ du
+    grad = np.zeros(len(theta))
+    for (b, f), g, u in zip(_blocks(structure), gains, du):
+        f1 = 1.0 + theta[f].sum()
+        grad[b], grad[f] = u / (f1 * s0), -g * u / (f1 * s0)
+    return 100.0 * (gains @ du / s0 - 1.0), 196.0 * math.sqrt(max(grad @ cov @ grad, 0.0))
+
+
+def prior_estimator(model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
+                    adapt: str = "gain"):
+    """The recursive estimator that starts from `model` (LiveEstimator.from_model explains the options)."""
+    from fuelid.ident.kalman import GainTracker, ParameterKalman
+    from fuelid.ident.rpem import RPEM
+
+    if method not in ("rpem", "kalman") or adapt not in ("gain", "all"):
+        raise ValueError(f"method must be 'rpem' or 'kalman' and adapt 'gain' or 'all', got {method!r}, {adapt!r}")
+    if adapt == "gain":
+        return GainTracker(model, lam=forgetting or 1.0) if method == "rpem" else GainTracker(model, rate=drift)
+    return RPEM(prior=model, lam=forgetting) if method == "rpem" else ParameterKalman(prior=model, rate=drift)
+
+
+class LiveEstimator:
+    """Resample decoded records to Ts and run an ident.rpem estimator on them (module docstring).
+
+    estimator       an ident.rpem.RPEM, ident.kalman.ParameterKalman or ident.kalman.GainTracker (its Ts is the
+                    grid step); or None with
+    start           a function (u0 [input units], y0 [output unit]) -> estimator, called once the idle
+                    operating point is known (from scratch), and Ts [s]
+    torque_unit     'Nm' or '%': the unit of the model's torque input
+    fuel            'lfe1' (LFE1.EngFuelRate, L/h) or 'flowmeter' (flow_kg_h, kg/h)
+    names           parameter names for /ident/parameters (default θ0, θ1, …)
+    speed           the records arrive `speed` times faster than recorded (a sped-up replay)
+    idle_rpm, idle_tol_rpm, idle_min_s   the idle operating point from scratch [rpm], [rpm], [s]
+    """
+
+    def __init__(self, estimator=None, *, start=None, Ts: float | None = None, torque_unit: str = "Nm",
+                 fuel: str = "lfe1", engine_sa: int = 0, names=None, snapshot_path=None,
+                 snapshot_every_s: float = 600.0, parameters_every_s: float = 10.0, max_gap_s: float = 1.0,
+                 speed: float = 1.0, idle_rpm: float = 600.0, idle_tol_rpm: float = 50.0, idle_min_s: float = 3.0):
+        if torque_unit not in ("Nm", "%") or fuel not in ("lfe1", "flowmeter"):
+            raise ValueError("torque_unit must be 'Nm' or '%', fuel 'lfe1' or 'flowmeter'")
+        if (estimator is None) == (start is None) or (start is not None and Ts is None):
+            raise ValueError("give an estimator, or a start function and Ts")
+        if not speed > 0:
+            raise ValueError(f"speed must be > 0, got {speed}")
+        self.est, self._start = estimator, start
+        self.Ts = estimator.Ts if estimator is not None else float(Ts)
+        self.torque_unit, self.fuel, self.engine_sa = torque_unit, fuel, engine_sa
+        self.unit = "kg/h" if fuel == "flowmeter" else "L/h"
+        self.names = list(names) if names is not None else None
+        self.snapshot_path, self.snapshot_every_s = snapshot_path, snapshot_every_s
+        self.parameters_every_s = parameters_every_s
+        # the grid on the receive-time axis in integer ns (log times are ns): a record on a bin edge is never
+        # put in the bin before by float rounding
+        self._step_ns, self._max_gap = round(self.Ts / speed * 1e9), max_gap_s / speed
+        self._idle = (idle_rpm, idle_tol_rpm, max(1, math.ceil(idle_min_s / self.Ts)))
+        self._idle_bins: list[np.ndarray] = []  # [speed, torque, fuel] of the current idle stretch (from scratch)
+        self._gain0 = None  # the prior's G_i(1), the reference of fuel_change_pct
+        if estimator is not None and estimator.prior is not None:
+            self._gain0 = dc_gains(estimator.prior.theta, estimator.structure)
+        self._du_sum, self._du_n = 0.0, 0  # Σ ũ and its count, for the mean operating point ū
+        self.ref_torque = None  # [Nm], from EC1
+        self._bin = None  # index k of the open bin
+        self._t0_ns = None
+        self._sums = np.zeros(3)  # speed, torque %, fuel
+        self._counts = np.zeros(3)
+        self._last_data_t = -math.inf
+        self._next_parameters = self._next_snapshot = None
+
+    @classmethod
+    def from_model(cls, model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
+                   adapt: str = "gain", **kwargs):
+        """A LiveEstimator starting from a PolyModel (e.g. load_model('fleet.json')), units from the model.
+
+        method 'rpem' (constant forgetting λ = forgetting; None: λ = 1) or 'kalman' (random-walk fuel gain,
+        relative drift per sample `drift`); adapt 'gain' (ident.kalman.GainTracker: only the common fuel gain,
+        the model's dynamics and noise model held) or 'all' (every parameter: ident.rpem.RPEM or
+        ident.kalman.ParameterKalman)."""
+        from fuelid.ident.polymodel import parameter_names
+
+        est = prior_estimator(model, method=method, forgetting=forgetting, drift=drift, adapt=adapt)
+        fuel = "flowmeter" if model.output_unit == "kg/h" else "lfe1"
+        return cls(est, torque_unit=model.input_units[1] or "Nm", fuel=fuel,
+                   names=parameter_names(model.structure), **kwargs)
+
+    @classmethod
+    def from_scratch(cls, structure, Ts: float = 0.3, *, forgetting: float | None = None, **kwargs):
+        """A LiveEstimator whose RPEM starts from θ = 0 at the idle operating point (module docstring);
+        forgetting: constant λ, or None for λ growing towards 1 (ident.rpem)."""
+        from fuelid.ident.polymodel import parameter_names
+        from fuelid.ident.rpem import RPEM
+
+        def start(u0, y0):
+            return RPEM(structure, Ts, lam=forgetting, u0=u0, y0=y0)
+
+        return cls(start=start, Ts=Ts, names=parameter_names(structure), **kwargs)
+
+    def prepare(self) -> None:
+        """Load the estimator's compiled loop now (seconds on a first run), not with the first bin."""
+        est = self.est or self._start(np.zeros(2), 0.0)
+        est.update(np.empty((0, 2)), np.empty(0))
+
+    def feed(self, topic: str, t: float, record: dict) -> list[tuple[str, float, dict]]:
+        """One decoded record received at t [s]; returns the /ident/* records of the bins it closed."""
+        values = self._values(topic, record)
+        if not values:
+            return []
+        out = []
+        if self._t0_ns is None:
+            self._t0_ns, self._bin = round(t * 1e9), 0
+            self._next_parameters = t + self.parameters_every_s
+            self._next_snapshot = t + self.snapshot_every_s
+        k = (round(t * 1e9) - self._t0_ns) // self._step_ns
+        if k > self._bin:
+            out += self._close(self._bin)
+            if t - self._last_data_t > self._max_gap:  # silence: no bins in between, filters restart
+                self._restart()
+            else:
+                for empty in range(self._bin + 1, k):
+                    out += self._close(empty)
+            self._bin = k
+        if k >= self._bin:  # a record from an already closed bin (out of order) is dropped
+            for channel, v in values:
+                self._sums[channel] += v
+                self._counts[channel] += 1
+        self._last_data_t = max(self._last_data_t, t)
+        return out
+
+    def _restart(self) -> None:
+        if self.est is not None:
+            self.est.reset()
+        self._idle_bins.clear()
+
+    def _values(self, topic, record) -> list[tuple[int, float]]:
+        """[(channel, value)] of a record: 0 speed [rpm], 1 torque [%], 2 fuel; EC1 sets the reference torque."""
+        if topic == "/flowmeter":
+            v = record.get("flow_kg_h") if self.fuel == "flowmeter" else None
+            return [] if v is None else [(2, float(v))]
+        if not topic.startswith("/j1939/") or record.get("sa") != self.engine_sa:
+            return []
+        name = topic[7:]
+        if name == "EC1" and record.get("EngReferenceTorque") is not None:
+            self.ref_torque = float(record["EngReferenceTorque"])
+        elif name == "EEC1":
+            pairs = [(0, record.get("EngSpeed")), (1, record.get("ActualEngPercentTorque"))]
+            return [(c, float(v)) for c, v in pairs if v is not None]
+        elif name == "LFE1" and self.fuel == "lfe1" and record.get("EngFuelRate") is not None:
+            return [(2, float(record["EngFuelRate"]))]
+        return []
+
+    def _close(self, k: int) -> list[tuple[str, float, dict]]:
+        """Run the estimator on bin k and make its records."""
+        mean = np.where(self._counts > 0, self._sums / np.maximum(self._counts, 1), np.nan)
+        self._sums[:], self._counts[:] = 0.0, 0.0
+        speed, pct, fuel = mean
+        if self.torque_unit == "%":
+            torque = pct
+        else:
+            torque = pct * self.ref_torque / 100.0 if self.ref_torque is not None else math.nan
+        u = np.array([speed, torque])
+        if self.est is None and not self._watch_idle(u, fuel):
+            return []
+        trace = self.est.update(u[None, :], np.array([fuel]))
+        if np.isfinite(u).all():
+            self._du_sum = self._du_sum + (u - self.est.u0)
+            self._du_n += 1
+        t = (self._t0_ns + (k + 1) * self._step_ns) * 1e-9
+        out = [("/ident/prediction", t, {"t": t, "predicted": _num(trace.yhat[0]), "simulated": _num(trace.ysim[0]),
+                                         "measured": _num(fuel), "unit": self.unit}),
+               ("/ident/residual", t, {"t": t, "eps": _num(trace.eps[0]), "status": int(trace.status[0]),
+                                       "unit": self.unit})]
+        if t >= self._next_parameters:
+            self._next_parameters = t + self.parameters_every_s
+            out.append(("/ident/parameters", t, self.parameters(t, float(trace.dtheta[0]))))
+        if self.snapshot_path is not None and t >= self._next_snapshot:
+            self._next_snapshot = t + self.snapshot_every_s
+            self.snapshot()
+        return out
+
+    def _watch_idle(self, u, fuel) -> bool:
+        """From scratch: collect a lasting idle stretch; start the estimator at its mean. True once started."""
+        idle_rpm, tol, n = self._idle
+        if not (np.isfinite(u).all() and math.isfinite(fuel) and abs(u[0] - idle_rpm) <= tol):
+            self._idle_bins.clear()
+            return False
+        self._idle_bins.append(np.r_[u, fuel])
+        if len(self._idle_bins) < n:
+            return False
+        u0y0 = np.mean(self._idle_bins, axis=0)
+        self.est = self._start(u0y0[:2], float(u0y0[2]))
+        self._idle_bins.clear()
+        return True
+
+    def parameters(self, t: float, dtheta: float = 0.0) -> dict:
+        """The /ident/parameters record: θ, DC gains B_i(1)/F_i(1), fuel change, λ, trace(P), running fits."""
+        est = self.est
+        theta = est.theta
+        gains = dc_gains(theta, est.structure)
+        change = ci = None
+        if self._gain0 is not None and self._du_n:
+            change, ci = map(_num, fuel_change(theta, est.covariance(), est.structure, self._gain0,
+                                               self._du_sum / self._du_n))
+        rep = est.report()
+        names = self.names or [f"theta{j}" for j in range(theta.size)]
+        return {"t": t, "names": names, "theta": [float(v) for v in theta], "dc_gain": [_num(g) for g in gains],
+                "fuel_change_pct": change, "fuel_change_ci95_pct": ci, "lam": rep["lam"], "trace_P": rep["trace_P"],
+                "dtheta": dtheta,
+                "fit_prediction_pct": _num(rep["running_fit_prediction_pct"]),
+                "fit_simulation_pct": _num(rep["running_fit_simulation_pct"]), "updates": rep["updates"],
+                "noise_variance": _num(rep["noise_variance"])}
+
+    def snapshot(self) -> bool:
+        """Write the current model to snapshot_path (atomically); False while there is none yet."""
+        if self.est is None or self.snapshot_path is None:
+            return False
+        import dataclasses
+
+        from fuelid.ident.modelfile import save_model
+
+        model = self.est.model()
+        if self.est.prior is None:
+            model = dataclasses.replace(model, input_names=("EEC1.EngSpeed", "EngTorque"),
+                                        input_units=("rpm", self.torque_unit),
+                                        output_name="flowmeter.flow_kg_h" if self.fuel == "flowmeter"
+                                        else "LFE1.EngFuelRate", output_unit=self.unit)
+        save_model(model, self.snapshot_path)
+        return True

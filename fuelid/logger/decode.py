@@ -1,0 +1,259 @@
+"""J1939 signal decoding with the standard's reserved raw values (SAE J1939-71, see J1939_FACTS.md).
+
+The DBC (`fuelid/dbc/fms.dbc`) gives each signal's place, scale, offset, unit and SPN; cantools parses it.
+Messages match by PGN alone, so any source address and priority decode, and each decoded message keeps
+its source address (`sa`) so values from different nodes are never mixed.
+
+Before scaling, every raw value is checked against J1939's reserved ranges:
+
+=============  ==========================  ===============  ===============  ===============
+field          valid (kept as a number)    reserved         error            not available
+=============  ==========================  ===============  ===============  ===============
+1 byte         0x00-0xFA, 0xFB (parameter  0xFC-0xFD        0xFE             0xFF
+               specific, e.g. gear park)
+2 bytes        0x0000-0xFBFF               0xFC00-0xFDFF    0xFE00-0xFEFF    0xFF00-0xFFFF
+4 bytes        0x00000000-0xFBFFFFFF       0xFC..-0xFD..    0xFExxxxxx       0xFFxxxxxx
+n < 8 bits     0 .. 2**n - 3               (none)           2**n - 2         2**n - 1
+=============  ==========================  ===============  ===============  ===============
+
+Such values decode to ``None`` with their status in `Decoded.invalid`. A signal the frame is too short
+to hold (DLC below the signal's last byte) is ``None`` with status ``"missing"``; the frame is counted
+in `DecodeStats.short_frames` and its complete signals still decode. Nothing here raises on bus data.
+"""
+from dataclasses import asdict, dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+
+from fuelid.dbc import FMS_DBC
+from fuelid.errors import FuelidError
+from fuelid.logger.j1939 import parse_id
+
+INVALID_STATUSES = ("not_available", "error", "reserved", "missing")
+"""Why a signal is null: J1939 not-available or error indicator, a reserved raw value, or a frame too
+short to hold the signal."""
+
+VI_NAME = "VI"
+VIN_FIELD = "VIN"
+
+
+@dataclass(slots=True)
+class Decoded:
+    """One decoded J1939 message from one source address."""
+
+    name: str
+    """DBC message name, e.g. ``"EEC1"``."""
+    pgn: int
+    sa: int
+    da: int
+    t: float
+    """Receive time [s]."""
+    values: dict[str, Any]
+    """Signal name -> physical value in the DBC's unit, or None (see `invalid`); ``VIN`` -> str for VI."""
+    invalid: dict[str, str] = field(default_factory=dict)
+    """Signal name -> ``"not_available"``, ``"error"``, ``"reserved"`` or ``"missing"``, for null values."""
+    tp: str | None = None
+    """``"bam"`` or ``"rts"`` when the payload was reassembled by the transport protocol."""
+
+    def to_record(self) -> dict[str, Any]:
+        """The ``/j1939/<name>`` JSON record of docs/formats.md."""
+        record = {"t": self.t, "pgn": self.pgn, "sa": self.sa, "da": self.da, **self.values,
+                  "invalid": self.invalid}
+        if self.tp is not None:
+            record["tp"] = self.tp
+        return record
+
+
+@dataclass
+class DecodeStats:
+    """Counters for the conversion summary."""
+
+    frames: int = 0
+    """Frames offered to `Decoder.decode`."""
+    decoded: int = 0
+    """Messages decoded (single frames and TP payloads)."""
+    not_j1939: int = 0
+    """Error, remote and 11-bit frames, which carry no J1939 message."""
+    unknown_pgn: int = 0
+    short_frames: int = 0
+    """Frames or payloads too short for at least one of their message's signals."""
+    invalid: dict[str, int] = field(default_factory=lambda: dict.fromkeys(INVALID_STATUSES, 0))
+    """Null signal values, per status."""
+
+
+def _compile(sig: cantools.database.Signal) -> tuple:
+    """A little-endian unsigned signal as a tuple for the decode loop (tuples unpack faster than
+    attribute lookups): name, shift, mask, scale, offset, end_byte, valid_max, error_min, na_min.
+
+    raw = (payload >> shift) & mask. Raw values up to valid_max are numbers; from na_min not
+    available, from error_min error, anything in between reserved (see the module table).
+    """
+    if sig.byte_order != "little_endian" or sig.is_signed:
+        raise FuelidError(f"signal {sig.name}: J1939 signals are little-endian unsigned")
+    n = sig.length
+    mask = (1 << n) - 1
+    if n < 8:  # bit field: all ones = not available, all ones minus one = error
+        na_min, error_min, valid_max = mask, mask - 1, mask - 2
+    else:  # judged on the most significant byte
+        na_min, error_min, valid_max = 0xFF << (n - 8), 0xFE << (n - 8), (0xFC << (n - 8)) - 1
+    return (sig.name, sig.start, mask, sig.scale, sig.offset, (sig.start + n + 7) // 8,
+            valid_max, error_min, na_min)
+
+
+class Decoder:
+    """Decodes J1939 frames and transport-protocol payloads with the messages of a DBC.
+
+    Speed: signals are unpacked from one ``int.from_bytes`` with shifts and masks, from tables compiled
+    once from cantools' signal layouts. Measured (CPU time, best of 5, Python 3.11, the 7,027 DBC
+    frames of systemscyber_truck_drive_normal.log in memory): `decode` 1.9 us/frame including the
+    reserved-value checks and the `Decoded` object (1.1 us/frame over the whole log, unknown PGNs
+    included), against 1.5 us for cantools' ``Message.decode(scaling=False)`` alone and 1.9 us
+    scaled, which would still need the J1939 checks after it.
+    """
+
+    def __init__(self, dbc_path: str | Path = FMS_DBC):
+        self.db = _load_dbc(str(dbc_path))
+        self.stats = DecodeStats()
+        self._by_pgn: dict[int, tuple[str, list[tuple], int]] = {}
+        self._ids: dict[int, tuple] = {}
+        for m in self.db.messages:
+            signals = [_compile(s) for s in m.signals]
+            need = max((s[5] for s in signals), default=0)
+            self._by_pgn[parse_id(m.frame_id).pgn] = (m.name, signals, need)
+
+    def message_names(self) -> list[str]:
+        """DBC message names, in DBC order."""
+        return [m.name for m in self.db.messages]
+
+    def signal_names(self, name: str) -> list[str]:
+        """The signal (record field) names of message `name`: its DBC signals, or ``VIN`` for VI."""
+        return [VIN_FIELD] if name == VI_NAME else [s.name for s in self.db.get_message_by_name(name).signals]
+
+    def counters(self) -> dict[str, int]:
+        """`stats` as one flat dict, null values per status alongside the frame counts."""
+        counts = asdict(self.stats)
+        invalid = counts.pop("invalid")
+        return {**counts, **invalid}
+
+    def decode(self, msg: can.Message) -> Decoded | None:
+        """Decode one frame; None for error/remote/11-bit frames and PGNs not in the DBC."""
+        stats = self.stats
+        stats.frames += 1
+        if msg.is_error_frame or msg.is_remote_frame or not msg.is_extended_id:
+            stats.not_j1939 += 1
+            return None
+        # identifiers of known PGNs are cached with their parse (at most a few thousand on a bus)
+        known = self._ids.get(msg.arbitration_id)
+        if known is None:
+            _, pgn, sa, da = parse_id(msg.arbitration_id)
+            entry = self._by_pgn.get(pgn)
+            if entry is None:
+                stats.unknown_pgn += 1
+                return None
+            known = self._ids[msg.arbitration_id] = (entry, pgn, sa, da)
+        entry, pgn, sa, da = known
+        return self._decode(entry, msg.timestamp, pgn, sa, da, msg.data, None)
+
+    def decode_payload(self, t: float, pgn: int, sa: int, da: int, payload: bytes,
+                       tp: str | None = None) -> Decoded | None:
+        """Decode a message payload (one frame's data or a TP-reassembled payload) of `pgn`.
+
+        `t` [s] is the receive time; `tp` is ``"bam"``/``"rts"`` for reassembled payloads.
+        Returns None when the PGN is not in the DBC.
+        """
+        entry = self._by_pgn.get(pgn)
+        if entry is None:
+            self.stats.unknown_pgn += 1
+            return None
+        return self._decode(entry, t, pgn, sa, da, payload, tp)
+
+    def _decode(self, entry: tuple, t: float, pgn: int, sa: int, da: int, payload: bytes,
+                tp: str | None) -> Decoded:
+        name, signals, need = entry
+        stats = self.stats
+        stats.decoded += 1
+        if name == VI_NAME:
+            return _decode_vi(t, pgn, sa, da, payload, tp, stats)
+        raw = int.from_bytes(payload, "little")
+        size = len(payload)
+        values: dict[str, Any] = {}
+        invalid: dict[str, str] = {}
+        if size < need:
+            stats.short_frames += 1
+        for sig, shift, mask, scale, offset, end_byte, valid_max, error_min, na_min in signals:
+            if size < end_byte:
+                status = "missing"
+            else:
+                r = (raw >> shift) & mask
+                if r <= valid_max:
+                    values[sig] = r * scale + offset
+                    continue
+                status = "not_available" if r >= na_min else "error" if r >= error_min else "reserved"
+            values[sig] = None
+            invalid[sig] = status
+            stats.invalid[status] += 1
+        return Decoded(name, pgn, sa, da, t, values, invalid, tp)
+
+
+@lru_cache(maxsize=None)
+def message_schema(name: str, dbc_path: str | Path = FMS_DBC) -> dict[str, Any]:
+    """JSON schema (draft 2020-12) of the ``/j1939/<name>`` records; each signal's description carries its
+    SPN and unit, which Foxglove shows. Cached: one shared dict per message, not to be modified."""
+    try:
+        m = _load_dbc(str(dbc_path)).get_message_by_name(name)
+    except KeyError:
+        raise FuelidError(f"no message {name} in {dbc_path}") from None
+    props: dict[str, Any] = {
+        "t": {"type": "number", "description": "receive time [s]"},
+        "pgn": {"type": "integer", "description": "parameter group number"},
+        "sa": {"type": "integer", "description": "source address"},
+        "da": {"type": "integer", "description": "destination address (255 = global)"},
+    }
+    if name == VI_NAME:
+        props[VIN_FIELD] = {"type": ["string", "null"],
+                            "description": "SPN 237: vehicle identification number (ASCII)"}
+    for s in m.signals:
+        spn = s.dbc.attributes["SPN"].value if s.dbc and "SPN" in s.dbc.attributes else None
+        text = s.comment or s.name
+        if spn is not None and not text.startswith("SPN"):
+            text = f"SPN {spn}: {text}"
+        props[s.name] = {"type": ["number", "null"],
+                         "description": f"{text} [{s.unit or '-'}]"}
+    props["invalid"] = {
+        "type": "object",
+        "description": "why a null signal is null",
+        "additionalProperties": {"enum": list(INVALID_STATUSES)},
+    }
+    props["tp"] = {"enum": ["bam", "rts"],
+                   "description": "reassembled by the J1939-21 transport protocol"}
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": f"fuelid.j1939.{name}",
+        "description": f"{m.comment or name} (PGN {parse_id(m.frame_id).pgn})",
+        "type": "object",
+        "properties": props,
+        "required": ["t", "pgn", "sa", "da", "invalid"],
+    }
+
+
+@lru_cache(maxsize=None)
+def _load_dbc(path: str) -> cantools.database.Database:
+    try:
+        return cantools.database.load_file(path)
+    except (OSError, cantools.database.UnsupportedDatabaseFormatError) as e:
+        raise FuelidError(f"cannot load DBC {path}: {e}") from None
+
+
+def _decode_vi(t: float, pgn: int, sa: int, da: int, payload: bytes, tp: str | None,
+               stats: DecodeStats) -> Decoded:
+    """VI (PGN 65260): SPN 237 VIN, ASCII up to the '*' delimiter. Padding (0x00, 0xFF, spaces) and
+    any non-printable byte are dropped, so garbage never reaches the truck's name."""
+    text = bytes(payload).split(b"*", 1)[0]
+    vin = "".join(chr(b) for b in text if 0x21 <= b <= 0x7E)
+    if vin:
+        return Decoded(VI_NAME, pgn, sa, da, t, {VIN_FIELD: vin}, {}, tp)
+    stats.invalid["not_available"] += 1
+    return Decoded(VI_NAME, pgn, sa, da, t, {VIN_FIELD: None}, {VIN_FIELD: "not_available"}, tp)

@@ -1,0 +1,104 @@
+"""The one decode-and-write path: CAN frames (and flow-meter readings) in, MCAP channels out.
+
+`fuelid convert` drives a Recorder from recorded files, the daemon from a live `can.Notifier`; both write the
+same channels (docs/formats.md), so a replayed log and its conversion hold identical decoded values.
+"""
+from collections import Counter
+from dataclasses import dataclass, field
+
+import can
+
+from fuelid.dbc import FMS_DBC
+from fuelid import __version__
+from fuelid.logger.decode import Decoder, message_schema
+from fuelid.logger.flowmeter import FlowReading
+from fuelid.logger.mcap_log import FLOWMETER_SCHEMA, RAW_SCHEMA, McapLogWriter, raw_record
+from fuelid.logger.tp import TransportReassembler
+
+
+def dbc_sha256() -> str:
+    import hashlib
+
+    return hashlib.sha256(FMS_DBC.read_bytes()).hexdigest()
+
+
+def open_writer(path, *, truck: str = "unknown", source: str = "", fsync: bool = True) -> McapLogWriter:
+    """An MCAP writer for `path` with the fuelid metadata record (truck, logger version, DBC hash, source);
+    fsync: sync to disk every second of wall time (the daemon, which a power cut may stop) or never."""
+    metadata = {"truck": truck, "logger_version": __version__, "dbc_sha256": dbc_sha256(), "source": source}
+    return McapLogWriter(path, metadata=metadata, fsync=fsync)
+
+
+@dataclass
+class RecorderStats:
+    """What a Recorder has seen: counts a summary or a status file reports."""
+
+    frames: int = 0
+    error_frames: int = 0
+    remote_frames: int = 0
+    standard_frames: int = 0
+    decoded: Counter = field(default_factory=Counter)  # (message name, source address) -> messages
+    invalid: Counter = field(default_factory=Counter)  # (message name, signal, status) -> count
+    flow_readings: Counter = field(default_factory=Counter)  # status -> readings
+
+
+class Recorder(can.Listener):
+    """Decodes every frame (single-frame J1939 and transport-protocol sessions) and writes it to an MCAP writer.
+
+    /can/raw gets every frame as received; /j1939/<MESSAGE> one record per decoded message and source address;
+    /flowmeter one record per meter reading. The first VIN seen names the truck in the file's metadata.
+    """
+
+    def __init__(self, writer: McapLogWriter, decoder: Decoder | None = None, reassembler: TransportReassembler | None = None):
+        self.decoder = decoder or Decoder()
+        self.reassembler = reassembler or TransportReassembler()
+        self.stats = RecorderStats()
+        self.vin: str | None = None
+        self._attach(writer)
+
+    def _attach(self, writer: McapLogWriter) -> None:
+        self.writer = writer
+        self._topics: set[str] = set()
+        if self.vin:
+            self.writer.set_metadata({"truck": self.vin})
+
+    def rotate(self, writer: McapLogWriter) -> McapLogWriter:
+        """Continue in `writer`; return the previous one for the caller to close."""
+        old = self.writer
+        self._attach(writer)
+        return old
+
+    def _write(self, topic: str, schema: dict, log_time_ns: int, record: dict) -> None:
+        if topic not in self._topics:
+            self.writer.add_channel(topic, schema)
+            self._topics.add(topic)
+        self.writer.write(topic, log_time_ns, record)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        stats = self.stats
+        stats.frames += 1
+        self._write("/can/raw", RAW_SCHEMA, int(msg.timestamp * 1e9), raw_record(msg))
+        if msg.is_error_frame or msg.is_remote_frame or not msg.is_extended_id:
+            stats.error_frames += msg.is_error_frame
+            stats.remote_frames += msg.is_remote_frame
+            stats.standard_frames += not (msg.is_error_frame or msg.is_remote_frame)
+            return
+        for session in self.reassembler.feed(msg):
+            self._record(self.decoder.decode_payload(session.t, session.pgn, session.sa, session.da, session.payload, tp=session.kind))
+        self._record(self.decoder.decode(msg))
+
+    def _record(self, decoded) -> None:
+        if decoded is None:
+            return
+        self.stats.decoded[decoded.name, decoded.sa] += 1
+        for signal, status in decoded.invalid.items():
+            self.stats.invalid[decoded.name, signal, status] += 1
+        self._write(f"/j1939/{decoded.name}", message_schema(decoded.name), int(decoded.t * 1e9), decoded.to_record())
+        vin = decoded.values.get("VIN") if decoded.name == "VI" else None
+        if vin and vin != self.vin:
+            self.vin = vin
+            self.writer.set_metadata({"truck": vin})
+
+    def on_flow_reading(self, reading: FlowReading) -> None:
+        self.stats.flow_readings[reading.status] += 1
+        self._write("/flowmeter", FLOWMETER_SCHEMA, int(reading.t * 1e9), reading.to_record())

@@ -1,0 +1,290 @@
+"""Uploading closed MCAP files to the fleet server: the HTTP protocol client and the daemon's upload queue.
+
+Protocol (docs/fleet-api.md): files are addressed by their sha256. `GET /api/v1/uploads/{sha256}?size=N` tells
+how many bytes of that file the server already holds (`offset`) or that it is `stored`; each
+`PUT /api/v1/uploads/{sha256}?size=N&offset=K` appends the body at byte K and answers 202 with the new offset,
+201 once the whole file arrived and passed the server's checks (hash, MCAP, truck), or 200 when the file was
+already stored. An upload cut at any byte (network gone, server killed) resumes from the server's offset, and
+repeating a request is harmless, so every failure is simply retried. The server's 200/201 reply names the
+sha256 and size it stored; only a reply matching the local file counts as confirmation, and only then may the
+queue delete the local file.
+
+Standard library only (urllib), so the in-cab install needs nothing more; `logger` never imports `fleet`.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import random
+import threading
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+from email.message import Message
+from pathlib import Path
+
+from fuelid.errors import FuelidError
+from fuelid.logger.durable import write_atomic
+
+log = logging.getLogger("fuelid.upload")
+
+API = "/api/v1"
+CHUNK_BYTES = 8 << 20  # bytes per PUT: a cut costs at most this much resending, and memory stays bounded
+JOURNAL = "upload-queue.json"
+
+
+class UploadError(FuelidError):
+    """An upload or API request that failed; `status` is the HTTP status, None when the server was not reached."""
+
+    def __init__(self, message: str, status: int | None = None, body: dict | None = None):
+        super().__init__(message)
+        self.status = status
+        self.body = body or {}
+
+
+class Unavailable(UploadError):
+    """Worth retrying later: no network, connection refused or cut, timeout, 5xx, 408, 429."""
+
+
+class Rejected(UploadError):
+    """The server refused this request for good (401, 403, 413, 422, ...): retrying will not help."""
+
+
+def _error(status: int | None, url: str, detail: str, body: dict | None = None) -> UploadError:
+    retry = status is None or status >= 500 or status in (408, 429)
+    where = urllib.parse.urlsplit(url).path
+    text = f"{detail} ({where})" if status is None else f"HTTP {status}: {detail} ({where})"
+    return (Unavailable if retry else Rejected)(text, status, body)
+
+
+def request(method: str, url: str, token: str | None, *, data: bytes | None = None,
+            content_type: str = "application/octet-stream", timeout_s: float = 60.0) -> tuple[int, bytes, Message]:
+    """One HTTP request with a bearer token → (status, body bytes, headers (case-insensitive)) for 2xx replies.
+
+    Anything else raises Unavailable (retryable) or Rejected (the server's `detail` message in one line)."""
+    headers = {"Accept": "application/json"}
+    if token:
+        headers["Authorization"] = f"Bearer {token}"
+    if data is not None:
+        headers["Content-Type"] = content_type
+    req = urllib.request.Request(url, data=data, method=method, headers=headers)
+    try:
+        with urllib.request.urlopen(req, timeout=timeout_s) as resp:
+            return resp.status, resp.read(), resp.headers
+    except urllib.error.HTTPError as exc:
+        raw = exc.read()
+        try:  # the fleet server's errors are {"detail": "one line", ...}; a proxy's may be anything
+            body = json.loads(raw)
+            body = body if isinstance(body, dict) else {"detail": body}
+        except ValueError:
+            body = {"detail": raw.decode(errors="replace").strip() or exc.reason}
+        raise _error(exc.code, url, " ".join(str(body.get("detail")).split()), body) from None
+    except (urllib.error.URLError, OSError) as exc:  # refused, reset, unreachable, timeout
+        reason = getattr(exc, "reason", exc)
+        raise _error(None, url, f"cannot reach server: {reason}") from None
+
+
+def request_json(method: str, url: str, token: str | None, payload=None, *, timeout_s: float = 60.0):
+    """`request` with a JSON body (when payload is not None) and a JSON reply."""
+    data = None if payload is None else json.dumps(payload).encode()
+    _, body, _ = request(method, url, token, data=data, content_type="application/json", timeout_s=timeout_s)
+    return json.loads(body) if body else None
+
+
+def file_sha256(path: str | Path) -> str:
+    """Hex sha256 of a file, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(1 << 20):
+            h.update(block)
+    return h.hexdigest()
+
+
+def upload_file(path: str | Path, server_url: str, token: str, *, truck: str | None = None,
+                chunk_bytes: int = CHUNK_BYTES, timeout_s: float = 60.0, sha256: str | None = None,
+                cancel: threading.Event | None = None) -> dict:
+    """Upload one file, resuming from whatever the server already holds; return the server's confirmation
+    (`status` "stored" or "already stored", `sha256`, `size_bytes`, `truck`, ...).
+
+    One attempt: a network failure raises Unavailable and the next call resumes where this one stopped.
+    `truck` (optional) asks the server to check the file is that truck's; `cancel` stops between chunks."""
+    path = Path(path)
+    size = path.stat().st_size
+    digest = sha256 or file_sha256(path)
+    base = f"{server_url.rstrip('/')}{API}/uploads/{digest}"
+    query = {"size": size, **({"truck": truck} if truck else {})}
+    state = request_json("GET", f"{base}?{urllib.parse.urlencode(query)}", token, timeout_s=timeout_s)
+    offset = state.get("offset", 0)
+    reply = state if state.get("stored") else None
+    with open(path, "rb") as f:
+        while reply is None:
+            if cancel is not None and cancel.is_set():
+                raise Unavailable("upload stopped", None)
+            f.seek(offset)
+            data = f.read(chunk_bytes)
+            url = f"{base}?{urllib.parse.urlencode({**query, 'offset': offset})}"
+            try:
+                status, body, _ = request("PUT", url, token, data=data, timeout_s=timeout_s)
+            except UploadError as exc:
+                if exc.status != 409:  # 409: the server holds a different offset (an earlier try went on)
+                    raise
+                offset = int(exc.body.get("offset", 0))
+                continue
+            answer = json.loads(body)
+            if status == 202:
+                offset = int(answer["offset"])
+            else:
+                reply = answer
+    if reply.get("sha256") != digest or reply.get("size_bytes") != size:
+        raise Rejected(f"server confirmed {reply.get('sha256')} ({reply.get('size_bytes')} B), "
+                       f"not {digest} ({size} B): {path}")
+    return {**reply, "path": str(path)}
+
+
+class Backoff:
+    """Exponential backoff: delays initial_s, 2·initial_s, ... capped at max_s [s], each ±10 % jitter so a
+    fleet that lost the network together does not come back in step."""
+
+    def __init__(self, initial_s: float = 1.0, max_s: float = 300.0):
+        self.initial_s, self.max_s = initial_s, max_s
+        self.reset()
+
+    def reset(self) -> None:
+        self._next_s = self.initial_s
+
+    def next(self) -> float:
+        delay = self._next_s
+        self._next_s = min(self.max_s, self._next_s * 2)
+        return delay * random.uniform(0.9, 1.1)
+
+
+def upload_with_retry(path: str | Path, server_url: str, token: str, *, deadline_s: float = 60.0,
+                      backoff: Backoff | None = None, **kw) -> dict:
+    """upload_file, retried with backoff on Unavailable until `deadline_s` [s] have passed (`fuelid upload`)."""
+    backoff = backoff or Backoff(0.5, 10.0)
+    end = time.monotonic() + deadline_s
+    digest = kw.pop("sha256", None) or file_sha256(path)
+    while True:
+        try:
+            return upload_file(path, server_url, token, sha256=digest, **kw)
+        except Unavailable:
+            delay = backoff.next()
+            if time.monotonic() + delay > end:
+                raise
+            time.sleep(delay)
+
+
+
+class UploadQueue:
+    """Uploads closed MCAP files in the background, in the order queued, whenever the server can be reached.
+
+    The queue is a journal `spool_dir/upload-queue.json` (pending paths, and those the server refused for
+    good with its reason) rewritten atomically on every change, so a restart or power cut loses nothing: the
+    next UploadQueue on the same spool_dir carries on, and the server's offset makes a cut upload resume.
+    Unreachable server, timeouts and 5xx → wait and retry with exponential backoff (`initial_backoff_s` up to
+    `max_backoff_s` [s]); a refusal (401/403/413/422 ...) moves the file to `rejected` and goes on with the
+    next. With `delete_after_upload` a file is deleted only after the server confirmed its sha256 and size.
+    """
+
+    def __init__(self, spool_dir: str | Path, server_url: str, token: str, truck: str | None, *,
+                 delete_after_upload: bool = False, initial_backoff_s: float = 1.0, max_backoff_s: float = 300.0,
+                 timeout_s: float = 60.0, chunk_bytes: int = CHUNK_BYTES, start: bool = True):
+        self.spool_dir = Path(spool_dir)
+        self.spool_dir.mkdir(parents=True, exist_ok=True)
+        self.server_url, self.token, self.truck = server_url, token, truck
+        self.delete_after_upload = delete_after_upload
+        self.timeout_s, self.chunk_bytes = timeout_s, chunk_bytes
+        self._backoff = Backoff(initial_backoff_s, max_backoff_s)
+        self._journal = self.spool_dir / JOURNAL
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self.pending, self.rejected = self._load()
+        self.uploaded = 0
+        self.last_error: str | None = None
+        self._thread = threading.Thread(target=self._run, name="fuelid-upload", daemon=True)
+        if start:
+            self._thread.start()
+
+    def _load(self) -> tuple[list[str], list[dict]]:
+        try:
+            state = json.loads(self._journal.read_text())
+            return list(state.get("pending", [])), list(state.get("rejected", []))
+        except FileNotFoundError:
+            return [], []
+        except (ValueError, AttributeError) as exc:
+            raise FuelidError(f"unreadable upload journal {self._journal}: {exc}") from exc
+
+    def _save(self) -> None:
+        state = {"version": 1, "truck": self.truck, "pending": self.pending, "rejected": self.rejected}
+        write_atomic(self._journal, json.dumps(state, indent=1).encode())
+
+    def enqueue(self, path: str | Path) -> None:
+        """Queue a closed file (an absolute path is kept); queuing a path twice uploads it once."""
+        path = str(Path(path).resolve())
+        with self._lock:
+            if path not in self.pending:
+                self.pending.append(path)
+                self._save()
+        self._wake.set()
+
+    def status(self) -> dict:
+        """Counts for a status file: queued, uploaded since start, refused, and the last error."""
+        with self._lock:
+            return {"queued": len(self.pending), "uploaded": self.uploaded, "rejected": len(self.rejected),
+                    "last_error": self.last_error}
+
+    def _done(self, path: str, rejected_reason: str | None = None) -> None:
+        with self._lock:
+            self.pending.remove(path)
+            if rejected_reason is not None:
+                self.rejected.append({"path": path, "error": rejected_reason, "at_unix_s": time.time()})
+            self._save()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            with self._lock:
+                path = self.pending[0] if self.pending else None
+            if path is None:
+                self._wake.wait()
+                self._wake.clear()
+                continue
+            if not os.path.exists(path):
+                log.warning("upload: %s vanished before upload; dropped from the queue", path)
+                self._done(path, "file missing")
+                continue
+            try:
+                reply = upload_file(path, self.server_url, self.token, truck=self.truck,
+                                    chunk_bytes=self.chunk_bytes, timeout_s=self.timeout_s, cancel=self._stop)
+            except Rejected as exc:
+                log.error("upload: server refused %s: %s", path, exc)
+                self.last_error = str(exc)
+                self._done(path, str(exc))
+                continue
+            except (Unavailable, OSError) as exc:
+                self.last_error = str(exc)
+                self._stop.wait(self._backoff.next())
+                continue
+            self._backoff.reset()
+            self.last_error = None
+            if self.delete_after_upload:  # upload_file returned only on a confirmation matching the file
+                os.remove(path)
+            self.uploaded += 1
+            log.info("upload: %s %s (%s)", path, reply["status"], reply["sha256"][:12])
+            self._done(path)
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Stop after the chunk in flight; what is still queued stays in the journal for the next start."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout_s)
+
+    def __enter__(self) -> UploadQueue:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

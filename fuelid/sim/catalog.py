@@ -1,0 +1,70 @@
+"""The shipped replay logs: one TripConfig per file in replay_logs/, each reproducible by one command.
+
+Identification and validation trips after the seed paper (1.5 h identification, a different validation trip),
+a gas-truck pair with flow-meter captures, eleven 30-minute diesel drive cycles like the paper's Table I, one
+trip per physical effect (two for ambient air), and a one-minute sample for the README's quick start.
+"""
+from fuelid.sim.effects import EFFECTS
+from fuelid.sim.trip import TripConfig
+
+CYCLE_ROTATION = ("urban", "rural", "motorway", "mixed")
+
+# Where each effect shows best: hills for the fan and overrun, stop-and-go for inertia and shifts, a cold
+# morning for the cold engine. Air density differs between days and places far more than within a 20-minute
+# trip, so the ambient effect takes two trips identified together: a winter morning in the lowlands (200 m,
+# -2 °C) and a summer afternoon in the mountains (1400 m, 30 °C), air 23 % thinner.
+EFFECT_TRIPS = {
+    "fuel_delay": (dict(cycle="mixed"),),
+    "inertia": (dict(cycle="urban"),),
+    "overrun_cutoff": (dict(cycle="rural", hilliness=1.8),),
+    "power_nonlinearity": (dict(cycle="mixed"),),
+    "dpf_regeneration": (dict(cycle="mixed"),),
+    "cold_engine": (dict(cycle="mixed", ambient_c=2.0),),
+    "engine_fan": (dict(cycle="rural", hilliness=1.8, ambient_c=28.0),),
+    "gear_shift": (dict(cycle="urban"),),
+    "ambient": (dict(cycle="rural", hilliness=1.5, altitude_m=200.0, ambient_c=-2.0),
+                dict(cycle="rural", hilliness=1.5, altitude_m=1400.0, ambient_c=30.0)),
+}
+"""Per hidden effect, the routes and weather of the trip(s) that show it (TripConfig fields)."""
+SECOND_TRIP_SEED = 100
+"""The k-th trip (k = 0, 1, …) of an effect's set has seed `seed + k * SECOND_TRIP_SEED`: another day."""
+
+
+def _entries() -> dict:
+    c = {
+        "sample_diesel_1min": TripConfig(cycle="urban", duration_s=60.0, seed=7),
+        "diesel_ident_90min": TripConfig(cycle="mixed", duration_s=5400.0, seed=101, mass_kg=40000.0),
+        "diesel_valid_40min": TripConfig(cycle="mixed", duration_s=2400.0, seed=202, mass_kg=42000.0),
+        "gas_ident_60min": TripConfig(truth="gas_p340", cycle="mixed", duration_s=3600.0, seed=301, mass_kg=40000.0),
+        "gas_valid_30min": TripConfig(truth="gas_p340", cycle="mixed", duration_s=1800.0, seed=402, mass_kg=41000.0),
+    }
+    for k in range(1, 12):
+        c[f"diesel_cycle_{k:02d}"] = TripConfig(cycle=CYCLE_ROTATION[(k - 1) % 4], duration_s=1800.0,
+                                                seed=1000 + k, mass_kg=40000.0 + 400.0 * (k - 1))
+    for k, (name, trips) in enumerate(EFFECT_TRIPS.items()):
+        for j, extra in enumerate(trips):
+            label = f"effect_{name}_20min" + (f"_{j + 1}" if len(trips) > 1 else "")
+            c[label] = TripConfig(duration_s=1200.0, seed=2000 + k + j * SECOND_TRIP_SEED,
+                                  effects=((name, EFFECTS[name].default),), **extra)
+    return c
+
+
+CATALOG = _entries()
+DEFAULT = TripConfig()
+
+
+def command_line(name: str) -> str:
+    """The explicit `fuelid simulate` command that makes catalog entry `name` (flags that differ from the
+    defaults only)."""
+    cfg = CATALOG[name]
+    flags = {"truth": "--truth", "cycle": "--cycle", "duration_s": "--duration", "seed": "--seed",
+             "mass_kg": "--mass", "ambient_c": "--ambient", "ambient_drift_c": "--ambient-drift",
+             "altitude_m": "--altitude", "hilliness": "--hilliness"}
+    parts = ["fuelid simulate"]
+    for field, flag in flags.items():
+        value = getattr(cfg, field)
+        if field in ("truth", "cycle", "duration_s", "seed") or value != getattr(DEFAULT, field):
+            parts.append(f"{flag} {value:g}" if isinstance(value, float) else f"{flag} {value}")
+    parts += [f"--effect {n}={m:g}" for n, m in cfg.effects]
+    parts.append(f"-o replay_logs/{name}.log.gz")
+    return " ".join(parts)
