@@ -47,6 +47,20 @@ def test_identify_diagnose_add_the_effect_and_watch_the_error_fall(trip, capsys)
                            "cycle fuel error from ")
 
 
+def test_identify_says_in_one_plain_line_what_the_estimators_warnings_mean(trip, capsys):
+    """The paper's orders on 20 min: near-cancelling pole-zero pairs. One plain note by default; the estimator's
+    details with --verbose."""
+    model = trip / "plain.json"
+    assert main(["identify", str(trip / "trip.mcap"), "-o", str(model)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["note: the fit is fine, but some coefficients are not determined by these data (near-cancelling "
+                   "poles and zeros); consider --orders auto (details: --verbose)"]
+    assert main(["identify", str(trip / "trip.mcap"), "-o", str(model), "--verbose"]) == 0
+    details = capsys.readouterr().err.strip().splitlines()[1:]
+    assert details and all(line.startswith("  ") for line in details)
+    assert any("pole-zero cancellation" in line for line in details)
+
+
 def test_bad_input_is_one_line_on_stderr(trip, capsys):
     assert main(["diagnose", str(trip / "missing.json"), str(trip / "trip.mcap")]) == 1
     err = capsys.readouterr().err.strip()
