@@ -291,9 +291,14 @@ def build_dataset(
     if fuel == "auto":
         fuel = "flowmeter" if FUEL_SIGNALS["flowmeter"][0] in chosen else "lfe1"
     fuel_name, fuel_unit = FUEL_SIGNALS[fuel]
-    for name, what in [(SPEED, "engine speed"), (TORQUE_PCT, "engine torque"), (fuel_name, "fuel flow")]:
+    for name, what in [(SPEED, "engine speed"), (TORQUE_PCT, "engine torque")]:
         if name not in chosen:
             raise FuelidError(f"no {what} ({name}) in the data")
+    if fuel_name not in chosen:
+        raise FuelidError(
+            f"no fuel flow ({fuel_name}) in the data" + ("" if fuel == "flowmeter" and FUEL_SIGNALS["lfe1"][0] in chosen
+            else ": a gas truck's engine may not send its fuel rate (LFE1); convert its recording with the flow "
+                 "meter's capture beside it, `fuelid convert LOG --flowmeter CAPTURE.flow`"))
 
     ts_ns = int(round(Ts * 1e9))
     t0 = min(int(ts[0]) for ts, _ in chosen.values()) // ts_ns * ts_ns  # bins start at multiples of Ts
