@@ -10,6 +10,7 @@ import sys
 
 from fuelid import __version__
 from fuelid.errors import FuelidError
+from fuelid.paths import os_error_message, readable_file, writable_file
 
 # name -> module under fuelid.commands; listed in the order of the data flow.
 COMMANDS = [
@@ -56,6 +57,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     try:
+        check_paths(args)
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print(f"fuelid {args.command}: interrupted", file=sys.stderr)
@@ -63,9 +65,30 @@ def main(argv=None) -> int:
     except Exception as exc:  # one line on stderr, never a traceback (FUELID_DEBUG=1 shows it)
         if os.environ.get("FUELID_DEBUG"):
             raise
-        kind = "" if isinstance(exc, (FuelidError, OSError)) else f"{type(exc).__name__}: "
-        print(f"fuelid {args.command}: error: {kind}{exc}", file=sys.stderr)
+        if isinstance(exc, OSError):
+            message = os_error_message(exc)
+        else:
+            message = f"{'' if isinstance(exc, FuelidError) else type(exc).__name__ + ': '}{exc}"
+        print(f"fuelid {args.command}: error: {message}", file=sys.stderr)
         return 1
+
+
+# files every command that has them reads (--diagnosis differs: fetch writes it, report reads it)
+INPUT_ARGUMENTS = ("inputs", "input", "model", "files", "flowmeter", "effects_from", "map_from", "config", "prior",
+                   "identify_model")
+OUTPUT_ARGUMENTS = ("output",)  # -o: the file a command writes
+
+
+def check_paths(args) -> None:
+    """The named input files are readable and the output's folder exists, before a command starts work, so
+    that a wrong path is an error naming it (a command's own file options it checks itself)."""
+    for name in INPUT_ARGUMENTS:
+        value = getattr(args, name, None)
+        for path in value if isinstance(value, list) else [value] if value is not None else []:
+            readable_file(path)
+    for name in OUTPUT_ARGUMENTS:
+        if getattr(args, name, None) is not None:
+            writable_file(args.output)
 
 
 if __name__ == "__main__":

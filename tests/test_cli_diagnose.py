@@ -41,6 +41,24 @@ def test_identify_diagnose_add_the_effect_and_watch_the_error_fall(trip, capsys)
     floor = float(np.sqrt(np.mean(np.load(trip / "trip.truth.npz")["noise"] ** 2)))  # the simulator's noise H e
     assert (rmse[1] <= 0.75 * rmse[0] or rmse[1] <= 1.05 * floor) and rmse[1] < 0.85 * rmse[0]
     assert cycle[1] < cycle[0]
+    assert main(["compare", str(before), str(after), str(data)]) == 0  # the text ends with the report's sentence
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith(f"{after} against {before}: RMS error fell from {rmse[0]:.2f} to {rmse[1]:.2f} L/h; "
+                           "cycle fuel error from ")
+
+
+def test_identify_says_in_one_plain_line_what_the_estimators_warnings_mean(trip, capsys):
+    """The paper's orders on 20 min: near-cancelling pole-zero pairs. One plain note by default; the estimator's
+    details with --verbose."""
+    model = trip / "plain.json"
+    assert main(["identify", str(trip / "trip.mcap"), "-o", str(model)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["note: the fit is fine, but some coefficients are not determined by these data (near-cancelling "
+                   "poles and zeros); consider --orders auto (details: --verbose)"]
+    assert main(["identify", str(trip / "trip.mcap"), "-o", str(model), "--verbose"]) == 0
+    details = capsys.readouterr().err.strip().splitlines()[1:]
+    assert details and all(line.startswith("  ") for line in details)
+    assert any("pole-zero cancellation" in line for line in details)
 
 
 def test_bad_input_is_one_line_on_stderr(trip, capsys):

@@ -117,6 +117,7 @@ def test_identify_and_compare(recording, tmp_path, capsys):
     est = res["estimation"]  # the stopping rule's verdict, also in model.json's info
     assert est["converged"] and est["stop_reason"] != "max_iterations" and est["segments"] == 1
     assert json.loads(model.read_text())["info"]["stop_reason"] == est["stop_reason"]
+    assert res["training"]["advice"] == []  # 20 min of varied driving for 9 parameters: nothing to warn of
 
     assert main(["compare", str(model), str(recording), "--json"]) == 0
     cmp = json.loads(capsys.readouterr().out)
@@ -131,6 +132,17 @@ def test_identify_and_compare(recording, tmp_path, capsys):
     broken.write_text("{")
     assert main(["compare", str(broken), str(recording)]) == 1
     assert "broken.json" in capsys.readouterr().err
+
+
+def test_identify_warns_when_the_data_cannot_support_the_model(tmp_path, capsys):
+    """One minute at idle for the paper's 41 parameters: a fit is reported, with plain warnings that the data are
+    too short for the orders and barely excite either input; the estimator's details only with --verbose."""
+    idle = write_mcap(tmp_path / "idle.mcap", n=200)
+    assert main(["identify", str(idle), "-o", str(tmp_path / "m.json"), "--min-segment", "10"]) == 0
+    err = capsys.readouterr().err
+    assert "samples for 41 parameters" in err and "Akaike's FPE" in err
+    assert "the data barely excite EEC1.EngSpeed" in err and "the data barely excite EngTorque" in err
+    assert all(line.startswith(("warning: ", "note: ")) for line in err.strip().splitlines())
 
 
 def test_compare_with_seed2_baselines(recording, tmp_path, capsys):

@@ -31,6 +31,7 @@ def run(args) -> int:
     from fuelid.errors import FuelidError
     from fuelid.ident.baseline import engine_map, seed2_baselines
     from fuelid.ident.modelfile import load_model
+    from fuelid.ident.report import improvement_sentence
     from fuelid.ident.validation import evaluate, evaluate_static
 
     wanted = [b.strip().lower() for b in args.baselines.split(",") if b.strip()]
@@ -81,6 +82,9 @@ def run(args) -> int:
         print(f"{len(ds.segments())} segments, {ds.valid.sum() * ds.Ts / 60:.1f} min valid, "
               f"{len(out['data']['cycles'])} drive cycles")
         print(format_table(rows, ds.output_unit))
+        for r in results[1:]:
+            print(f"{r['model']} against {results[0]['model']}: "
+                  f"{improvement_sentence(results[0], r, ds.output_unit)}")
         if sweeps and sweeps["fuel_shift"]:
             print(format_sweeps(sweeps, ds.output_unit))
         for b, res in baselines.items():

@@ -59,20 +59,23 @@ def add_arguments(p):
 
 def run(args) -> int:
     from fuelid.errors import FuelidError
-    from fuelid.ident.dataset import save_dataset
+    from fuelid.ident.dataset import csv_sidecar, save_dataset
 
     if not args.output.endswith((".csv", ".mat")):
         raise FuelidError(f"{args.output}: output must end in .csv or .mat")
     ds = build(args, args.inputs)
     save_dataset(ds, args.output)
     summary = {"output": args.output, **ds.summary()}
+    if args.output.endswith(".csv"):
+        summary["metadata"] = str(csv_sidecar(args.output))
     if args.json:
         print_json(summary)
     else:
         op = summary["operating_point"]
         print(f"{args.output}: {summary['samples']} samples every {ds.Ts:g} s, "
               f"{summary['valid_duration_s'] / 60:.1f} min valid in {summary['segments']} segments, "
-              f"{len(summary['cycles'])} drive cycles")
+              f"{len(summary['cycles'])} drive cycles"
+              + (f"; units and metadata in {summary['metadata']}" if "metadata" in summary else ""))
         print(f"inputs {', '.join(f'{n} [{u}]' for n, u in zip(ds.input_names, ds.input_units))}; "
               f"output {ds.output_name} [{ds.output_unit}]")
         print(f"operating point u0 = ({op['u0'][0]:.1f}, {op['u0'][1]:.1f}), y0 = {op['y0']:.3f}")

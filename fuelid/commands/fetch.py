@@ -1,6 +1,7 @@
 """fuelid fetch: a truck's model (model.json), and optionally its report and diagnosis, from the fleet server."""
 from fuelid.commands.upload import add_server_arguments, server_and_token
 from fuelid.output import print_json
+from fuelid.paths import writable_file
 
 HELP = "download a truck's fuel model (latest or --version V) and its report from the fleet server"
 
@@ -21,8 +22,11 @@ def run(args) -> int:
 
     from fuelid.fleet.client import FleetClient
 
-    client = FleetClient(*server_and_token(args))
     wanted = [("model.json", args.output), ("report.html", args.report), ("diagnosis.json", args.diagnosis)]
+    for _, target in wanted:
+        if target:
+            writable_file(target)
+    client = FleetClient(*server_and_token(args))
     version, written = args.version, {}
     for name, target in wanted:
         if target:

@@ -56,7 +56,21 @@ def add_arguments(p):
     p.add_argument("--min-segment", type=float, default=30.0, metavar="S",
                    help="leave out valid stretches shorter than this [s] (default 30)")
     add_dataset_arguments(p)
+    p.add_argument("--verbose", action="store_true",
+                   help="print the estimator's details (pole-zero cancellations, stability bound, stopping)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def estimator_summary(info: dict) -> str | None:
+    """One plain line on what the estimator's warnings (info['warnings'], for experts) mean for the user, or
+    None when there are none."""
+    if not info.get("warnings"):
+        return None
+    if not info["converged"]:
+        return ("the estimation stopped before it converged: the model may not be the best these data allow; "
+                "try --orders auto or more data")
+    return ("the fit is fine, but some coefficients are not determined by these data (near-cancelling poles "
+            "and zeros); consider --orders auto")
 
 
 def significant_effects(path: str) -> list[str]:
@@ -93,6 +107,11 @@ def run(args) -> int:
     save_model(model, args.output)
     t_end = time.perf_counter()
 
+    plain = model.info["data_warnings"] + (
+        [] if search is None or search.passed else
+        [f"--orders auto: none of {len(search.trials)} candidates passed the residual tests; the last one tried "
+         "is used"])
+    summary = estimator_summary(model.info)
     structure, metrics, n_train = model.structure, model.validation, model.training["identification_samples"]
     n_segs = model.training["identification_stretches"]
     result = {
@@ -102,10 +121,8 @@ def run(args) -> int:
         "effects": list(model.effects),
         "training": {"samples": n_train, "stretches": n_segs, "Ts": ds.Ts,
                      "operating_point": {"u0": [float(v) for v in ds.u0], "y0": float(ds.y0)},
-                     "warnings": ds.notes + list(model.info.get("warnings", [])) + (
-                         [] if search is None or search.passed else
-                         [f"--orders auto: none of {len(search.trials)} candidates passed the residual tests; "
-                          "the last one tried is used"])},
+                     "warnings": ds.notes + list(model.info.get("warnings", [])) + plain,
+                     "advice": plain + ([summary] if summary else [])},
         "order_search": None if search is None else {
             "passed": search.passed,
             "trials": [{**dataclasses.asdict(t.structure), "loss_V": t.loss_V, "autocorr_pass": t.autocorr_pass,
@@ -121,8 +138,13 @@ def run(args) -> int:
         print(f"{args.output}: BJ {structure.nb}/{structure.nf}/{structure.nk} nc={structure.nc} nd={structure.nd}"
               f" on {n_train * ds.Ts / 60:.1f} min ({n_segs} stretches), {t_end - t_start:.1f} s")
         print(format_table([(args.output, metrics)], ds.output_unit))
-        for w in result["training"]["warnings"]:
+        for w in ds.notes + plain:
             print(f"warning: {w}", file=sys.stderr)
+        if summary:
+            print(f"note: {summary}" + ("" if args.verbose else " (details: --verbose)"), file=sys.stderr)
+        if args.verbose:
+            for w in model.info.get("warnings", []):
+                print(f"  {w}", file=sys.stderr)
     return 0
 
 

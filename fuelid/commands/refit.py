@@ -1,4 +1,6 @@
 """fuelid refit: ask the fleet server to identify a truck's model again, or every truck's (Dask jobs)."""
+import sys
+
 from fuelid.commands.upload import add_server_arguments, server_and_token
 from fuelid.output import print_json
 
@@ -10,7 +12,8 @@ def add_arguments(p):
     which.add_argument("truck", nargs="?", metavar="TRUCK", help="truck id")
     which.add_argument("--all", action="store_true", help="every truck with files")
     p.add_argument("--wait", type=float, default=0.0, metavar="S",
-                   help="wait up to S seconds for the jobs to finish (default: return at once)")
+                   help="wait up to S seconds for the jobs to finish (default: return at once); "
+                        "exit 1 if one failed or is still running then")
     add_server_arguments(p, "an engineer or admin token (default: $FUELID_TOKEN)")
     p.add_argument("--json", action="store_true", help="print the jobs as JSON")
 
@@ -33,4 +36,9 @@ def run(args) -> int:
         for j in jobs:
             outcome = {"done": f"model version {j['model_version']}", "failed": j["error"]}.get(j["status"], "")
             print(f"job {j['id']} {j['truck']}: {j['status']} {outcome}".rstrip())
+    unfinished = [j for j in jobs if j["status"] in ("queued", "running")]
+    if args.wait > 0 and unfinished:
+        print(f"error: {len(unfinished)} of {len(jobs)} jobs still {unfinished[0]['status']} after waiting "
+              f"{args.wait:g} s (see `fuelid trucks` for their progress)", file=sys.stderr)
+        return 1
     return 1 if any(j["status"] == "failed" for j in jobs) else 0

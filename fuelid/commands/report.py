@@ -2,6 +2,7 @@
 from pathlib import Path
 
 from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.paths import readable_file
 
 HELP = "write the diagnosis of a model (and the models refitted with effects) as one offline HTML report"
 
@@ -68,6 +69,8 @@ def run(args) -> int:
     data_paths = [p for p in args.inputs if not p.endswith(".json")]
     if not model_paths or not data_paths:
         raise FuelidError("give a model file (.json), optionally AFTER models (.json), and recordings (.mcap)")
+    if args.diagnosis:
+        readable_file(args.diagnosis)
     if args.max_points < 100:
         raise FuelidError(f"--max-points must be at least 100, got {args.max_points}")
     model, *after = [load_model(p) for p in model_paths]

@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from fuelid.errors import FuelidError
+from fuelid.logger.decode import signal_units
 from fuelid.logger.j1939 import DEFAULT_SOURCE_PREFERENCE, preferred_source
 
 SPEED = "EEC1.EngSpeed"
@@ -290,9 +291,14 @@ def build_dataset(
     if fuel == "auto":
         fuel = "flowmeter" if FUEL_SIGNALS["flowmeter"][0] in chosen else "lfe1"
     fuel_name, fuel_unit = FUEL_SIGNALS[fuel]
-    for name, what in [(SPEED, "engine speed"), (TORQUE_PCT, "engine torque"), (fuel_name, "fuel flow")]:
+    for name, what in [(SPEED, "engine speed"), (TORQUE_PCT, "engine torque")]:
         if name not in chosen:
             raise FuelidError(f"no {what} ({name}) in the data")
+    if fuel_name not in chosen:
+        raise FuelidError(
+            f"no fuel flow ({fuel_name}) in the data" + ("" if fuel == "flowmeter" and FUEL_SIGNALS["lfe1"][0] in chosen
+            else ": a gas truck's engine may not send its fuel rate (LFE1); convert its recording with the flow "
+                 "meter's capture beside it, `fuelid convert LOG --flowmeter CAPTURE.flow`"))
 
     ts_ns = int(round(Ts * 1e9))
     t0 = min(int(ts[0]) for ts, _ in chosen.values()) // ts_ns * ts_ns  # bins start at multiples of Ts
@@ -365,19 +371,76 @@ def _columns(ds: Dataset) -> dict[str, np.ndarray]:
     return cols
 
 
+def csv_sidecar(path) -> Path:
+    """The metadata file beside a dataset CSV, named as CSV on the Web (W3C CSVW) names it: DATA.csv-metadata.json."""
+    path = Path(path)
+    return path.with_name(path.name + "-metadata.json")
+
+
+def _csv_units(ds: Dataset) -> dict[str, str]:
+    """Column name → unit of every column the CSV writes (time_utc, valid and cycle have none)."""
+    units = {"time_s": "s", ds.input_names[0]: ds.input_units[0], ds.input_names[1]: ds.input_units[1],
+             ds.output_name: ds.output_unit}
+    dbc = signal_units()
+    units.update({name: dbc[name] for name in ds.extra if name in dbc})
+    return units
+
+
+def _write_csv(ds: Dataset, path: Path) -> None:
+    """A plain CSV a spreadsheet opens (one header row, 'name [unit]'; time as seconds since the first sample
+    and as ISO 8601 UTC), and its CSVW metadata sidecar with the units, the start time and fuelid's metadata."""
+    cols = _columns(ds)
+    t0 = float(ds.t[0]) if len(ds.t) else 0.0
+    units = _csv_units(ds)
+    cols = {"time_s": ds.t - t0, **{k: v for k, v in cols.items() if k != "t"}}
+    stamps = (np.datetime64("1970-01-01T00:00:00", "ms") + np.round(ds.t * 1e3).astype("timedelta64[ms]"))
+    iso = [f"{s}Z" for s in stamps.astype(str)]
+    names = list(cols)
+    header = ["time_s [s]", "time_utc"] + [f"{n} [{units[n]}]" if n in units else n for n in names[1:]]
+    with open(path, "w", newline="") as f:
+        f.write(",".join(header) + "\n")
+        data = np.column_stack(list(cols.values()))
+        for stamp, row in zip(iso, data):
+            values = ["" if np.isnan(v) else repr(float(v)) for v in row]
+            f.write(",".join([values[0], stamp, *values[1:]]) + "\n")
+    columns = [{"name": "time_s", "titles": header[0], "datatype": "number", "schema:unitText": "s",
+                "dc:description": "time since the first sample"},
+               {"name": "time_utc", "titles": "time_utc", "datatype": "dateTime",
+                "dc:description": "bin start time, UTC (the log clock)"}]
+    columns += [{"name": n, "titles": title, "datatype": "number", **({"schema:unitText": units[n]} if n in units else {})}
+                for n, title in zip(names[1:], header[2:])]
+    sidecar = {"@context": "http://www.w3.org/ns/csvw", "url": path.name,
+               "tableSchema": {"columns": columns}, "fuelid": {**_meta(ds), "t0": t0}}
+    csv_sidecar(path).write_text(json.dumps(sidecar, indent=1) + "\n")
+
+
+def _read_csv(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
+    """The metadata and the columns (t on the log clock) of a CSV written by _write_csv."""
+    sidecar = csv_sidecar(path)
+    try:
+        meta = json.loads(sidecar.read_text())["fuelid"]
+    except FileNotFoundError:
+        raise FuelidError(f"{path}: its metadata file {sidecar.name} is missing beside it") from None
+    except (ValueError, KeyError, TypeError) as e:
+        raise FuelidError(f"{sidecar}: not a fuelid dataset metadata file ({e})") from None
+    with open(path) as f:
+        titles = f.readline().rstrip("\n").split(",")
+    names = [title.split(" [", 1)[0] for title in titles]
+    data = np.genfromtxt(path, delimiter=",", skip_header=1, ndmin=2,
+                         usecols=[i for i, n in enumerate(names) if n != "time_utc"])
+    cols = dict(zip([n for n in names if n != "time_utc"], data.T))
+    cols["t"] = float(meta["t0"]) + cols.pop("time_s")
+    return meta, cols
+
+
 def save_dataset(ds: Dataset, path) -> Path:
-    """Write ds to .csv (first line '# ' + JSON metadata, then a header and one row per sample, NaN
-    empty) or .mat (scipy.io.savemat: Ts, t, u, y, u0, y0, valid, cycle, names, units and a struct
-    `extra` whose field names are the signal names with '.' → '_')."""
+    """Write ds to .csv (a header row of 'name [unit]', then one row per sample, NaN empty; time as time_s
+    since the first sample and time_utc in ISO 8601; the metadata in the CSVW sidecar DATA.csv-metadata.json)
+    or .mat (scipy.io.savemat: Ts, t, u, y, u0, y0, valid, cycle, names, units and a struct `extra` whose
+    field names are the signal names with '.' → '_')."""
     path = Path(path)
     if path.suffix == ".csv":
-        cols = _columns(ds)
-        with open(path, "w", newline="") as f:
-            f.write("# " + json.dumps(_meta(ds)) + "\n")
-            f.write(",".join(cols) + "\n")
-            data = np.column_stack(list(cols.values()))
-            for row in data:
-                f.write(",".join("" if np.isnan(v) else repr(float(v)) for v in row) + "\n")
+        _write_csv(ds, path)
     elif path.suffix == ".mat":
         from scipy.io import savemat
         meta = _meta(ds)
@@ -396,15 +459,10 @@ def save_dataset(ds: Dataset, path) -> Path:
 
 
 def load_dataset(path) -> Dataset:
-    """Read back a file written by save_dataset (.csv or .mat)."""
+    """Read back a file written by save_dataset (.csv with its sidecar, or .mat)."""
     path = Path(path)
     if path.suffix == ".csv":
-        with open(path) as f:
-            first = f.readline()
-            names = f.readline().strip().split(",")
-        meta = json.loads(first[2:])
-        data = np.genfromtxt(path, delimiter=",", skip_header=2, ndmin=2)
-        cols = dict(zip(names, data.T))
+        meta, cols = _read_csv(path)
     elif path.suffix == ".mat":
         from scipy.io import loadmat
         m = loadmat(path, squeeze_me=True, chars_as_strings=True)

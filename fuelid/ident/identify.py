@@ -62,4 +62,45 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
         info={**model.info, "effect_parameters": fx.parameters},
         training={**ds.summary(), "files": list(map(str, files)),
                   "identification_samples": int(n_train), "identification_stretches": len(segs)})
-    return dataclasses.replace(model, validation=evaluate(model, ds))
+    model = dataclasses.replace(model, validation=evaluate(model, ds))
+    model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
+                                                n_train - len(segs) * structure.n_start)
+    return model
+
+
+FPE_WARN = 1.1  # warn when Akaike's FPE expects the error on new data ≥ 10 % above the fit's
+EXCITATION_MIN = 0.05  # an input whose standard deviation is below 5 % of its physical scale is barely excited
+
+
+def excitation_scales(ds, input_units) -> list[float | None]:
+    """The physical scale each input's variation is judged against: engine speed [rpm] its idle speed (the
+    operating point), torque its reference torque (EC1 SPN 544) [Nm] or 100 [%]; None for the effects'
+    inputs, which are judged only on whether they vary at all."""
+    ref = ds.extra.get("EC1.EngReferenceTorque")
+    ref_nm = float(np.nanmedian(ref)) if ref is not None and np.isfinite(ref).any() else None
+    torque = {"%": 100.0, "Nm": ref_nm}.get(input_units[1])
+    return [abs(float(ds.u0[0])) or None, torque] + [None] * (len(input_units) - 2)
+
+
+def data_warnings(model: PolyModel, ds, u: np.ndarray, n_used: int) -> list[str]:
+    """Plain warnings when the data cannot support the model. Too few samples per parameter: Akaike's final
+    prediction error FPE = V (1 + d/N)/(1 − d/N) (d parameters, N samples in the loss) says how much larger the
+    error on new data is expected to be than on the data fitted. An input the data barely excite: its standard
+    deviation over the identification samples u [input units] is below EXCITATION_MIN of its physical scale
+    (`excitation_scales`), or an effect's input never varies."""
+    d = model.structure.n_params
+    out = []
+    fpe = (1 + d / n_used) / (1 - d / n_used)
+    if fpe >= FPE_WARN:
+        out.append(f"only {n_used} samples for {d} parameters ({n_used / d:.0f} per parameter): the error on new "
+                   f"data is expected to be about {100 * (fpe - 1):.0f} % above the figures here (Akaike's FPE); "
+                   "use longer data or lower orders (--orders auto)")
+    for name, unit, std, scale in zip(model.input_names, model.input_units, u.std(axis=0),
+                                      excitation_scales(ds, model.input_units)):
+        if scale is None and std == 0:
+            out.append(f"{name} never varies in these data: its effect on the fuel is not determined by them")
+        elif scale is not None and std < EXCITATION_MIN * scale:
+            out.append(f"the data barely excite {name}: it varies by {std:.3g} {unit} (standard deviation), under "
+                       f"{100 * EXCITATION_MIN:.0f} % of {scale:.4g} {unit}; its effect on the fuel is not "
+                       f"determined by these data")
+    return out

@@ -122,13 +122,19 @@ def structure_text(model) -> str:
 
 def improvement_sentence(before: dict, after: dict, unit: str) -> str:
     """'RMS error fell from X to Y <unit>; cycle fuel error from A % to B %' from two evaluate() dicts: the
-    simulation RMS error [unit] and the RMS over drive cycles of the cumulative fuel error [%] (eq. 20)."""
+    simulation RMS error [unit] and the signed cumulative fuel error [%] (eq. 20) of the drive cycle, or with
+    several cycles their mean followed by their RMS."""
     x, y = before["rmse"]["simulation"], after["rmse"]["simulation"]
-    a = before["cycle_fuel_error_percent"]["rms"]
-    b = after["cycle_fuel_error_percent"]["rms"]
+    cb, ca = before["cycle_fuel_error_percent"], after["cycle_fuel_error_percent"]
     verb = "fell" if y < x else "rose" if y > x else "stayed"
-    cycle = (f"cycle fuel error from {a:.2f} % to {b:.2f} %" if all(map(math.isfinite, (a, b)))
-             else "no complete drive cycle for the cycle fuel error")
+    n = max(sum(1 for k in c if k not in ("mean", "rms")) for c in (cb, ca))
+    if not all(map(math.isfinite, (cb["mean"], ca["mean"]))):
+        cycle = "no complete drive cycle for the cycle fuel error"
+    elif n > 1:
+        cycle = (f"cycle fuel error from {cb['mean']:+.2f} % to {ca['mean']:+.2f} % on average over {n} cycles "
+                 f"(RMS {cb['rms']:.2f} % to {ca['rms']:.2f} %)")
+    else:
+        cycle = f"cycle fuel error from {cb['mean']:+.2f} % to {ca['mean']:+.2f} %"
     return f"RMS error {verb} from {x:.2f} to {y:.2f} {unit}; {cycle}"
 
 

@@ -240,6 +240,12 @@ def message_schema(name: str, dbc_path: str | Path = FMS_DBC) -> dict[str, Any]:
 
 
 @lru_cache(maxsize=None)
+def signal_units(dbc_path: str | Path = FMS_DBC) -> dict[str, str]:
+    """'MESSAGE.Signal' → the DBC's unit of every signal that has one (e.g. 'EEC1.EngSpeed' → 'rpm')."""
+    return {f"{m.name}.{s.name}": s.unit for m in _load_dbc(str(dbc_path)).messages for s in m.signals if s.unit}
+
+
+@lru_cache(maxsize=None)
 def _load_dbc(path: str) -> cantools.database.Database:
     try:
         return cantools.database.load_file(path)

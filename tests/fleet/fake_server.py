@@ -4,7 +4,7 @@
 
 The stand-in (FakeRunner) writes a small model.json and diagnosis.json per job in a thread instead of
 identifying on Dask, so registry and job handling are tested in seconds; trucks named BAD* fail like
-fleet.jobs.JobError does for unusable data.
+fleet.jobs.JobError does for unusable data, and trucks named SLOW* take 3 s.
 """
 import argparse
 import json
@@ -20,6 +20,8 @@ from fuelid.fleet.app import MiB, Settings, create_app
 def fake_identify(truck: str, mcap_paths: list[str], out_dir: str, previous_model: str | None = None) -> dict:
     if truck.startswith("BAD"):
         raise RuntimeError(f"{truck}: too little valid data to identify 41 parameters")
+    if truck.startswith("SLOW"):
+        time.sleep(3.0)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.json").write_text(json.dumps({"truck": truck, "files": len(mcap_paths),

@@ -146,6 +146,10 @@ def test_refit_fetch_and_trucks_commands(sqlite_server, tmp_path, capsys, monkey
     assert fuelid(["refit", "--all", "--wait", "20"]) == 1  # BAD1's job fails
     out = capsys.readouterr().out
     assert "BAD1: failed BAD1: too little valid data" in out and "T1: done model version 2" in out
+    upload_file(make_mcap(tmp_path / "SLOW1.mcap", "SLOW1"), s.url, s.token("truck", "SLOW1"))
+    assert fuelid(["refit", "SLOW1", "--wait", "0.5"]) == 1  # a wait that times out is not success
+    captured = capsys.readouterr()
+    assert "SLOW1: running" in captured.out and "1 of 1 jobs still running after waiting 0.5 s" in captured.err
 
     assert fuelid(["fetch", "T1", "--version", "1", "-o", str(tmp_path / "m.json"),
                    "--report", str(tmp_path / "r.html"), "--json"]) == 0

@@ -1,3 +1,4 @@
+import json
 import warnings
 
 import numpy as np
@@ -212,3 +213,26 @@ def test_a_recording_gives_the_dataset_of_its_records(tmp_path):
     assert "ETC2.Mode" not in in_memory.extra and "ETC2.Shift" not in in_memory.extra
     gear = in_memory.extra["ETC2.CurrentGear"]
     assert np.nanmax(gear) == 4 and in_memory.sources["ETC2.CurrentGear"] == 3
+
+
+def test_csv_opens_in_a_spreadsheet_with_units_and_readable_time(tmp_path):
+    """The CSV is one header row and numbers (no comment line); time is seconds since the start and an ISO
+    timestamp; units are in the header and in the CSVW sidecar, which also carries what load_dataset needs."""
+    ds = build_dataset(trip(t_end=20.0), Ts=0.3)
+    out = save_dataset(ds, tmp_path / "d.csv")
+    lines = out.read_text().splitlines()
+    header, first = lines[0].split(","), lines[1].split(",")
+    assert header[:2] == ["time_s [s]", "time_utc"] and "EEC1.EngSpeed [rpm]" in header
+    assert float(first[0]) == 0.0 and first[1].endswith("Z") and first[1].startswith("1970-01-01T00:00:00")
+    assert len(lines) == len(ds) + 1 and not any(line.startswith("#") for line in lines)
+    sidecar = json.loads((tmp_path / "d.csv-metadata.json").read_text())
+    units = {c["name"]: c.get("schema:unitText") for c in sidecar["tableSchema"]["columns"]}
+    assert units["time_s"] == "s" and units["EEC1.EngSpeed"] == "rpm" and units[ds.output_name] == ds.output_unit
+    assert sidecar["url"] == "d.csv" and sidecar["fuelid"]["Ts"] == ds.Ts
+
+
+def test_csv_without_its_sidecar_is_a_one_line_error(tmp_path):
+    out = save_dataset(build_dataset(trip(t_end=5.0), Ts=0.3), tmp_path / "d.csv")
+    (tmp_path / "d.csv-metadata.json").unlink()
+    with pytest.raises(FuelidError, match="d.csv-metadata.json is missing"):
+        load_dataset(out)

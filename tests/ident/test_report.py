@@ -81,11 +81,15 @@ def test_minmax_decimation_keeps_extremes_gaps_and_budget():
 
 
 def test_improvement_sentence():
-    before = {"rmse": {"simulation": 2.2307}, "cycle_fuel_error_percent": {"rms": 3.104}}
-    after = {"rmse": {"simulation": 1.0249}, "cycle_fuel_error_percent": {"rms": 0.4}}
+    """The cycle fuel error keeps its sign; with several cycles the sentence gives their mean and their RMS."""
+    before = {"rmse": {"simulation": 2.2307}, "cycle_fuel_error_percent": {"0": -2.67, "mean": -2.67, "rms": 2.67}}
+    after = {"rmse": {"simulation": 1.0249}, "cycle_fuel_error_percent": {"0": 0.05, "mean": 0.05, "rms": 0.05}}
     assert rp.improvement_sentence(before, after, "L/h") == \
-        "RMS error fell from 2.23 to 1.02 L/h; cycle fuel error from 3.10 % to 0.40 %"
+        "RMS error fell from 2.23 to 1.02 L/h; cycle fuel error from -2.67 % to +0.05 %"
     assert rp.improvement_sentence(after, before, "kg/h").startswith("RMS error rose from 1.02 to 2.23 kg/h")
+    two = {"rmse": {"simulation": 1.0}, "cycle_fuel_error_percent": {"0": 1.0, "1": -3.0, "mean": -1.0, "rms": 2.236}}
+    assert rp.improvement_sentence(before, two, "L/h").endswith(
+        "cycle fuel error from -2.67 % to -1.00 % on average over 2 cycles (RMS 2.67 % to 2.24 %)")
 
 
 def test_effects_table_numbers_are_the_diagnosis(case):
