@@ -59,7 +59,7 @@ def command_line(name: str) -> str:
     cfg = CATALOG[name]
     flags = {"truth": "--truth", "cycle": "--cycle", "duration_s": "--duration", "seed": "--seed",
              "mass_kg": "--mass", "ambient_c": "--ambient", "ambient_drift_c": "--ambient-drift",
-             "altitude_m": "--altitude", "hilliness": "--hilliness"}
+             "altitude_m": "--altitude", "hilliness": "--hilliness", "engine": "--engine"}
     parts = ["fuelid simulate"]
     for field, flag in flags.items():
         value = getattr(cfg, field)
