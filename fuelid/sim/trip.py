@@ -338,7 +338,7 @@ def describe_map_truth(vecto_engine) -> dict:
             "structure": "f = map(n, T_brake + T_aux + T_fan) x k_tr / rho, 0 at or below the motoring torque; "
                          "k_tr = 1 + c_max r/(r + T_max), r = lagged rate of torque increase [Nm/s]; "
                          "LFE1 = mean over each 0.1 s ECU update, held",
-            "transient": {"c_max": 2.0 * max(0.0, vecto_engine.whtc["urban"] - 1.0),
+            "transient": {"c_max": round(2.0 * max(0.0, vecto_engine.whtc["urban"] - 1.0), 6),
                           "tau_s": mapfuel.TRANSIENT_TAU_S},
             "diesel_density_kg_l": mapfuel.DIESEL_DENSITY_KG_L, "ecu_update_s": mapfuel.LFE1_UPDATE_S,
             "output": {"unit": "L/h", "signal": "LFE1.EngFuelRate (SPN 183)"},
