@@ -104,7 +104,7 @@ def read_engine(name_or_path) -> VectoEngine:
         known = ", ".join(SHIPPED)
         raise FuelidError(f"{path}: no such engine file (give a VECTO .veng file or one of: {known})")
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_text(encoding="utf-8-sig"))  # VECTO's own files often start with a BOM
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FuelidError(f"{path}: not a VECTO engine file (JSON): {exc}") from None
     body = doc.get("Body") if isinstance(doc, dict) else None
@@ -135,7 +135,7 @@ def read_engine(name_or_path) -> VectoEngine:
 
 
 def describe(engine: VectoEngine) -> dict:
-    """The truth-file entry of an engine set (no arrays but the full-load curve's corners)."""
+    """The truth-file entry of an engine set (scalars only, no curves)."""
     return {"name": engine.name, "file": Path(engine.path).name, "idle_speed_rpm": engine.idle_speed_rpm,
             "inertia_kgm2": engine.inertia_kgm2, "displacement_cm3": engine.displacement_cm3,
             "max_torque_nm": engine.max_torque_nm, "whtc": engine.whtc, "map_points": int(len(engine.map_rpm)),
@@ -168,7 +168,7 @@ def _read_table(path: Path, columns: tuple, optional: int = 0) -> np.ndarray:
     """Rows of a VECTO CSV file (one header line, '#' comments) as floats; `columns` name the required columns,
     `optional` more may follow."""
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except UnicodeDecodeError as exc:
         raise FuelidError(f"{path}: not a text file: {exc}") from None
     rows, width = [], None

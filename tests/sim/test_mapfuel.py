@@ -1,5 +1,6 @@
 """The map-based engine truth: the VECTO map at the engine's instantaneous speed and torque, bounded by the
 full-load curve, cut while motoring, a few % transient fuelling, LFE1 as the ECU reports it."""
+import dataclasses
 import tempfile
 from pathlib import Path
 
@@ -8,9 +9,11 @@ import pytest
 
 from fuelid.logger.readers import read_frames
 from fuelid.logger.recorder import Recorder
-from fuelid.sim import mapfuel
+from fuelid.sim import mapfuel, route
+from fuelid.sim.drive import DRIVE, simulate_drive
 from fuelid.sim.trip import TripConfig, write
 from fuelid.sim.vecto import read_engine
+from fuelid.sim.vehicle import Truck
 
 DT = 0.01
 
@@ -117,3 +120,29 @@ def test_a_map_trip_decodes_with_the_engines_reference_torque(trip, vecto):
     assert all(r["EngSpeedAtIdlePoint1"] == 600.0 for r in ec1)
     fuel = [r["EngFuelRate"] for topic, r in records if topic == "/j1939/LFE1" and r.get("EngFuelRate") is not None]
     assert len(fuel) > 1000 and 0.0 <= min(fuel) and max(fuel) < 100.0
+
+
+def test_a_pt1_full_load_slows_the_torque_build_up(vecto):
+    """With a PT1 time constant τ in the .vfld, each 10 ms step of the drive moves the brake torque at most
+    1 - exp(-dt/τ) of the way to the static full load (plus the 1 rpm table step)."""
+    tau = 1.5
+    slow = dataclasses.replace(vecto, pt1_s=np.full(len(vecto.fld_rpm), tau))
+    engines = {"static": mapfuel.sim_engine(vecto), "pt1": mapfuel.sim_engine(slow)}
+    drives = {}
+    for name, engine in engines.items():
+        rng = np.random.default_rng(5)
+        profile = route.speed_profile("urban", 600.0, DT, rng)
+        road = route.road_profile("urban", 20000.0, rng)
+        drives[name] = simulate_drive(profile, road, Truck(), engine, np.full(len(profile.v_ref), 1.2), DT,
+                                      np.random.default_rng(6))
+    d, engine = drives["pt1"], engines["pt1"]
+    both = (d.mode[1:] == DRIVE) & (d.mode[:-1] == DRIVE)
+    tb, rpm = d.brake_torque_nm, d.engine_speed_rpm
+    t_max = np.maximum(engine.max_brake_torque_nm(rpm[1:]), engine.max_brake_torque_nm(rpm[1:] - 1.0))
+    bound = tb[:-1] + (t_max - tb[:-1]) * -np.expm1(-DT / tau)
+    assert np.all(tb[1:][both] <= np.maximum(bound[both], tb[:-1][both]) + 1e-6)
+    def rise(x):  # fastest build-up in gear [Nm/s] (launches and shift ramps are the gearbox's, not the PT1's)
+        in_gear = (x.mode[1:] == DRIVE) & (x.mode[:-1] == DRIVE)
+        return np.percentile(np.diff(x.brake_torque_nm)[in_gear] / DT, 99.9)
+
+    assert rise(d) < 0.5 * rise(drives["static"])
