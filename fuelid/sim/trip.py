@@ -317,15 +317,16 @@ def summarise(trip: Trip, profile, engine, truck, d, altitude, vecto_engine=None
                         else "flow meter capture (.flow.gz); LFE1 has no fuel rate (N/A), as on the paper's "
                              "gas truck"},
         "truth_npz": {"ts_s": fuel.TS_S, "arrays": sorted(tr),
-                      "note": MAP_NPZ_NOTE if vecto_engine else "fuel_model = operating point + Gw W + GT T on the means of the true inputs over "
-                              "each bin [t_s, t_s + Ts) (engine_speed_bin_rpm, torque_true_bin_pct; no noise, no "
-                              "effects); fuel_true = fuel_model through the "
-                              "effects (noise-free truth as the bus reports it, before quantisation); "
-                              "fuel_measured = the same with the noise H e; these three and every other array "
-                              "sampled at t_s from trip start"},
+                      "note": MAP_NPZ_NOTE if vecto_engine else PAPER_NPZ_NOTE},
     }
 
 
+PAPER_NPZ_NOTE = ("fuel_model = operating point + Gw W + GT T on the means of the true inputs over "
+                  "each bin [t_s, t_s + Ts) (engine_speed_bin_rpm, torque_true_bin_pct; no noise, no "
+                  "effects); fuel_true = fuel_model through the "
+                  "effects (noise-free truth as the bus reports it, before quantisation); "
+                  "fuel_measured = the same with the noise H e; these three and every other array "
+                  "sampled at t_s from trip start")
 MAP_NPZ_NOTE = ("fuel_model = the map engine's injected fuel (steady-state map at the instantaneous speed and "
                 "flywheel torque, times the transient factor) averaged over each bin [t_s, t_s + Ts), no effects; "
                 "noise = 0 (the map truth has no added noise); fuel_true = fuel_measured = the injected fuel "
