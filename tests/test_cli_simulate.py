@@ -1,8 +1,10 @@
 """fuelid simulate on a VECTO engine set: by short name, by path, and a one-line error for a broken set."""
 import json
 import shutil
+from pathlib import Path
 
 from fuelid.cli import main
+from fuelid.sim import catalog
 from fuelid.sim.vecto import engine_file
 
 
@@ -40,3 +42,12 @@ def test_an_engine_with_a_paper_truth_is_refused(tmp_path, capsys):
     assert main(["simulate", "--truth", "diesel_p320", "--engine", "vecto_325kW", "-o",
                  str(tmp_path / "t.log.gz")]) == 1
     assert "map truth only" in capsys.readouterr().err
+
+
+def test_every_shipped_catalog_entry_is_in_replay_logs():
+    logs = Path(__file__).resolve().parents[1] / "replay_logs"
+    assert all((logs / f"{name}.log.gz").is_file() for name in catalog.SHIPPED)
+    made_on_demand = set(catalog.CATALOG) - set(catalog.SHIPPED)
+    assert made_on_demand == {f"map_cycle_{k:02d}" for k in range(1, 12)}
+    assert "--truth map" in catalog.command_line("map_cycle_01") and "--engine vecto_325kW" in \
+        catalog.command_line("map_cycle_01")

@@ -32,7 +32,7 @@ def add_arguments(p):
                    "(and the gas truck's .flow capture) go next to it")
     p.add_argument("--catalog", metavar="NAME", action="append", default=[],
                    help="regenerate a shipped replay log by name (repeatable)")
-    p.add_argument("--all", action="store_true", help="regenerate every shipped replay log")
+    p.add_argument("--all", action="store_true", help="regenerate every shipped replay log (not the map engine's cycles)")
     p.add_argument("--dir", default="replay_logs", metavar="DIR", help="folder for --catalog/--all (default replay_logs)")
     p.add_argument("--list", action="store_true", help="list truths, cycles, effects and catalog entries")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
@@ -108,7 +108,7 @@ def run(args) -> int:
         return 0
 
     if args.all or args.catalog:
-        names = list(catalog.CATALOG) if args.all else args.catalog
+        names = list(catalog.SHIPPED) if args.all else args.catalog
         unknown = [n for n in names if n not in catalog.CATALOG]
         if unknown:
             raise FuelidError(f"unknown catalog entry {unknown[0]!r}; see fuelid simulate --list")

@@ -57,6 +57,9 @@ def _entries() -> dict:
 
 
 CATALOG = _entries()
+SHIPPED = tuple(n for n in CATALOG if not n.startswith("map_cycle_"))
+"""The entries whose files are in replay_logs/ (`fuelid simulate --all`); the map engine's eleven cycles (17 MB)
+are made on demand by `--catalog map_cycle_NN`."""
 DEFAULT = TripConfig()
 
 
