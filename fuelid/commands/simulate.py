@@ -6,11 +6,18 @@ from fuelid.output import print_json
 
 HELP = "simulate a truck trip: FMS CAN log (+ gas flow-meter capture) and its truth files"
 
+DEFAULT_TRUTH = "diesel_p320"
+TRUTH_ALIASES = {"paper_p320": "diesel_p320"}
 STAGES = ("route", "drive", "engine", "fuel", "signals", "frames", "log", "truth")
 
 
 def add_arguments(p):
-    p.add_argument("--truth", default="diesel_p320", help="fuel truth: diesel_p320 (default) or gas_p340")
+    p.add_argument("--truth", default=None,
+                   help="fuel truth: diesel_p320 (default; alias paper_p320) or gas_p340, the seed paper's Box-Jenkins "
+                        "models; map, a VECTO engine's fuel map at the instantaneous speed and torque (--engine)")
+    p.add_argument("--engine", default="", metavar="ENGINE.veng|NAME",
+                   help="engine set for --truth map: a VECTO .veng file (its .vmap/.vfld beside it) or a shipped "
+                        "set's name (default vecto_325kW); implies --truth map when --truth is not given")
     p.add_argument("--cycle", default="mixed", help="urban, rural, motorway or mixed (default)")
     p.add_argument("--duration", type=float, default=1800.0, metavar="S", help="trip length [s] (default 1800)")
     p.add_argument("--seed", type=int, default=1, help="random seed; same seed, same bytes (default 1)")
@@ -25,16 +32,18 @@ def add_arguments(p):
                    "(and the gas truck's .flow capture) go next to it")
     p.add_argument("--catalog", metavar="NAME", action="append", default=[],
                    help="regenerate a shipped replay log by name (repeatable)")
-    p.add_argument("--all", action="store_true", help="regenerate every shipped replay log")
+    p.add_argument("--all", action="store_true", help="regenerate every shipped replay log (not the map engine's cycles)")
     p.add_argument("--dir", default="replay_logs", metavar="DIR", help="folder for --catalog/--all (default replay_logs)")
     p.add_argument("--list", action="store_true", help="list truths, cycles, effects and catalog entries")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
 
 
 def _listing() -> dict:
-    from fuelid.sim import catalog, effects, fuel, route
+    from fuelid.sim import catalog, effects, route
+    from fuelid.sim.trip import TRUTH_NAMES
+    from fuelid.sim.vecto import SHIPPED
 
-    return {"truths": list(fuel.TRUTHS), "cycles": list(route.CYCLE_NAMES),
+    return {"truths": list(TRUTH_NAMES), "engines": list(SHIPPED), "cycles": list(route.CYCLE_NAMES),
             "effects": {n: {"default": e.default, "unit": e.unit, "spns": list(e.spns)}
                         for n, e in effects.EFFECTS.items()},
             "catalog": {n: catalog.command_line(n) for n in catalog.CATALOG}}
@@ -43,15 +52,20 @@ def _listing() -> dict:
 def _config(args):
     from fuelid.errors import FuelidError
     from fuelid.sim.effects import parse_effects
-    from fuelid.sim.trip import TripConfig
+    from fuelid.sim.trip import MAP_TRUTH, TripConfig
+    from fuelid.sim.vecto import read_engine
 
+    truth = TRUTH_ALIASES.get(args.truth, args.truth) or (MAP_TRUTH if args.engine else DEFAULT_TRUTH)
     try:
         effects = tuple(parse_effects(args.effect).items())
-        return TripConfig(truth=args.truth, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
-                          effects=effects, mass_kg=args.mass, ambient_c=args.ambient,
-                          ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness)
+        cfg = TripConfig(truth=truth, engine=args.engine, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
+                         effects=effects, mass_kg=args.mass, ambient_c=args.ambient,
+                         ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness)
     except ValueError as exc:
         raise FuelidError(str(exc)) from None
+    if cfg.engine:
+        read_engine(cfg.engine)  # a broken engine set fails here, in one line, before any simulation
+    return cfg
 
 
 def _run_one(cfg, output: Path, label: str) -> dict:
@@ -83,6 +97,7 @@ def run(args) -> int:
             print_json(listing)
         else:
             print("truths:  " + ", ".join(listing["truths"]))
+            print("engines: " + ", ".join(listing["engines"]) + " (or a VECTO .veng file)")
             print("cycles:  " + ", ".join(listing["cycles"]))
             print("effects:")
             for n, e in listing["effects"].items():
@@ -93,7 +108,7 @@ def run(args) -> int:
         return 0
 
     if args.all or args.catalog:
-        names = list(catalog.CATALOG) if args.all else args.catalog
+        names = list(catalog.SHIPPED) if args.all else args.catalog
         unknown = [n for n in names if n not in catalog.CATALOG]
         if unknown:
             raise FuelidError(f"unknown catalog entry {unknown[0]!r}; see fuelid simulate --list")

@@ -73,6 +73,11 @@ def simulate_drive(profile: SpeedProfile, road: RoadProfile, truck: Truck, engin
     t_max = engine.max_brake_torque_nm(rpm_grid).tolist()
     t_full = engine.full_load_torque_nm(rpm_grid).tolist()
     t_drag = engine.drag_torque_nm(rpm_grid).tolist()
+    # Full-load torque builds up with a PT1 where the engine gives one (VECTO .vfld): the limit moves from the
+    # present torque towards the static full load by 1 - exp(-dt/τ) per step.
+    has_pt1, capped = bool(engine.pt1_s), engine.strict_full_load
+    tau = engine.pt1_time_constant_s(rpm_grid)
+    k_pt1 = np.where(tau > 0.0, -np.expm1(-dt / np.maximum(tau, 1e-9)), 1.0).tolist()
     j_engine, idle = engine.inertia_kgm2, engine.idle_speed_rpm
     k_sync = dt / engine.idle_governor_tau_s
     k_torque = dt / driver.torque_tau_s
@@ -125,8 +130,11 @@ def simulate_drive(profile: SpeedProfile, road: RoadProfile, truck: Truck, engin
             r = min(2600, int(rpm))
             mass = m_eff[k]
             t_dem = (mass * a_des + f_road) / force_per_nm[k]
-            t_cmd = min(max(t_dem, -t_drag[r]), t_max[r])
+            t_lim = tb + (t_max[r] - tb) * k_pt1[r] if has_pt1 else t_max[r]
+            t_cmd = min(max(t_dem, -t_drag[r]), t_lim)
             tb += (t_cmd - tb) * k_torque
+            if capped:  # the torque lag must not carry tb above a falling full-load curve as the speed rises
+                tb = min(tb, t_max[r])
             f_trac = tb * force_per_nm[k]
             pedal = 0.0 if cruise[i] else max(0.0, (tb + t_drag[r]) / t_full[r])
             if rpm < gearbox.CLUTCH_OPEN_RPM:  # too slow for the gear: declutch, or slip in a start gear

@@ -27,6 +27,11 @@ class Engine:
     full_load_nm: tuple = (700, 900, 1300, 1700, 1700, 1600, 1420, 1270, 1150, 800, 0)
     friction_idle_nm: float = 80.0           # T_fric at idle [Nm]
     friction_slope_nm_per_rpm: float = 0.06  # T_fric growth with speed [Nm/rpm]
+    friction_rpm: tuple = ()                 # a measured T_fric table [rpm] (VECTO: minus the motoring torque);
+    friction_nm: tuple = ()                  # [Nm]; empty: the linear law above
+    pt1_s: tuple = ()                        # full-load torque build-up time constant over full_load_rpm [s]
+    strict_full_load: bool = False          # the drive caps the lagging torque at full load; off for the paper
+                                             # engines only, so that their shipped trips stay byte for byte
     aux_nm: float = 32.0                     # alternator, air compressor, steering pump [Nm]
     idle_governor_tau_s: float = 0.25        # idle/synchronisation speed-control time constant [s]
 
@@ -35,7 +40,9 @@ class Engine:
         return np.interp(speed_rpm, self.full_load_rpm, self.full_load_nm)
 
     def friction_torque_nm(self, speed_rpm):
-        """T_fric(n) = T_fric,idle + k (n - n_idle) [Nm]."""
+        """T_fric(n) = T_fric,idle + k (n - n_idle) [Nm], or linear in the friction table if there is one."""
+        if self.friction_rpm:
+            return np.interp(speed_rpm, self.friction_rpm, self.friction_nm)
         return self.friction_idle_nm + self.friction_slope_nm_per_rpm * (speed_rpm - self.idle_speed_rpm)
 
     def drag_torque_nm(self, speed_rpm):
@@ -45,6 +52,12 @@ class Engine:
     def max_brake_torque_nm(self, speed_rpm):
         """T_brake,max(n) = T_full(n) - T_fric(n) - T_aux [Nm]."""
         return self.full_load_torque_nm(speed_rpm) - self.drag_torque_nm(speed_rpm)
+
+    def pt1_time_constant_s(self, speed_rpm):
+        """Time constant [s] of the full-load torque build-up at engine speed [rpm]; 0 without a PT1 table."""
+        if not self.pt1_s:
+            return np.zeros_like(np.asarray(speed_rpm, float))
+        return np.interp(speed_rpm, self.full_load_rpm, self.pt1_s)
 
     def percent(self, torque_nm):
         """Torque as J1939 percent of the reference torque: 100 T / T_ref [%]."""

@@ -12,6 +12,11 @@ Fuel pipeline (sim.effects explains each step):
     f_bus    = f_engine(t - delay)                                       LFE1 SPN 183 or the flow meter
     T_bus%   = T_true% - T_fan% (fan effect) - J dω/dt (inertia effect)  EEC1 SPN 513
 
+With the map truth (`truth="map"`, a VECTO engine set, sim.mapfuel) the second line is instead the engine's
+fuel map at the instantaneous (fine-grid) speed and flywheel torque T_true - T_fric, with transient fuelling, in
+L/h; the effects act on it as above, then the ECU's LFE1 update (mean over each 0.1 s, held), then the delay. The
+drive, the bus torque (% of the engine's largest full-load torque, EC1 SPN 544) and idle use that engine.
+
 Why bin means, held: the logger's dataset averages speed, torque and fuel over the same bins (ident.dataset), so
 the truth is exactly a Box-Jenkins model of what the bus shows. A truth on point samples of the inputs, linearly
 interpolated, differs from the bin means by a within-bin timing no discrete-time model represents; on trips with
@@ -28,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from fuelid.sim import effects as fx
-from fuelid.sim import fuel, gateway, meter, route, thermal
+from fuelid.sim import fuel, gateway, mapfuel, meter, route, thermal, vecto
 from fuelid.sim.drive import DRIVE, NEUTRAL, SHIFT, MODE_NAMES, simulate_drive
 from fuelid.sim.engine import ENGINES
 from fuelid.sim.files import open_binary, save_npz
@@ -39,6 +44,10 @@ FORMAT_VERSION = 1
 DIESEL_LHV_KJ_L, GAS_LHV_KJ_KG = 35800.0, 50000.0
 RETARDER_REFERENCE_NM = 5000.0
 """Retarder reference torque at the propeller shaft (100 % in ERC1) [Nm]."""
+MAP_TRUTH = "map"
+"""The map-based engine truth (sim.mapfuel) on a VECTO engine set; the other truths are sim.fuel's paper models."""
+TRUTH_NAMES = (*fuel.TRUTHS, MAP_TRUTH)
+DEFAULT_MAP_ENGINE = "vecto_325kW"
 STREAMS = ("route", "road", "driver", "weather", "noise", "effects", "gateway", "meter")
 
 
@@ -57,12 +66,17 @@ class TripConfig:
     dt_s: float = 0.01             # simulation step [s]
     start_unix_s: float | None = None  # None: 2024-06-01 10:00 UTC plus `seed` days, so trips never overlap
     vin: str = ""                  # empty: derived from the seed
+    engine: str = ""               # map truth: a VECTO .veng path or a shipped set's name (default vecto_325kW)
 
     def __post_init__(self):
         if self.start_unix_s is None:  # frozen dataclass: set the derived default through object.__setattr__
             object.__setattr__(self, "start_unix_s", 1717236000.0 + 86400.0 * self.seed)
-        if self.truth not in fuel.TRUTHS:
-            raise ValueError(f"unknown truth {self.truth!r}; known: {', '.join(fuel.TRUTHS)}")
+        if self.truth not in TRUTH_NAMES:
+            raise ValueError(f"unknown truth {self.truth!r}; known: {', '.join(TRUTH_NAMES)}")
+        if self.truth == MAP_TRUTH and not self.engine:
+            object.__setattr__(self, "engine", DEFAULT_MAP_ENGINE)
+        if self.engine and self.truth != MAP_TRUTH:
+            raise ValueError(f"an engine set drives the map truth only (truth {MAP_TRUTH!r}), not {self.truth!r}")
         if self.cycle not in route.CYCLE_NAMES:
             raise ValueError(f"unknown cycle {self.cycle!r}; known: {', '.join(route.CYCLE_NAMES)}")
         if not 60.0 <= self.duration_s <= 6 * 3600.0:
@@ -76,7 +90,7 @@ class TripConfig:
 
     @property
     def diesel(self) -> bool:
-        return fuel.TRUTHS[self.truth].fuel == "diesel"
+        return self.truth == MAP_TRUTH or fuel.TRUTHS[self.truth].fuel == "diesel"
 
     @property
     def vehicle_id(self) -> str:
@@ -114,8 +128,9 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     tick = progress or (lambda name: None)
     rng = dict(zip(STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(len(STREAMS)))))
     eff = dict(cfg.effects)
-    truth = fuel.TRUTHS[cfg.truth]
-    engine = ENGINES[cfg.truth]
+    vecto_engine = vecto.read_engine(cfg.engine) if cfg.truth == MAP_TRUTH else None
+    truth = fuel.TRUTHS.get(cfg.truth)  # None for the map truth
+    engine = mapfuel.sim_engine(vecto_engine) if vecto_engine else ENGINES[cfg.truth]
     if "inertia" in eff:
         engine = dataclasses.replace(engine, inertia_kgm2=eff["inertia"])
     truck = Truck(mass_kg=cfg.mass_kg)
@@ -159,8 +174,12 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     k = np.arange(0, n, step)
     bin_of = np.arange(n) // step  # fine sample -> its Ts bin [k Ts, (k+1) Ts)
     rpm_bin, true_pct_bin = bin_means(rpm, k), bin_means(true_pct, k)
-    y_model = fuel.deterministic_fuel(truth, rpm_bin, true_pct_bin)
-    noise = fuel.fuel_noise(truth, len(k), rng["noise"])
+    if vecto_engine:  # flywheel torque from combustion: indicated minus friction (the motoring torque at zero)
+        f_injected = mapfuel.injected_fuel_l_h(vecto_engine, rpm, t_true - engine.friction_torque_nm(rpm), dt)
+        y_model, noise = bin_means(f_injected, k), np.zeros(len(k))
+    else:
+        y_model = fuel.deterministic_fuel(truth, rpm_bin, true_pct_bin)
+        noise = fuel.fuel_noise(truth, len(k), rng["noise"])
     lhv_kw = (DIESEL_LHV_KJ_L if cfg.diesel else GAS_LHV_KJ_KG) / 3600.0
     coolant = thermal.coolant_temperature_c(
         t, np.interp(t, t[k], y_model) * lhv_kw, ambient,
@@ -169,8 +188,7 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     shift_end = t[1:][(d.mode[:-1] == SHIFT) & (d.mode[1:] != SHIFT)]
     overrun = fx.overrun_mask(true_pct, d.pedal, rpm, d.mode == DRIVE)
 
-    def engine_fuel(y_ts):
-        f = y_ts[bin_of]
+    def engine_fuel(f):
         if "power_nonlinearity" in eff:
             f = f + fx.power_nonlinearity_add(eff["power_nonlinearity"], rpm, true_pct, engine.idle_speed_rpm)
         factors = {"dpf_regeneration": lambda m: fx.dpf_factor(m, dpf_active),
@@ -182,10 +200,15 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
             if name in eff:
                 f = f * factor(eff[name])
         f = np.maximum(f, 0.0)
+        if vecto_engine:
+            f = mapfuel.ecu_reported(f, dt)
         return fx.delayed(t, f, eff["fuel_delay"]) if "fuel_delay" in eff else f
 
-    fuel_bus = engine_fuel(y_model + noise)
-    fuel_true = engine_fuel(y_model)
+    if vecto_engine:
+        fuel_bus = fuel_true = engine_fuel(f_injected)
+    else:
+        fuel_bus = engine_fuel((y_model + noise)[bin_of])
+        fuel_true = engine_fuel(y_model[bin_of])
 
     tick("signals")
     speed_kmh = d.speed_m_s * 3.6
@@ -251,24 +274,28 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     if not cfg.diesel:
         tick("meter")
         trip.meter = meter.readings(t, fuel_bus, cfg.start_unix_s, rng["meter"])
-    trip.summary = summarise(trip, profile, engine, truck, d, altitude)
+    trip.summary = summarise(trip, profile, engine, truck, d, altitude, vecto_engine)
     return trip
 
 
-def summarise(trip: Trip, profile, engine, truck, d, altitude) -> dict:
+def summarise(trip: Trip, profile, engine, truck, d, altitude, vecto_engine=None) -> dict:
     """The truth file's description of the trip (no time series)."""
     cfg, tr = trip.config, trip.truth
-    truth = fuel.TRUTHS[cfg.truth]
+    truth = fuel.TRUTHS.get(cfg.truth)
+    fuel_unit = truth.fuel_unit if truth else "L/h"
+    config = {**dataclasses.asdict(cfg), "effects": dict(cfg.effects), "vin": cfg.vehicle_id}
+    if not vecto_engine:
+        config.pop("engine")  # the paper truths' files stay as they were before engine sets existed
     idle = (tr["mode"] == NEUTRAL) & (tr["speed_kmh"] == 0)
     dt = cfg.dt_s
     return {
         "format_version": FORMAT_VERSION,
         "generator": "fuelid simulate (sim/)",
         "seed": cfg.seed,
-        "config": {**dataclasses.asdict(cfg), "effects": dict(cfg.effects), "vin": cfg.vehicle_id},
+        "config": config,
         "start_unix_s": cfg.start_unix_s,
         "vin": cfg.vehicle_id,
-        "truck": {**dataclasses.asdict(truck), "fuel": truth.fuel},
+        "truck": {**dataclasses.asdict(truck), "fuel": truth.fuel if truth else "diesel"},
         "engine": {"name": engine.name, "reference_torque_nm": engine.reference_torque_nm,
                    "idle_speed_rpm": engine.idle_speed_rpm, "inertia_kgm2": engine.inertia_kgm2,
                    "full_load_rpm": list(engine.full_load_rpm), "full_load_nm": list(engine.full_load_nm)},
@@ -279,9 +306,9 @@ def summarise(trip: Trip, profile, engine, truck, d, altitude) -> dict:
                   "mean_speed_kmh": round(float(tr["speed_kmh"].mean()), 2),
                   "idle_share": round(float(idle.mean()), 4),
                   "time_in_mode_s": {m: round(float(np.sum(d.mode == i)) * dt, 1) for i, m in enumerate(MODE_NAMES)}},
-        "fuel_truth": fuel.describe(truth),
+        "fuel_truth": fuel.describe(truth) if truth else describe_map_truth(vecto_engine),
         "effects": fx.describe(dict(cfg.effects)),
-        "fuel": {"unit": truth.fuel_unit,
+        "fuel": {"unit": fuel_unit,
                  "mean": round(float(tr["fuel_measured"].mean()), 3),
                  "mean_true": round(float(tr["fuel_true"].mean()), 3),
                  "idle_mean_true": round(float(tr["fuel_true"][idle].mean()), 3) if idle.any() else None,
@@ -290,13 +317,35 @@ def summarise(trip: Trip, profile, engine, truck, d, altitude) -> dict:
                         else "flow meter capture (.flow.gz); LFE1 has no fuel rate (N/A), as on the paper's "
                              "gas truck"},
         "truth_npz": {"ts_s": fuel.TS_S, "arrays": sorted(tr),
-                      "note": "fuel_model = operating point + Gw W + GT T on the means of the true inputs over "
-                              "each bin [t_s, t_s + Ts) (engine_speed_bin_rpm, torque_true_bin_pct; no noise, no "
-                              "effects); fuel_true = fuel_model through the "
-                              "effects (noise-free truth as the bus reports it, before quantisation); "
-                              "fuel_measured = the same with the noise H e; these three and every other array "
-                              "sampled at t_s from trip start"},
+                      "note": MAP_NPZ_NOTE if vecto_engine else PAPER_NPZ_NOTE},
     }
+
+
+PAPER_NPZ_NOTE = ("fuel_model = operating point + Gw W + GT T on the means of the true inputs over "
+                  "each bin [t_s, t_s + Ts) (engine_speed_bin_rpm, torque_true_bin_pct; no noise, no "
+                  "effects); fuel_true = fuel_model through the "
+                  "effects (noise-free truth as the bus reports it, before quantisation); "
+                  "fuel_measured = the same with the noise H e; these three and every other array "
+                  "sampled at t_s from trip start")
+MAP_NPZ_NOTE = ("fuel_model = the map engine's injected fuel (steady-state map at the instantaneous speed and "
+                "flywheel torque, times the transient factor) averaged over each bin [t_s, t_s + Ts), no effects; "
+                "noise = 0 (the map truth has no added noise); fuel_true = fuel_measured = the injected fuel "
+                "through the effects and the ECU's LFE1 update, sampled at t_s (before quantisation)")
+
+
+def describe_map_truth(vecto_engine) -> dict:
+    """The truth-file entry of the map truth."""
+    return {"name": MAP_TRUTH, "engine": vecto.describe(vecto_engine),
+            "structure": "f = map(n, T_brake + T_aux + T_fan) x k_tr / rho, 0 at or below the motoring torque; "
+                         "k_tr = 1 + c_max r/(r + T_max), r = lagged rate of torque increase [Nm/s]; "
+                         "LFE1 = mean over each 0.1 s ECU update, held",
+            "transient": {"c_max": round(2.0 * max(0.0, vecto_engine.whtc["urban"] - 1.0), 6),
+                          "tau_s": mapfuel.TRANSIENT_TAU_S},
+            "diesel_density_kg_l": mapfuel.DIESEL_DENSITY_KG_L, "ecu_update_s": mapfuel.LFE1_UPDATE_S,
+            "output": {"unit": "L/h", "signal": "LFE1.EngFuelRate (SPN 183)"},
+            "inputs": {"W": {"signal": "EEC1.EngSpeed", "spn": 190, "unit": "rpm"},
+                       "T": {"signal": "EEC1.ActualEngPercentTorque", "spn": 513, "unit": "%",
+                             "reference_torque_nm": vecto_engine.max_torque_nm}}}
 
 
 def output_paths(log_path: Path) -> dict:
@@ -322,9 +371,9 @@ def write(trip: Trip, log_path: Path, progress=None) -> dict:
     paths = output_paths(log_path)
     paths["log"].parent.mkdir(parents=True, exist_ok=True)
     tick("frames")
-    engine = ENGINES[cfg.truth]
-    ec1 = {"EngSpeedAtIdlePoint1": engine.idle_speed_rpm, "EngReferenceTorque": engine.reference_torque_nm,
-           "EngMomentOfInertia": trip.summary["engine"]["inertia_kgm2"]}
+    engine = trip.summary["engine"]
+    ec1 = {"EngSpeedAtIdlePoint1": engine["idle_speed_rpm"], "EngReferenceTorque": engine["reference_torque_nm"],
+           "EngMomentOfInertia": engine["inertia_kgm2"]}
     rng = np.random.default_rng(np.random.SeedSequence(cfg.seed).spawn(len(STREAMS))[STREAMS.index("gateway")])
     db = gateway.load_dbc()
     blocks = gateway.fms_frames(db, trip.signals, cfg.diesel, cfg.start_unix_s, cfg.duration_s, cfg.dt_s, rng,

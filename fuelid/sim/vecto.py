@@ -1,0 +1,227 @@
+"""VECTO engine sets: the .veng engine file, its .vmap fuel map and its .vfld full-load curve.
+
+VECTO (the European Commission's truck CO2 certification simulator) describes an engine by three files:
+
+    .veng  JSON, {"Body": {"IdlingSpeed" [rpm], "Inertia" [kg m²], "Displacement" [cm³], "FuelMap": "x.vmap",
+           "FullLoadCurve": "x.vfld", "WHTC-Urban"/"WHTC-Rural"/"WHTC-Motorway" [-]}}; file names relative to it
+    .vmap  CSV, one header line: engine speed [rpm], flywheel torque [N m], fuel consumption [g/h]
+    .vfld  CSV, one header line: engine speed [rpm], full-load torque [N m], motoring torque [N m] (<= 0),
+           optionally a PT1 time constant of the torque build-up [s]
+
+`read_engine` reads a set (a .veng path or a shipped set's short name, `SHIPPED`) into a `VectoEngine`; any
+malformed or incomplete file raises a FuelidError naming the file and the field. The steady-state map is
+interpolated linearly on a Delaunay triangulation of its (speed, torque) points, as VECTO does; a query is first
+clamped to the speed range and to [motoring, full load], and a point still outside the map's convex hull takes
+the value of the nearest map point.
+"""
+import json
+import math
+from dataclasses import dataclass, field
+from importlib.resources import files
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+from scipy.spatial import QhullError
+
+from fuelid.errors import FuelidError
+
+SHIPPED = {"vecto_325kW": "vecto_325kW_12.7l/Engine_325kW_12.7l.veng"}
+"""Short name -> engine file of the sets shipped in fuelid/sim/engines/ (each with its SOURCES.md)."""
+
+REQUIRED_VENG = ("IdlingSpeed", "Inertia", "FullLoadCurve", "FuelMap")
+WHTC_FIELDS = ("WHTC-Urban", "WHTC-Rural", "WHTC-Motorway")
+"""Transient correction factors; VECTO's engineering-mode files may omit them (then 1: no correction)."""
+
+
+@dataclass(frozen=True, eq=False)
+class VectoEngine:
+    """One engine set. Arrays: map points (rpm, N m, g/h) and the full-load curve over its speeds [rpm]."""
+
+    name: str
+    path: str                       # the .veng file
+    idle_speed_rpm: float
+    inertia_kgm2: float
+    displacement_cm3: float | None
+    whtc: dict                      # {"urban": f, "rural": f, "motorway": f}, dimensionless
+    map_rpm: np.ndarray
+    map_nm: np.ndarray
+    map_g_h: np.ndarray
+    fld_rpm: np.ndarray
+    full_load_nm: np.ndarray
+    motoring_nm: np.ndarray          # <= 0
+    pt1_s: np.ndarray | None         # torque build-up time constant per fld speed [s], None if not given
+    _linear: LinearNDInterpolator = field(repr=False, default=None)
+    _nearest: NearestNDInterpolator = field(repr=False, default=None)
+
+    @property
+    def max_torque_nm(self) -> float:
+        """Largest full-load torque [N m] (the J1939 reference torque, SPN 544)."""
+        return float(self.full_load_nm.max())
+
+    def full_load(self, speed_rpm):
+        """Full-load flywheel torque [N m] at engine speed [rpm], linear in the curve, its end values held."""
+        return np.interp(speed_rpm, self.fld_rpm, self.full_load_nm)
+
+    def motoring(self, speed_rpm):
+        """Motoring (drag) flywheel torque [N m] at engine speed [rpm], <= 0."""
+        return np.interp(speed_rpm, self.fld_rpm, self.motoring_nm)
+
+    def pt1(self, speed_rpm):
+        """PT1 time constant of the torque build-up [s] at engine speed [rpm]; 0 where the curve gives none."""
+        if self.pt1_s is None:
+            return np.zeros_like(np.asarray(speed_rpm, float))
+        return np.interp(speed_rpm, self.fld_rpm, self.pt1_s)
+
+    def fuel_g_h(self, speed_rpm, torque_nm):
+        """Steady-state fuel consumption [g/h] at engine speed [rpm] and flywheel torque [N m]:
+
+            FC = map(clip(n), clip(T, T_mot(n), T_full(n)))   for T > T_mot(n),   0 at or below motoring
+
+        `map` is linear on the Delaunay triangulation of the map points (nearest point outside their hull)."""
+        n = np.clip(np.asarray(speed_rpm, float), self.fld_rpm[0], self.fld_rpm[-1])
+        torque = np.asarray(torque_nm, float)
+        mot = self.motoring(n)
+        t = np.clip(torque, mot, self.full_load(n))
+        f = self._linear(n, t)
+        outside = np.isnan(f)
+        if np.any(outside):
+            f = np.where(outside, self._nearest(n, t), f)
+        return np.where(torque <= mot, 0.0, np.maximum(f, 0.0))
+
+
+def engine_file(name_or_path) -> Path:
+    """The .veng file of a shipped set's short name, or the given path."""
+    if str(name_or_path) in SHIPPED:
+        return Path(str(files("fuelid.sim") / "engines" / SHIPPED[str(name_or_path)]))
+    return Path(name_or_path)
+
+
+def read_engine(name_or_path) -> VectoEngine:
+    """The engine set named by a short name (`SHIPPED`) or a .veng path; FuelidError if it is not a valid set."""
+    path = engine_file(name_or_path)
+    if not path.is_file():
+        known = ", ".join(SHIPPED)
+        raise FuelidError(f"{path}: no such engine file (give a VECTO .veng file or one of: {known})")
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8-sig"))  # VECTO's own files often start with a BOM
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FuelidError(f"{path}: not a VECTO engine file (JSON): {exc}") from None
+    body = doc.get("Body") if isinstance(doc, dict) else None
+    if not isinstance(body, dict):
+        raise FuelidError(f"{path}: no \"Body\" object (not a VECTO engine file)")
+    missing = [k for k in REQUIRED_VENG if k not in body]
+    if missing:
+        raise FuelidError(f"{path}: field {missing[0]!r} missing")
+    idle = _number(path, body, "IdlingSpeed", 200.0, 1500.0)
+    inertia = _number(path, body, "Inertia", 0.1, 50.0)
+    displacement = _number(path, body, "Displacement", 100.0, 100000.0) if "Displacement" in body else None
+    whtc = {k.split("-")[1].lower(): (_number(path, body, k, 0.8, 1.5) if k in body else 1.0) for k in WHTC_FIELDS}
+    fld_rpm, full, motoring, pt1 = _read_full_load(_beside(path, body, "FullLoadCurve"))
+    map_path = _beside(path, body, "FuelMap")
+    map_rpm, map_nm, map_g_h = _read_map(map_path)
+    if fld_rpm[0] > idle:
+        raise FuelidError(f"{path}: IdlingSpeed {idle:g} rpm is below the full-load curve's first speed "
+                          f"{fld_rpm[0]:g} rpm")
+    points = np.column_stack([map_rpm, map_nm])
+    try:
+        linear = LinearNDInterpolator(points, map_g_h, rescale=True)
+    except QhullError:
+        raise FuelidError(f"{map_path}: the map's (speed, torque) points span no area (all on one line?)") from None
+    return VectoEngine(name=str(body.get("ModelName") or path.stem), path=str(path), idle_speed_rpm=idle,
+                       inertia_kgm2=inertia, displacement_cm3=displacement, whtc=whtc, map_rpm=map_rpm,
+                       map_nm=map_nm, map_g_h=map_g_h, fld_rpm=fld_rpm, full_load_nm=full, motoring_nm=motoring,
+                       pt1_s=pt1, _linear=linear, _nearest=NearestNDInterpolator(points, map_g_h, rescale=True))
+
+
+def describe(engine: VectoEngine) -> dict:
+    """The truth-file entry of an engine set (scalars only, no curves)."""
+    return {"name": engine.name, "file": Path(engine.path).name, "idle_speed_rpm": engine.idle_speed_rpm,
+            "inertia_kgm2": engine.inertia_kgm2, "displacement_cm3": engine.displacement_cm3,
+            "max_torque_nm": engine.max_torque_nm, "whtc": engine.whtc, "map_points": int(len(engine.map_rpm)),
+            "speed_range_rpm": [float(engine.fld_rpm[0]), float(engine.fld_rpm[-1])],
+            "pt1": engine.pt1_s is not None}
+
+
+def _number(path: Path, body: dict, key: str, low: float, high: float) -> float:
+    value = body[key]
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise FuelidError(f"{path}: field {key!r} is not a number: {value!r}") from None
+    if not (math.isfinite(x) and low <= x <= high):
+        raise FuelidError(f"{path}: field {key!r} = {x:g} is outside {low:g}..{high:g}")
+    return x
+
+
+def _beside(path: Path, body: dict, key: str) -> Path:
+    name = body[key]
+    if not isinstance(name, str) or not name.strip():
+        raise FuelidError(f"{path}: field {key!r} must name a file, got {name!r}")
+    target = path.parent / name.strip()
+    if not target.is_file():
+        raise FuelidError(f"{path}: field {key!r} names {target}, which does not exist")
+    return target
+
+
+def _read_table(path: Path, columns: tuple, optional: int = 0) -> np.ndarray:
+    """Rows of a VECTO CSV file (one header line, '#' comments) as floats; `columns` name the required columns,
+    `optional` more may follow."""
+    try:
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        raise FuelidError(f"{path}: not a text file: {exc}") from None
+    rows, width = [], None
+    body = [(i + 1, s) for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")]
+    if not body:
+        raise FuelidError(f"{path}: empty (expected a header line and rows of {', '.join(columns)})")
+    for number, line in body[1:]:  # the first line is the header
+        cells = [c.strip() for c in line.split("#")[0].split(",")]
+        if width is None:
+            width = len(cells)
+        if not len(columns) <= len(cells) <= len(columns) + optional or len(cells) != width:
+            raise FuelidError(f"{path}: line {number}: expected {len(columns)} columns "
+                              f"({', '.join(columns)}), got {len(cells)}")
+        try:
+            row = [float(c) for c in cells]
+        except ValueError:
+            raise FuelidError(f"{path}: line {number}: not a number in {line.strip()!r}") from None
+        if not all(math.isfinite(x) for x in row):
+            raise FuelidError(f"{path}: line {number}: not a finite number in {line.strip()!r}")
+        rows.append(row)
+    if len(rows) < 2:
+        raise FuelidError(f"{path}: fewer than two rows of {', '.join(columns)}")
+    return np.array(rows)
+
+
+def _read_full_load(path: Path):
+    cols = ("engine speed [rpm]", "full load torque [Nm]", "motoring torque [Nm]")
+    a = _read_table(path, cols, optional=1)
+    rpm, full, motoring = a[:, 0], a[:, 1], a[:, 2]
+    if np.any(np.diff(rpm) <= 0):
+        k = int(np.argmax(np.diff(rpm) <= 0)) + 1
+        raise FuelidError(f"{path}: {cols[0]} must increase, {rpm[k]:g} follows {rpm[k - 1]:g}")
+    if np.any(full < 0):
+        raise FuelidError(f"{path}: {cols[1]} is negative at {rpm[np.argmax(full < 0)]:g} rpm")
+    if np.any(motoring > 0):
+        raise FuelidError(f"{path}: {cols[2]} must be <= 0, is {motoring.max():g} at {rpm[np.argmax(motoring)]:g} rpm")
+    pt1 = a[:, 3] if a.shape[1] > 3 else None
+    if pt1 is not None and np.any(pt1 < 0):
+        raise FuelidError(f"{path}: PT1 time constant [s] is negative at {rpm[np.argmax(pt1 < 0)]:g} rpm")
+    return rpm, full, motoring, pt1
+
+
+def _read_map(path: Path):
+    cols = ("engine speed [rpm]", "torque [Nm]", "fuel consumption [g/h]")
+    a = _read_table(path, cols)
+    if len(a) < 3:
+        raise FuelidError(f"{path}: fewer than three map points")
+    if np.any(a[:, 2] < 0):
+        raise FuelidError(f"{path}: {cols[2]} is negative at {a[np.argmax(a[:, 2] < 0), 0]:g} rpm")
+    if np.any(a[:, 0] <= 0):
+        raise FuelidError(f"{path}: {cols[0]} must be positive")
+    _, first = np.unique(a[:, :2], axis=0, return_index=True)
+    if len(first) != len(a):
+        dup = a[np.setdiff1d(np.arange(len(a)), first)[0]]
+        raise FuelidError(f"{path}: the point {dup[0]:g} rpm, {dup[1]:g} Nm appears twice")
+    return a[:, 0], a[:, 1], a[:, 2]
