@@ -3,11 +3,11 @@ import json
 import math
 import sys
 
+import numpy as np
+
 
 def json_safe(x):
     """NaN/inf → None, numpy scalars and arrays → Python numbers and lists, keys → str."""
-    import numpy as np
-
     if isinstance(x, dict):
         return {str(k): json_safe(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):

@@ -1,8 +1,9 @@
 """fuelid fetch: a truck's model (model.json), and optionally its report and diagnosis, from the fleet server."""
-from fuelid.commands.upload import add_server_arguments, server_and_token
-from fuelid.output import print_json
+from pathlib import Path
 
-HELP = "download a truck's fuel model (latest or --version V) and its report from the fleet server"
+from fuelid.commands.upload import add_server_arguments, server_and_token
+from fuelid.fleet.client import FleetClient
+from fuelid.output import print_json
 
 
 def add_arguments(p):
@@ -17,10 +18,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from pathlib import Path
-
-    from fuelid.fleet.client import FleetClient
-
     client = FleetClient(*server_and_token(args))
     wanted = [("model.json", args.output), ("report.html", args.report), ("diagnosis.json", args.diagnosis)]
     version, written = args.version, {}

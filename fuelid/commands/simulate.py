@@ -2,9 +2,12 @@
 import time
 from pathlib import Path
 
+from fuelid.errors import FuelidError
 from fuelid.output import print_json
-
-HELP = "simulate a truck trip: FMS CAN log (+ gas flow-meter capture) and its truth files"
+from fuelid.progress import progress
+from fuelid.sim import catalog, effects, fuel, route, trip
+from fuelid.sim.effects import parse_effects
+from fuelid.sim.trip import TripConfig
 
 STAGES = ("route", "drive", "engine", "fuel", "signals", "frames", "log", "truth")
 
@@ -32,8 +35,6 @@ def add_arguments(p):
 
 
 def _listing() -> dict:
-    from fuelid.sim import catalog, effects, fuel, route
-
     return {"truths": list(fuel.TRUTHS), "cycles": list(route.CYCLE_NAMES),
             "effects": {n: {"default": e.default, "unit": e.unit, "spns": list(e.spns)}
                         for n, e in effects.EFFECTS.items()},
@@ -41,10 +42,6 @@ def _listing() -> dict:
 
 
 def _config(args):
-    from fuelid.errors import FuelidError
-    from fuelid.sim.effects import parse_effects
-    from fuelid.sim.trip import TripConfig
-
     try:
         effects = tuple(parse_effects(args.effect).items())
         return TripConfig(truth=args.truth, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
@@ -55,9 +52,6 @@ def _config(args):
 
 
 def _run_one(cfg, output: Path, label: str) -> dict:
-    from fuelid.progress import progress
-    from fuelid.sim import trip
-
     bar = progress(total=len(STAGES) + (not cfg.diesel), desc=label, unit="step")  # + meter stage (gas)
     t0 = time.perf_counter()
     try:
@@ -74,9 +68,6 @@ def _run_one(cfg, output: Path, label: str) -> dict:
 
 
 def run(args) -> int:
-    from fuelid.errors import FuelidError
-    from fuelid.sim import catalog
-
     if args.list:
         listing = _listing()
         if args.json:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import sqlalchemy as sa
 from sqlalchemy import event
+from sqlalchemy.dialects import postgresql, sqlite
 
 metadata = sa.MetaData()
 
@@ -145,9 +146,9 @@ def insert_ignore(conn, table: sa.Table, **values) -> bool:
     """INSERT that does nothing when the primary/unique key exists; True when a row was inserted."""
     dialect = conn.dialect.name
     if dialect == "postgresql":
-        from sqlalchemy.dialects.postgresql import insert
+        insert = postgresql.insert
     elif dialect == "sqlite":
-        from sqlalchemy.dialects.sqlite import insert
+        insert = sqlite.insert
     else:
         raise ValueError(f"unsupported database {dialect}")
     return conn.execute(insert(table).values(**values).on_conflict_do_nothing()).rowcount == 1

@@ -97,10 +97,10 @@ def test_imports_lightly(tmp_path):
     """Importing ident.live loads no SciPy; running it from a model file and writing snapshots loads no
     scipy.signal (ident.polymodel's filters). numba itself loads the scipy package and its BLAS bindings
     (scipy.linalg) with its array functions."""
-    code = """import sys, ident.live
+    code = """import sys, fuelid.ident.live
 print(any(m.startswith('scipy') for m in sys.modules))
 from fuelid.ident.modelfile import load_model
-live = ident.live.LiveEstimator.from_model(load_model(sys.argv[1]), snapshot_path=sys.argv[2])
+live = fuelid.ident.live.LiveEstimator.from_model(load_model(sys.argv[1]), snapshot_path=sys.argv[2])
 for k in range(100):
     live.feed('/j1939/EEC1', 0.1 * k, {'sa': 0, 'EngSpeed': 900.0 + k, 'ActualEngPercentTorque': 30.0})
     live.feed('/j1939/LFE1', 0.1 * k, {'sa': 0, 'EngFuelRate': 10.0})
