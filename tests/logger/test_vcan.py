@@ -223,7 +223,7 @@ def identify_session(tmp_path_factory):
         for m in sent:
             w.on_message_received(m)
     env = {**os.environ, "NUMBA_CACHE_DIR": str(work / "numba-cache"), "NUMBA_CPU_NAME": "generic"}
-    build = ("import numpy as np; from ident.polymodel import Structure; from ident.rpem import RPEM; "
+    build = ("import numpy as np; from fuelid.ident.polymodel import Structure; from fuelid.ident.rpem import RPEM; "
              "RPEM(Structure((2, 2), (2, 2), (3, 0)), 0.3).update(np.empty((0, 2)), np.empty(0))")
     subprocess.run([sys.executable, "-c", build], cwd=REPO, env=env, check=True)
     subprocess.run([sys.executable, "-m", "compileall", "-q", "fuelid/ident"], cwd=REPO, check=True)  # read-only in the VM
