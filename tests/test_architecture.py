@@ -1,6 +1,7 @@
 """The layers of docs/architecture.md, checked on the source: every module under fuelid/ is parsed with `ast`
 (imports at the top of a file and inside functions alike) and the module graph built from it must satisfy
 
+- the layers import downwards only (foundation → dbc → logger → ident → fleet; sim beside, over the logger);
 - the logger (fuelid.logger) imports nothing from the identification package (fuelid.ident);
 - nothing below the command line imports the command line (fuelid.cli, fuelid.commands.*);
 - no two modules import each other, directly or through a longer cycle (function-level imports included);
@@ -153,6 +154,8 @@ def where(module: str, target: str, line: int) -> str:
 def test_the_graph_covers_the_package():
     assert {"fuelid", "fuelid.cli", "fuelid.logger.daemon", "fuelid.ident.live", "fuelid.fleet.jobs"} <= set(GRAPH)
     assert "fuelid.errors" in {t for t, _, _ in GRAPH["fuelid.cli"]}  # a known edge is seen
+    unplaced = [m for m in GRAPH if not layer(m) and not is_cli(m)]
+    assert not unplaced, f"modules in no layer (add them to FOUNDATION or LAYERS): {unplaced}"
 
 
 def test_logger_imports_nothing_from_ident():
@@ -160,6 +163,33 @@ def test_logger_imports_nothing_from_ident():
            if m.startswith("fuelid.logger") and (t == "fuelid.ident" or t.startswith("fuelid.ident."))]
     assert not bad, "the logger must not import the identification package; pass it in (logger.daemon.Estimator):\n" \
         + "\n".join(bad)
+
+
+# Each layer (docs/architecture.md) and the layers it may import; the command line on top may import them all.
+FOUNDATION = {"fuelid", "fuelid.errors", "fuelid.output", "fuelid.progress"}
+LAYERS = {
+    "foundation": set(),
+    "dbc": {"foundation"},
+    "logger": {"foundation", "dbc"},
+    "ident": {"foundation", "dbc", "logger"},
+    "fleet": {"foundation", "dbc", "logger", "ident"},
+    "sim": {"foundation", "dbc", "logger"},  # beside the stack: makes recordings, never reads models
+}
+
+
+def layer(module: str) -> str | None:
+    """The layer of a fuelid module; None for the command line and for third-party names."""
+    if module in FOUNDATION:
+        return "foundation"
+    parts = module.split(".")
+    return parts[1] if parts[0] == "fuelid" and len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_layers_point_one_way():
+    bad = [where(m, t, line) for m, t, line in edges()
+           if layer(m) and layer(t) and layer(t) != layer(m) and layer(t) not in LAYERS[layer(m)]]
+    assert not bad, ("an import reaches up or across the layers (foundation → dbc → logger → ident → fleet; sim "
+                     "beside): pass the upper part in instead:\n" + "\n".join(bad))
 
 
 def test_nothing_below_the_cli_imports_the_cli():
