@@ -10,6 +10,7 @@ class FuelidError(Exception):
     """A user-facing error: bad input, a missing file, a malformed model. The message is the whole story."""
 
 
-class DataError(FuelidError, ValueError):
-    """Data that cannot give the result asked for (too few valid samples, nothing to calibrate on). Also a
-    ValueError, as numpy and scipy raise for such data, so callers that checked for that keep working."""
+class InputError(FuelidError, ValueError):
+    """Input that fuelid cannot use: an option or setting out of its range, a malformed spec, data that cannot
+    give the result asked for (too few valid samples, nothing to calibrate on). Also a ValueError, what Python
+    raises for a bad value, so callers that checked for that keep working."""

@@ -66,7 +66,7 @@ PENDING_IDENT_SPLIT = {
 }
 
 # Modules with an `except (FuelidError, ValueError)` left because ident.diagnosis raises ValueError for data too
-# short for its tests. TEMPORARY: emptied when the diagnosis split raises fuelid.errors.DataError there.
+# short for its tests. TEMPORARY: emptied when the diagnosis split raises fuelid.errors.InputError there.
 PENDING_DIAGNOSIS_ERRORS = {"fuelid.fleet.jobs"}
 
 
@@ -269,9 +269,9 @@ def error_family() -> set[str]:
 
 def test_domain_errors_are_caught_as_one_family():
     """Code handling a user's error catches the FuelidError family; ValueError next to it means something below
-    still raises ValueError for a domain error (raise fuelid.errors.DataError there instead)."""
+    still raises ValueError for a domain error (raise fuelid.errors.InputError there instead)."""
     family = error_family()
-    assert {"DataError", "JobError", "UploadError"} <= family
+    assert {"InputError", "JobError", "UploadError"} <= family
     bad = []
     for module, tree in TREES.items():
         for node in ast.walk(tree):

@@ -42,13 +42,10 @@ def _listing() -> dict:
 
 
 def _config(args):
-    try:
-        effects = tuple(parse_effects(args.effect).items())
-        return TripConfig(truth=args.truth, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
-                          effects=effects, mass_kg=args.mass, ambient_c=args.ambient,
-                          ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness)
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from None
+    effects = tuple(parse_effects(args.effect).items())
+    return TripConfig(truth=args.truth, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
+                      effects=effects, mass_kg=args.mass, ambient_c=args.ambient,
+                      ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness)
 
 
 def _run_one(cfg, output: Path, label: str) -> dict:

@@ -48,8 +48,6 @@ def _offline(args):
         if not auth.revoke_token(engine, args.token_id):
             raise FuelidError(f"no live token {args.token_id}")
         return {"id": args.token_id, "revoked": True}
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from exc
     finally:
         engine.dispose()
 

@@ -16,6 +16,8 @@ import sqlalchemy as sa
 from sqlalchemy import event
 from sqlalchemy.dialects import postgresql, sqlite
 
+from fuelid.errors import InputError
+
 metadata = sa.MetaData()
 
 schema_version = sa.Table("schema_version", metadata, sa.Column("version", sa.Integer, nullable=False))
@@ -94,7 +96,7 @@ def database_url(data_dir: str | Path | None, url: str | None) -> str:
     if url:
         return url
     if data_dir is None:
-        raise ValueError("give a data directory or a database URL")
+        raise InputError("give a data directory or a database URL")
     return f"sqlite:///{Path(data_dir).resolve() / 'fleet.db'}"
 
 
@@ -150,7 +152,7 @@ def insert_ignore(conn, table: sa.Table, **values) -> bool:
     elif dialect == "sqlite":
         insert = sqlite.insert
     else:
-        raise ValueError(f"unsupported database {dialect}")
+        raise InputError(f"unsupported database {dialect}")
     return conn.execute(insert(table).values(**values).on_conflict_do_nothing()).rowcount == 1
 
 
