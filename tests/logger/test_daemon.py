@@ -190,7 +190,8 @@ def test_low_free_space_closes_the_file_cleanly(tmp_path, drive, monkeypatch):
     _wait(lambda: run.daemon.sink.recorder.stats.frames == 100)
     free["mb"] = 5.0
     _wait(lambda: run.daemon.sink.part is None, timeout=5)
-    assert len(list(run.config.output_dir.glob("*.mcap"))) == 1  # closed and renamed, not abandoned
+    # closed and renamed, not abandoned (the daemon clears `part` before it closes the file: wait for the rename)
+    _wait(lambda: len(list(run.config.output_dir.glob("*.mcap"))) == 1, timeout=5)
     free["mb"] = 50.0
     _wait(lambda: run.daemon.sink.part is not None, timeout=5)
     run.stop()
