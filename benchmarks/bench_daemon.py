@@ -26,6 +26,7 @@ from pathlib import Path
 import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from fuelid.commands.log import estimator  # noqa: E402
 from fuelid.logger.config import LoggerConfig  # noqa: E402
 from fuelid.logger.daemon import Daemon  # noqa: E402
 from tests.logger import traffic  # noqa: E402
@@ -66,7 +67,7 @@ def run_fuelid(rate: float, seconds: float, out: Path, model: Path | None = None
     """The daemon on the virtual bus; with `model`, online identification from it (--identify --model)."""
     config = LoggerConfig(interface="virtual", channel="bench-fuelid", output_dir=out, identify=model is not None,
                           identify_model=model)
-    daemon = Daemon(config)
+    daemon = Daemon(config, estimator(config))  # as `fuelid log` wires it
     main = threading.Thread(target=daemon.run)
     main.start()
     while daemon.bus is None or daemon.bus.state != "up":

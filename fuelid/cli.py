@@ -1,7 +1,7 @@
 """The `fuelid` command: one subcommand per module in fuelid/commands.
 
-Each command module defines HELP (one line), add_arguments(parser) and run(args) -> int exit code.
-Command modules import their heavy dependencies inside run(), so `fuelid --help` stays fast.
+COMMANDS gives each command's one-line help; its module defines add_arguments(parser) and run(args) -> int exit
+code. Only the module of the command being run is imported, so `fuelid --help` stays fast.
 """
 import argparse
 import importlib
@@ -12,40 +12,40 @@ from fuelid import __version__
 from fuelid.errors import FuelidError
 from fuelid.paths import os_error_message, readable_file, writable_file
 
-# name -> module under fuelid.commands; listed in the order of the data flow.
-COMMANDS = [
-    "convert",
-    "recover",
-    "log",
-    "status",
-    "replay",
-    "simulate",
-    "dataset",
-    "identify",
-    "compare",
-    "diagnose",
-    "report",
-    "online",
-    "serve",
-    "token",
-    "upload",
-    "trucks",
-    "fetch",
-    "refit",
-]
+# command -> its one-line help; the module fuelid.commands.<command> holds the rest. In the order of the data flow.
+COMMANDS = {
+    "convert": "convert recorded CAN logs (candump, ASC, BLF, TRC, MF4) and flow-meter captures to MCAP",
+    "recover": "rewrite an MCAP log cut by a power loss as a valid, indexed file",
+    "log": "log a CAN bus (and the flow meter) to rotated MCAP files until stopped; the in-cab daemon",
+    "status": "show the logger daemon's health: uptime, frames/s, drops, decode errors, current file, serial, VIN",
+    "replay": "play recorded CAN logs (candump, ASC, BLF, TRC, MCAP) onto a CAN bus with their original timing",
+    "simulate": "simulate a truck trip: FMS CAN log (+ gas flow-meter capture) and its truth files",
+    "dataset": "resample MCAP recordings to an identification data set (CSV or MATLAB .mat)",
+    "identify": "identify a Box-Jenkins fuel-flow model (engine speed, torque -> fuel) from MCAP recordings",
+    "compare": "compare model files with measurements (fit, whiteness, cycle fuel error) and static baselines",
+    "diagnose": "diagnose a model on recordings: where it fails and which physical effect is missing (ranked, tested)",
+    "report": "write the diagnosis of a model (and the models refitted with effects) as one offline HTML report",
+    "online": "run the online BJ estimator (recursive prediction error or Kalman) over MCAP recordings",
+    "serve": "run the fleet server: truck uploads, per-truck model registry, identification jobs on Dask",
+    "token": "create, list or revoke fleet API tokens (--data-dir/--database-url offline, else via --server)",
+    "upload": "upload MCAP files to the fleet server (resumes cut uploads; idempotent by sha256)",
+    "trucks": "list the fleet's trucks, or one truck's files and model versions (fleet server)",
+    "fetch": "download a truck's fuel model (latest or --version V) and its report from the fleet server",
+    "refit": "start identification jobs on the fleet server for one truck or the whole fleet (--all)",
+}
 
 
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
-    """The parser for `argv`: only the named command's module is imported (all of them for the overview help)."""
+    """The parser for `argv`: only the named command's module is imported (none for the overview help)."""
     parser = argparse.ArgumentParser(prog="fuelid", description="Truck CAN logger and fuel-flow model identification.")
     parser.add_argument("--version", action="version", version=f"fuelid {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    chosen = [name for name in COMMANDS if name in argv[:1]] or COMMANDS
-    for name in chosen:
-        module = importlib.import_module(f"fuelid.commands.{name}")
-        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
-        module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+    for name, summary in COMMANDS.items():
+        p = sub.add_parser(name, help=summary, description=summary)
+        if name in argv[:1]:
+            module = importlib.import_module(f"fuelid.commands.{name}")
+            module.add_arguments(p)
+            p.set_defaults(_run=module.run)
     return parser
 
 

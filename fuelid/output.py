@@ -5,21 +5,16 @@ import sys
 
 
 def json_safe(x):
-    """NaN/inf → None, numpy scalars and arrays → Python numbers and lists, keys → str."""
-    import numpy as np
-
+    """NaN/inf → None, numpy scalars and arrays → Python numbers and lists (by their tolist(), so this module
+    does not load numpy for the commands that print no arrays), keys → str."""
     if isinstance(x, dict):
         return {str(k): json_safe(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [json_safe(v) for v in x]
-    if isinstance(x, np.ndarray):
+    if hasattr(x, "tolist"):  # numpy arrays and scalars
         return json_safe(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
     return x
 
 

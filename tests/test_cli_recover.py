@@ -7,11 +7,6 @@ from fuelid import cli
 from fuelid.logger.mcap_log import RAW_SCHEMA, McapLogWriter, read_messages
 
 
-@pytest.fixture(autouse=True)
-def only_recover(monkeypatch):
-    monkeypatch.setattr(cli, "COMMANDS", ["recover"])  # the other commands are not under test here
-
-
 @pytest.fixture
 def cut_log(tmp_path):
     path = tmp_path / "trip.mcap"

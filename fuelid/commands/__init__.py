@@ -1,1 +1,2 @@
-"""One module per `fuelid` subcommand: HELP, add_arguments(parser), run(args) -> int."""
+"""One module per `fuelid` subcommand (its one-line help in fuelid.cli.COMMANDS): add_arguments(parser),
+run(args) -> int."""

@@ -2,10 +2,15 @@
 engine map of paper 000 and the locally weighted regressions VB, EB, EB* of paper 001 (ident.baseline)."""
 import sys
 
-from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.commands.dataset import add_dataset_arguments, build, build_for_models
+from fuelid.commands.identify import format_table
+from fuelid.errors import FuelidError
+from fuelid.ident.baseline import engine_map, seed2_baselines
+from fuelid.ident.modelfile import load_model
+from fuelid.ident.report import improvement_sentence
+from fuelid.ident.validation import evaluate, evaluate_static
 from fuelid.output import print_json
 
-HELP = "compare model files with measurements (fit, whiteness, cycle fuel error) and static baselines"
 STATIC = {"vb": "VB", "eb": "EB", "ebstar": "EB*"}  # --baselines id → ident.baseline kind
 BASELINES = ("map", *STATIC)
 
@@ -26,14 +31,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.commands.dataset import build, build_for_models
-    from fuelid.commands.identify import format_table
-    from fuelid.errors import FuelidError
-    from fuelid.ident.baseline import engine_map, seed2_baselines
-    from fuelid.ident.modelfile import load_model
-    from fuelid.ident.report import improvement_sentence
-    from fuelid.ident.validation import evaluate, evaluate_static
-
     wanted = [b.strip().lower() for b in args.baselines.split(",") if b.strip()]
     unknown = sorted(set(wanted) - set(BASELINES))
     if unknown:
@@ -59,7 +56,7 @@ def run(args) -> int:
     if kinds:
         try:
             s2 = seed2_baselines(cal, ds, kinds)
-        except (FuelidError, ValueError) as exc:
+        except FuelidError as exc:
             s2 = {"predictions": {}, "errors": dict.fromkeys(kinds, str(exc)), "fuel_shift": None, "J1": None}
         sweeps = {"fuel_shift": s2["fuel_shift"], "J1": s2["J1"], "built_from": built["built_from"]}
         for b in wanted:

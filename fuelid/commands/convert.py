@@ -3,9 +3,12 @@ import heapq
 import math
 from pathlib import Path
 
+from fuelid.errors import FuelidError
+from fuelid.logger.flowmeter import Calibration, capture_readings
+from fuelid.logger.readers import open_frames
+from fuelid.logger.recorder import Recorder, open_writer
 from fuelid.output import print_json
-
-HELP = "convert recorded CAN logs (candump, ASC, BLF, TRC, MF4) and flow-meter captures to MCAP"
+from fuelid.progress import progress
 
 
 def add_arguments(p):
@@ -19,12 +22,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.errors import FuelidError
-    from fuelid.progress import progress
-    from fuelid.logger.flowmeter import Calibration, capture_readings
-    from fuelid.logger.readers import open_frames
-    from fuelid.logger.recorder import Recorder, open_writer
-
     inputs = [Path(p) for p in args.inputs]
     for path in inputs + ([Path(args.flowmeter)] if args.flowmeter else []):
         if not path.is_file():

@@ -1,9 +1,10 @@
 """fuelid dataset: MCAP recordings to a resampled identification data set (.csv or .mat) for cross-checks."""
 import sys
+import warnings
 
+from fuelid.errors import FuelidError
+from fuelid.ident.dataset import build_dataset, csv_sidecar, save_dataset
 from fuelid.output import print_json
-
-HELP = "resample MCAP recordings to an identification data set (CSV or MATLAB .mat)"
 
 
 def add_dataset_arguments(p):
@@ -20,10 +21,6 @@ def add_dataset_arguments(p):
 
 def build(args, paths):
     """The Dataset of `paths` with the options of add_dataset_arguments."""
-    import warnings
-
-    from fuelid.ident.dataset import build_dataset
-
     with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
         warnings.simplefilter("ignore", UserWarning)
         return build_dataset(paths, Ts=args.ts or 0.3, fuel=args.fuel, max_gap_s=args.max_gap, cycle_s=args.cycle)
@@ -33,8 +30,6 @@ def build_for_models(args, paths, models):
     """The Dataset of `paths` to evaluate `models` [(path, PolyModel)] on: --ts defaults to the models' Ts and
     --fuel auto to the signal of their output unit (meter for kg/h, LFE1 for L/h); every model's Ts must be
     the data's (FuelidError otherwise)."""
-    from fuelid.errors import FuelidError
-
     ts = {m.Ts for _, m in models}
     if args.ts is None:
         if len(ts) > 1:
@@ -58,9 +53,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.errors import FuelidError
-    from fuelid.ident.dataset import csv_sidecar, save_dataset
-
     if not args.output.endswith((".csv", ".mat")):
         raise FuelidError(f"{args.output}: output must end in .csv or .mat")
     ds = build(args, args.inputs)

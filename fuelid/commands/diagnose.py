@@ -1,9 +1,10 @@
 """fuelid diagnose: where a fuel model fails on measurements, and which physical effect it is missing."""
 
-from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.commands.dataset import add_dataset_arguments, build_for_models
+from fuelid.errors import FuelidError
+from fuelid.ident.diagnosis import diagnose
+from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
-
-HELP = "diagnose a model on recordings: where it fails and which physical effect is missing (ranked, tested)"
 
 
 def add_arguments(p):
@@ -53,11 +54,6 @@ def format_report(result: dict, top: int = 8) -> str:
 
 
 def run(args) -> int:
-    from fuelid.commands.dataset import build_for_models
-    from fuelid.errors import FuelidError
-    from fuelid.ident.diagnosis import diagnose
-    from fuelid.ident.modelfile import load_model
-
     model = load_model(args.model)
     ds = build_for_models(args, args.inputs, [(args.model, model)])
     try:

@@ -1,9 +1,10 @@
 """fuelid fetch: a truck's model (model.json), and optionally its report and diagnosis, from the fleet server."""
+from pathlib import Path
+
 from fuelid.commands.upload import add_server_arguments, server_and_token
+from fuelid.fleet.client import FleetClient
 from fuelid.output import print_json
 from fuelid.paths import writable_file
-
-HELP = "download a truck's fuel model (latest or --version V) and its report from the fleet server"
 
 
 def add_arguments(p):
@@ -18,10 +19,7 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from pathlib import Path
-
-    from fuelid.fleet.client import FleetClient
-
+    client = FleetClient(*server_and_token(args))
     wanted = [("model.json", args.output), ("report.html", args.report), ("diagnosis.json", args.diagnosis)]
     for _, target in wanted:
         if target:

@@ -1,49 +1,21 @@
 """fuelid identify: a Box-Jenkins fuel-flow model from MCAP recordings by prediction-error identification."""
+import dataclasses
 import json
 import sys
 import time
 from pathlib import Path
 
-from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
+from fuelid.ident.identify import identify_model
+from fuelid.ident.modelfile import save_model
+from fuelid.ident.orders import search_dataset_orders
+from fuelid.ident.polymodel import Structure, parse_orders
 from fuelid.output import print_json
-
-HELP = "identify a Box-Jenkins fuel-flow model (engine speed, torque -> fuel) from MCAP recordings"
 
 ORDERS_HELP = ("model orders: 'paper' (Gw nb=4 nf=5 nk=3, GT nb=5 nf=5 nk=0, C and D order 11), 'auto' (order "
                "search), or a SPEC 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11' (per-input lists for nb, nf, nk; "
                "nc, nd, na single numbers, 0 when left out)")
-PAPER = dict(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11)
-
-
-def parse_orders(spec: str) -> dict:
-    """'paper' or 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11[;na=0]' → Structure keyword arguments."""
-    if spec == "paper":
-        return dict(PAPER)
-    if spec == "auto":
-        raise FuelidError("--orders auto is an offline search (fuelid identify); here give paper or a SPEC")
-    out = {}
-    try:
-        for part in filter(None, (p.strip() for p in spec.replace(" ", ";").split(";"))):
-            key, value = (x.strip() for x in part.split("=", 1))
-            if key in ("nb", "nf", "nk"):
-                out[key] = tuple(int(v) for v in value.split(","))
-            elif key in ("nc", "nd", "na"):
-                out[key] = int(value)
-            else:
-                raise ValueError(f"unknown order {key!r}")
-        if "nb" not in out:
-            raise ValueError("nb is required")
-        m = len(out["nb"])
-        out.setdefault("nf", (0,) * m)
-        out.setdefault("nk", (1,) * m)
-        if not len(out["nf"]) == len(out["nk"]) == m == 2:
-            raise ValueError("nb, nf and nk need one value per input (engine speed, torque)")
-    except ValueError as exc:
-        raise FuelidError(f"--orders {spec!r}: {exc}") from exc
-    return out
-
-
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings to identify on")
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
@@ -84,13 +56,6 @@ def significant_effects(path: str) -> list[str]:
 
 
 def run(args) -> int:
-    import dataclasses
-
-    from fuelid.commands.dataset import build
-    from fuelid.ident.identify import identify_model
-    from fuelid.ident.modelfile import save_model
-    from fuelid.ident.polymodel import Structure
-
     t_start = time.perf_counter()
     if args.effects_from:
         args.effect += [e for e in significant_effects(args.effects_from) if e not in args.effect]
@@ -99,8 +64,6 @@ def run(args) -> int:
     t_data = time.perf_counter()
     search = None
     if structure is None:  # the lowest orders passing the paper's residual tests, then the fit with effects
-        from fuelid.ident.orders import search_dataset_orders
-
         search = search_dataset_orders(ds, args.min_segment)
         structure = search.structure
     model = identify_model(ds, structure, args.effect, min_segment_s=args.min_segment, files=args.inputs)

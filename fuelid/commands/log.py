@@ -2,7 +2,9 @@
 import logging
 import signal
 
-HELP = "log a CAN bus (and the flow meter) to rotated MCAP files until stopped; the in-cab daemon"
+from fuelid.ident.live import LiveEstimator, live_estimator
+from fuelid.logger.config import LoggerConfig
+from fuelid.logger.daemon import Daemon
 
 
 def add_arguments(p):
@@ -48,9 +50,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.logger.config import LoggerConfig
-    from fuelid.logger.daemon import Daemon
-
     overrides = {k: getattr(args, k) for k in (
         "interface", "channel", "bitrate", "listen_only", "serial_port", "serial_baudrate", "flow_gain",
         "flow_offset", "output_dir", "rotate_s", "rotate_mb", "min_free_mb", "status_file", "truck", "identify",
@@ -60,8 +59,17 @@ def run(args) -> int:
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format="%(asctime)s %(levelname)s %(message)s")
     logging.getLogger("can").setLevel(logging.WARNING)  # python-can says "Created a socket" at each reconnect
-    daemon = Daemon(config)
+    daemon = Daemon(config, estimator(config))
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: daemon.stop())
     daemon.run()
     return 0
+
+
+def estimator(config: LoggerConfig) -> LiveEstimator | None:
+    """The online estimator the identify settings ask for (None when off), for the daemon to run."""
+    if not config.identify:
+        return None
+    return live_estimator(model=config.identify_model, orders=config.identify_orders, method=config.identify_method,
+                          forgetting=config.identify_forgetting, snapshot_path=config.output_dir / "model.json",
+                          snapshot_every_s=config.snapshot_s, speed=config.replay_speed)

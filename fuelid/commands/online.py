@@ -1,11 +1,20 @@
 """fuelid online: the recursive (RPEM or Kalman) estimator run over recorded files, as it runs live in the daemon."""
+import dataclasses
 import time
 
-from fuelid.commands.dataset import add_dataset_arguments
-from fuelid.commands.identify import ORDERS_HELP
-from fuelid.output import print_json
+import numpy as np
 
-HELP = "run the online BJ estimator (recursive prediction error or Kalman) over MCAP recordings"
+from fuelid.commands.dataset import add_dataset_arguments, build
+from fuelid.commands.identify import ORDERS_HELP
+from fuelid.errors import FuelidError
+from fuelid.ident.live import check_online, prior_estimator
+from fuelid.ident.modelfile import load_model, save_model
+from fuelid.ident.polymodel import Structure, parse_orders
+from fuelid.ident.rpem import RPEM
+from fuelid.ident.validation import evaluate
+from fuelid.output import print_json
+from fuelid.progress import progress
+
 CHUNK = 20000  # samples per estimator call (progress bar step)
 
 
@@ -32,27 +41,11 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    import dataclasses
-
-    import numpy as np
-
-    from fuelid.commands.dataset import build
-    from fuelid.commands.identify import parse_orders
-    from fuelid.errors import FuelidError
-    from fuelid.progress import progress
-    from fuelid.ident.modelfile import load_model, save_model
-    from fuelid.ident.polymodel import Structure
-    from fuelid.ident.validation import evaluate
-
     prior = load_model(args.prior) if args.prior else None
     structure = Structure(**parse_orders(args.orders or "paper")) if args.orders or not prior else prior.structure
     if prior is not None and prior.structure != structure:
         raise FuelidError(f"--orders {args.orders} differ from the prior's structure {prior.structure}")
-    if structure.na or structure.n_inputs != 2:
-        raise FuelidError("the online estimator takes BJ/OE orders for engine speed and torque (na = 0)")
-    if prior is not None and prior.effects:
-        raise FuelidError(f"the prior includes effects {list(prior.effects)}; the online estimator has speed and "
-                          "torque only")
+    check_online(structure, prior.effects if prior is not None else (), args.prior)
     if args.forgetting is not None and not 0.0 < args.forgetting <= 1.0:
         raise FuelidError(f"--forgetting must be in (0, 1], got {args.forgetting}")
 
@@ -131,10 +124,6 @@ def _pct(v) -> str:
 def make_estimator(args, structure, ds, prior):
     """The estimator the options ask for: from the prior (ident.live.prior_estimator), else an RPEM from scratch
     at the data's operating point."""
-    from fuelid.errors import FuelidError
-    from fuelid.ident.live import prior_estimator
-    from fuelid.ident.rpem import RPEM
-
     if prior is not None:
         return prior_estimator(prior, method=args.method, forgetting=args.forgetting, drift=args.drift,
                                adapt=args.adapt)

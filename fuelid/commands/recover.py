@@ -1,9 +1,8 @@
 """`fuelid recover BROKEN.mcap [-o FIXED.mcap] [--json]`: rewrite a truncated MCAP log as a valid one."""
 from pathlib import Path
 
+from fuelid.logger.mcap_log import recover
 from fuelid.output import print_json
-
-HELP = "rewrite an MCAP log cut by a power loss as a valid, indexed file"
 
 
 def add_arguments(parser) -> None:
@@ -14,8 +13,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from fuelid.logger.mcap_log import recover
-
     output = args.output or args.input.with_name(f"{args.input.stem}.recovered.mcap")
     stats = recover(args.input, output)
     summary = {"input": str(args.input), "output": str(output), **stats.to_dict()}

@@ -1,10 +1,10 @@
 """fuelid refit: ask the fleet server to identify a truck's model again, or every truck's (Dask jobs)."""
 import sys
+import time
 
 from fuelid.commands.upload import add_server_arguments, server_and_token
+from fuelid.fleet.client import FleetClient
 from fuelid.output import print_json
-
-HELP = "start identification jobs on the fleet server for one truck or the whole fleet (--all)"
 
 
 def add_arguments(p):
@@ -19,10 +19,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    import time
-
-    from fuelid.fleet.client import FleetClient
-
     client = FleetClient(*server_and_token(args))
     jobs = client.refit(None if args.all else args.truck)
     jobs = jobs if isinstance(jobs, list) else [jobs]

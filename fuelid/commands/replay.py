@@ -3,9 +3,11 @@ import signal
 import sys
 import threading
 
-from fuelid.output import print_json
+import can
 
-HELP = "play recorded CAN logs (candump, ASC, BLF, TRC, MCAP) onto a CAN bus with their original timing"
+from fuelid.errors import FuelidError
+from fuelid.logger.replay import PtyMeter, replay
+from fuelid.output import print_json
 
 
 def add_arguments(p):
@@ -22,9 +24,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.errors import FuelidError
-    from fuelid.logger.replay import PtyMeter, replay
-
     if not args.inputs and not args.flowmeter:
         raise FuelidError("nothing to replay: give CAN recordings and/or --flowmeter CAPTURE")
     if (args.pty or args.pty_link) and not args.flowmeter:
@@ -35,8 +34,6 @@ def run(args) -> int:
     bus = meter = None
     try:
         if args.inputs:
-            import can
-
             options = {"bitrate": args.bitrate} if args.bitrate else {}
             try:
                 bus = can.Bus(interface=args.interface, channel=args.channel, **options)

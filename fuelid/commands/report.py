@@ -1,10 +1,14 @@
 """fuelid report: the diagnosis of a model on recordings as one self-contained HTML file (ident.report)."""
+import json
 from pathlib import Path
 
-from fuelid.commands.dataset import add_dataset_arguments
+from fuelid.commands.dataset import add_dataset_arguments, build_for_models
+from fuelid.errors import FuelidError
+from fuelid.ident.diagnosis import diagnose
+from fuelid.ident.modelfile import load_model
+from fuelid.ident.report import write_report
+from fuelid.logger.mcap_log import read_metadata
 from fuelid.paths import readable_file
-
-HELP = "write the diagnosis of a model (and the models refitted with effects) as one offline HTML report"
 
 
 def add_arguments(p):
@@ -28,8 +32,6 @@ def add_arguments(p):
 
 def truck_name(paths) -> str | None:
     """The truck named in the recordings' fuelid MCAP metadata (VIN when seen), several joined by ', '."""
-    from fuelid.logger.mcap_log import read_metadata
-
     names = []
     for p in paths:
         try:
@@ -43,10 +45,6 @@ def truck_name(paths) -> str | None:
 
 def saved_diagnosis(path: str, model_path: str, data_paths: list[str]) -> dict:
     """A saved `fuelid diagnose --json` result, checked to be of this model on these recordings."""
-    import json
-
-    from fuelid.errors import FuelidError
-
     try:
         diagnosis = json.loads(Path(path).read_text())
         of = (diagnosis["model"].get("file"), diagnosis["data"].get("files"))
@@ -59,12 +57,6 @@ def saved_diagnosis(path: str, model_path: str, data_paths: list[str]) -> dict:
 
 
 def run(args) -> int:
-    from fuelid.commands.dataset import build_for_models
-    from fuelid.errors import FuelidError
-    from fuelid.ident.diagnosis import diagnose
-    from fuelid.ident.modelfile import load_model
-    from fuelid.ident.report import write_report
-
     model_paths = [p for p in args.inputs if p.endswith(".json")]
     data_paths = [p for p in args.inputs if not p.endswith(".json")]
     if not model_paths or not data_paths:

@@ -1,6 +1,7 @@
 """fuelid serve: the fleet server (uploads, model registry, identification jobs on Dask) under uvicorn."""
+from pathlib import Path
 
-HELP = "run the fleet server: truck uploads, per-truck model registry, identification jobs on Dask"
+from fuelid.errors import FuelidError
 
 
 def add_arguments(p):
@@ -26,12 +27,10 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from pathlib import Path
-
+    # the optional [fleet] extra (uvicorn, FastAPI): imported here so the rest of the CLI works without it
     import uvicorn
 
     from fuelid.fleet.app import MiB, Settings, create_app
-    from fuelid.errors import FuelidError
 
     if args.max_upload_mb <= 0 or args.refit_window_h <= 0:
         raise FuelidError("--max-upload-mb and --refit-window-h must be positive")

@@ -2,9 +2,13 @@
 import time
 from pathlib import Path
 
+from fuelid.errors import FuelidError
 from fuelid.output import print_json
-
-HELP = "simulate a truck trip: FMS CAN log (+ gas flow-meter capture) and its truth files"
+from fuelid.progress import progress
+from fuelid.sim import catalog, effects, route, trip
+from fuelid.sim.effects import parse_effects
+from fuelid.sim.trip import MAP_TRUTH, TRUTH_NAMES, TripConfig
+from fuelid.sim.vecto import SHIPPED, read_engine
 
 DEFAULT_TRUTH = "diesel_p320"
 TRUTH_ALIASES = {"paper_p320": "diesel_p320"}
@@ -39,10 +43,6 @@ def add_arguments(p):
 
 
 def _listing() -> dict:
-    from fuelid.sim import catalog, effects, route
-    from fuelid.sim.trip import TRUTH_NAMES
-    from fuelid.sim.vecto import SHIPPED
-
     return {"truths": list(TRUTH_NAMES), "engines": list(SHIPPED), "cycles": list(route.CYCLE_NAMES),
             "effects": {n: {"default": e.default, "unit": e.unit, "spns": list(e.spns)}
                         for n, e in effects.EFFECTS.items()},
@@ -50,28 +50,16 @@ def _listing() -> dict:
 
 
 def _config(args):
-    from fuelid.errors import FuelidError
-    from fuelid.sim.effects import parse_effects
-    from fuelid.sim.trip import MAP_TRUTH, TripConfig
-    from fuelid.sim.vecto import read_engine
-
     truth = TRUTH_ALIASES.get(args.truth, args.truth) or (MAP_TRUTH if args.engine else DEFAULT_TRUTH)
-    try:
-        effects = tuple(parse_effects(args.effect).items())
-        cfg = TripConfig(truth=truth, engine=args.engine, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
-                         effects=effects, mass_kg=args.mass, ambient_c=args.ambient,
-                         ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness)
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from None
+    cfg = TripConfig(truth=truth, engine=args.engine, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
+                     effects=tuple(parse_effects(args.effect).items()), mass_kg=args.mass, ambient_c=args.ambient,
+                     ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness)
     if cfg.engine:
         read_engine(cfg.engine)  # a broken engine set fails here, in one line, before any simulation
     return cfg
 
 
 def _run_one(cfg, output: Path, label: str) -> dict:
-    from fuelid.progress import progress
-    from fuelid.sim import trip
-
     bar = progress(total=len(STAGES) + (not cfg.diesel), desc=label, unit="step")  # + meter stage (gas)
     t0 = time.perf_counter()
     try:
@@ -88,9 +76,6 @@ def _run_one(cfg, output: Path, label: str) -> dict:
 
 
 def run(args) -> int:
-    from fuelid.errors import FuelidError
-    from fuelid.sim import catalog
-
     if args.list:
         listing = _listing()
         if args.json:

@@ -1,9 +1,10 @@
 """fuelid status: what the running logger daemon reports in its status file."""
 import time
 
+from fuelid.errors import FuelidError
+from fuelid.logger.config import LoggerConfig
+from fuelid.logger.daemon import read_status
 from fuelid.output import print_json
-
-HELP = "show the logger daemon's health: uptime, frames/s, drops, decode errors, current file, serial, VIN"
 
 STALE_S = 5.0  # a status older than this means the daemon is not running (it rewrites it every second)
 
@@ -15,10 +16,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.errors import FuelidError
-    from fuelid.logger.config import LoggerConfig
-    from fuelid.logger.daemon import read_status
-
     path = LoggerConfig.load(args.config, status_file=args.status_file).status_file
     try:
         s = read_status(path)

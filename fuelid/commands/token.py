@@ -1,8 +1,8 @@
 """fuelid token: create, list and revoke fleet API tokens, offline on the database or through the server."""
-from fuelid.commands.upload import add_server_arguments
+from fuelid.commands.upload import add_server_arguments, server_and_token
+from fuelid.errors import FuelidError
+from fuelid.fleet.client import FleetClient
 from fuelid.output import print_json
-
-HELP = "create, list or revoke fleet API tokens (--data-dir/--database-url offline, else via --server)"
 
 
 def add_arguments(p):
@@ -18,8 +18,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from fuelid.errors import FuelidError
-
     if args.action == "create" and not args.role:
         raise FuelidError("token create needs --role admin|engineer|truck")
     if args.action == "revoke" and args.token_id is None:
@@ -39,8 +37,7 @@ def run(args) -> int:
 
 
 def _offline(args):
-    from fuelid.fleet import auth, db
-    from fuelid.errors import FuelidError
+    from fuelid.fleet import auth, db  # the optional [fleet] extra (SQLAlchemy): `token --server` works without it
 
     engine = db.open_database(args.data_dir, args.database_url)
     try:
@@ -51,16 +48,11 @@ def _offline(args):
         if not auth.revoke_token(engine, args.token_id):
             raise FuelidError(f"no live token {args.token_id}")
         return {"id": args.token_id, "revoked": True}
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from exc
     finally:
         engine.dispose()
 
 
 def _online(args):
-    from fuelid.fleet.client import FleetClient
-    from fuelid.commands.upload import server_and_token
-
     client = FleetClient(*server_and_token(args))
     if args.action == "create":
         return client.create_token(args.role, args.truck, args.name)

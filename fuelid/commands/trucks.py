@@ -1,8 +1,9 @@
 """fuelid trucks: the fleet server's trucks (files, time range, latest model), or one truck's files and models."""
-from fuelid.commands.upload import add_server_arguments, server_and_token
-from fuelid.output import print_json
+import datetime
 
-HELP = "list the fleet's trucks, or one truck's files and model versions (fleet server)"
+from fuelid.commands.upload import add_server_arguments, server_and_token
+from fuelid.fleet.client import FleetClient
+from fuelid.output import print_json
 
 
 def add_arguments(p):
@@ -12,16 +13,12 @@ def add_arguments(p):
 
 
 def _utc(ns) -> str:
-    import datetime
-
     if ns is None:
         return "-"
     return datetime.datetime.fromtimestamp(ns / 1e9, datetime.timezone.utc).strftime("%Y-%m-%d %H:%M")
 
 
 def run(args) -> int:
-    from fuelid.fleet.client import FleetClient
-
     client = FleetClient(*server_and_token(args))
     if args.truck is None:
         rows = client.trucks()

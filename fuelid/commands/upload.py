@@ -1,9 +1,10 @@
 """fuelid upload: send MCAP files to the fleet server (resumable, by sha256; fuelid/logger/upload.py)."""
 import os
+import sys
 
+from fuelid.errors import FuelidError
+from fuelid.logger.upload import UploadError, upload_with_retry
 from fuelid.output import print_json
-
-HELP = "upload MCAP files to the fleet server (resumes cut uploads; idempotent by sha256)"
 
 
 def add_server_arguments(p, token_help: str = "API token (default: $FUELID_TOKEN)") -> None:
@@ -14,8 +15,6 @@ def add_server_arguments(p, token_help: str = "API token (default: $FUELID_TOKEN
 
 
 def server_and_token(args) -> tuple[str, str]:
-    from fuelid.errors import FuelidError
-
     if not args.server:
         raise FuelidError("no server: give --server URL or set FUELID_SERVER")
     if not args.token:
@@ -33,10 +32,6 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    import sys
-
-    from fuelid.logger.upload import UploadError, upload_with_retry
-
     server, token = server_and_token(args)
     results, failed = [], 0
     for path in args.files:

@@ -21,6 +21,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
+from fuelid.errors import InputError
 from fuelid.fleet import auth, db
 from fuelid.fleet.refits import RefitManager, dask_runner_factory
 from fuelid.fleet.storage import HEX64, BlobStore, UploadRefused, inspect_mcap
@@ -211,7 +212,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         """Create a token (admin). The secret is in this reply only."""
         try:
             return auth.create_token(engine, body.role, body.truck, body.name)
-        except ValueError as exc:
+        except InputError as exc:
             raise HTTPException(422, str(exc)) from None
 
     @app.get("/api/v1/tokens", response_model=list[TokenInfo], responses=ERRORS, tags=["tokens"])

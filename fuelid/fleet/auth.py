@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import sqlalchemy as sa
 
+from fuelid.errors import InputError
 from fuelid.fleet import db
 
 ROLES = ("admin", "engineer", "truck")
@@ -44,11 +45,11 @@ class Principal:
 def create_token(engine: sa.Engine, role: str, truck: str | None = None, name: str = "") -> dict:
     """Create a token; the returned `token` is the only time the secret is seen."""
     if role not in ROLES:
-        raise ValueError(f"role must be one of {', '.join(ROLES)}, not {role!r}")
+        raise InputError(f"role must be one of {', '.join(ROLES)}, not {role!r}")
     if (role == "truck") != (truck is not None):
-        raise ValueError("a truck token needs a truck id, and only a truck token has one")
+        raise InputError("a truck token needs a truck id, and only a truck token has one")
     if truck is not None and not valid_truck(truck):
-        raise ValueError(f"truck id {truck!r} must be 1-64 letters, digits, '.', '_' or '-'")
+        raise InputError(f"truck id {truck!r} must be 1-64 letters, digits, '.', '_' or '-'")
     token = PREFIX + secrets.token_urlsafe(32)
     with engine.begin() as conn:
         token_id = conn.execute(db.tokens.insert().values(

@@ -14,6 +14,9 @@ from pathlib import Path
 
 import sqlalchemy as sa
 from sqlalchemy import event
+from sqlalchemy.dialects import postgresql, sqlite
+
+from fuelid.errors import InputError
 
 metadata = sa.MetaData()
 
@@ -93,7 +96,7 @@ def database_url(data_dir: str | Path | None, url: str | None) -> str:
     if url:
         return url
     if data_dir is None:
-        raise ValueError("give a data directory or a database URL")
+        raise InputError("give a data directory or a database URL")
     return f"sqlite:///{Path(data_dir).resolve() / 'fleet.db'}"
 
 
@@ -145,11 +148,11 @@ def insert_ignore(conn, table: sa.Table, **values) -> bool:
     """INSERT that does nothing when the primary/unique key exists; True when a row was inserted."""
     dialect = conn.dialect.name
     if dialect == "postgresql":
-        from sqlalchemy.dialects.postgresql import insert
+        insert = postgresql.insert
     elif dialect == "sqlite":
-        from sqlalchemy.dialects.sqlite import insert
+        insert = sqlite.insert
     else:
-        raise ValueError(f"unsupported database {dialect}")
+        raise InputError(f"unsupported database {dialect}")
     return conn.execute(insert(table).values(**values).on_conflict_do_nothing()).rowcount == 1
 
 

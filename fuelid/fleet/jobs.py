@@ -27,7 +27,17 @@ import uuid
 import warnings
 from pathlib import Path
 
+from threadpoolctl import threadpool_limits
+
 from fuelid.errors import FuelidError
+from fuelid.ident.dataset import build_dataset
+from fuelid.ident.diagnosis import diagnose
+from fuelid.ident.identify import identify_model
+from fuelid.ident.modelfile import load_model, save_model
+from fuelid.ident.polymodel import Structure, parse_orders
+from fuelid.ident.report import write_report
+from fuelid.ident.validation import evaluate
+from fuelid.output import json_safe
 
 
 class JobError(FuelidError):
@@ -36,8 +46,6 @@ class JobError(FuelidError):
 
 def _write_json(path: Path, obj) -> None:
     """obj as strict JSON (NaN → null) through a temporary file renamed over path: no reader sees half a file."""
-    from fuelid.output import json_safe
-
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(json_safe(obj), indent=1, allow_nan=False) + "\n", encoding="utf-8")
     os.replace(tmp, path)
@@ -46,8 +54,6 @@ def _write_json(path: Path, obj) -> None:
 def _report(out: Path, model, diagnosis: dict, ds, truck: str, files: list[str]) -> tuple[str | None, str | None]:
     """(report.html path, None) by ident.report.write_report, or (None, why) when the report fails: the model
     and diagnosis are the job's product, the report only shows them."""
-    from fuelid.ident.report import write_report
-
     path = out / "report.html"
     try:
         write_report(path, model, ds, diagnosis=diagnosis, truck=truck, files=files)
@@ -74,17 +80,6 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     (the id of the significant missing effect, or None), "warnings"}. Raises JobError for unusable data, with a
     one-line message.
     """
-    from threadpoolctl import threadpool_limits
-
-    from fuelid.commands.identify import parse_orders
-    from fuelid.output import json_safe
-    from fuelid.ident.dataset import build_dataset
-    from fuelid.ident.diagnosis import diagnose
-    from fuelid.ident.identify import identify_model
-    from fuelid.ident.modelfile import load_model, save_model
-    from fuelid.ident.polymodel import Structure
-    from fuelid.ident.validation import evaluate
-
     t_start, cpu_start = time.perf_counter(), time.process_time()
     paths = [str(p) for p in mcap_paths]
     if not paths:
@@ -112,7 +107,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             lap("identify")
             diagnosis = diagnose(model, ds)
             lap("diagnose")
-        except (FuelidError, ValueError) as exc:  # diagnose raises ValueError when no segment is long enough
+        except (FuelidError, ValueError) as exc:  # ValueError: ident.diagnosis's "no segment long enough" (pending)
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None
         previous_metrics = None
         if previous is not None and abs(previous.Ts - ds.Ts) < 1e-9:
@@ -169,7 +164,7 @@ class JobRunner:
     A context manager; close() shuts down a LocalCluster it started (never a remote cluster)."""
 
     def __init__(self, scheduler: str | None = None, n_workers: int | None = None, threads_per_worker: int = 1):
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster  # the optional [fleet] extra, slow to import
 
         self._cluster = None
         if scheduler is None:

@@ -24,7 +24,8 @@ log = logging.getLogger("fuelid.fleet")
 
 
 def dask_runner_factory(scheduler: str | None, n_workers: int | None) -> Callable[[], object]:
-    """A factory of the production runner (imported on first use: Dask is slow to import)."""
+    """A factory of the production runner (imported on first use: Dask is slow to import, and fleet.jobs brings
+    the identification stack, numba and SciPy, which the server process itself never runs)."""
 
     def make():
         from fuelid.fleet.jobs import JobRunner

@@ -13,7 +13,10 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from mcap.reader import SeekingReader
+
 from fuelid.logger.durable import fsync_path
+from fuelid.logger.mcap_log import MAGIC, METADATA_NAME
 
 HEX64 = r"^[0-9a-f]{64}$"
 
@@ -92,10 +95,6 @@ def inspect_mcap(path: str | Path) -> McapInfo:
     statistics (a chunk index when it holds messages: a log of a silent bus has none), and a `fuelid` metadata record naming the truck. A file cut before its footer (a power cut
     the daemon did not recover) is refused: `fuelid recover` turns it into a complete file to upload. The
     bytes themselves are vouched for by the sha256 the client sent and the server recomputed."""
-    from mcap.reader import SeekingReader
-
-    from fuelid.logger.mcap_log import MAGIC, METADATA_NAME
-
     with open(path, "rb") as f:
         if f.read(len(MAGIC)) != MAGIC:
             raise UploadRefused(422, "not an MCAP file")

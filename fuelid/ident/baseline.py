@@ -31,7 +31,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator, RegularGridInterpolator
 from scipy.spatial import QhullError, cKDTree
 
-from fuelid.errors import FuelidError
+from fuelid.errors import InputError, FuelidError
 from fuelid.ident.dataset import VEHICLE_SPEED, Dataset
 
 
@@ -128,7 +128,7 @@ def lwr(X, y, Xq, span: float = 0.05, grid: int | None = None) -> np.ndarray:
     k = int(np.ceil(span * len(X))) if span < 1 else int(span)
     k = min(max(k, p + 2), len(X))
     if len(X) < p + 1:
-        raise ValueError(f"LWR needs at least {p + 1} finite points, got {len(X)}")
+        raise InputError(f"LWR needs at least {p + 1} finite points, got {len(X)}")
     scale = X.std(axis=0)
     scale[scale == 0] = 1.0
     tree = cKDTree(X / scale)
@@ -202,6 +202,8 @@ def static_model(train: Dataset, test: Dataset, kind: str = "EB", J1: float = 0.
     if rows is not None:
         keep &= np.isin(np.arange(len(test)), rows)
     X = static_inputs(train, kind, J1)[train.valid]
+    if not len(X):
+        raise InputError(f"{kind}: no valid calibration sample")
     Xq = np.clip(static_inputs(test, kind, J1)[keep], np.nanmin(X, axis=0), np.nanmax(X, axis=0))
     out = np.full(len(test), np.nan)
     out[keep] = lwr(X, shifted_output(train, shift_s)[train.valid], Xq, span, grid)
@@ -291,7 +293,7 @@ def seed2_baselines(train: Dataset, test: Dataset, kinds=STATIC_KINDS, *, span: 
         J1 = inertia["best_J1"] if kind == "EB*" else 0.0
         try:
             f = static_model(train, test, kind, J1, tau, span, grid)
-        except (FuelidError, ValueError) as exc:
+        except FuelidError as exc:
             out["errors"][kind] = str(exc)
             continue
         out["predictions"][kind] = _shift(test, f, -tau)

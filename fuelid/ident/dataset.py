@@ -50,8 +50,10 @@ from pathlib import Path
 import numpy as np
 
 from fuelid.errors import FuelidError
-from fuelid.logger.decode import signal_units
+from fuelid.logger.decode import Decoder, signal_units
 from fuelid.logger.j1939 import DEFAULT_SOURCE_PREFERENCE, preferred_source
+from fuelid.logger.mcap_log import read_messages
+from fuelid.progress import progress
 
 SPEED = "EEC1.EngSpeed"
 TORQUE_PCT = "EEC1.ActualEngPercentTorque"
@@ -138,9 +140,6 @@ def _records(sources):
     spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
     for src in sources:
         if isinstance(src, (str, Path)):
-            from fuelid.progress import progress
-            from fuelid.logger.decode import Decoder
-            from fuelid.logger.mcap_log import read_messages
             p = Path(src)
             if not p.is_file():
                 raise FuelidError(f"{p}: no such file")
@@ -442,7 +441,7 @@ def save_dataset(ds: Dataset, path) -> Path:
     if path.suffix == ".csv":
         _write_csv(ds, path)
     elif path.suffix == ".mat":
-        from scipy.io import savemat
+        from scipy.io import savemat  # only for .mat files
         meta = _meta(ds)
         savemat(path, {
             "Ts": ds.Ts, "t": ds.t, "u": ds.u, "y": ds.y, "u0": ds.u0, "y0": ds.y0,
@@ -464,7 +463,7 @@ def load_dataset(path) -> Dataset:
     if path.suffix == ".csv":
         meta, cols = _read_csv(path)
     elif path.suffix == ".mat":
-        from scipy.io import loadmat
+        from scipy.io import loadmat  # only for .mat files
         m = loadmat(path, squeeze_me=True, chars_as_strings=True)
         meta = json.loads(str(m["meta_json"]))
         ex = m["extra"]

@@ -36,14 +36,23 @@ estimator (`from_model`, adapt='gain') is ident.kalman.GainTracker: only the com
 fuel_change_pct = 100 (g − 1) at any operating point.
 
 Every snapshot_every_s (receive time) the current model is written to snapshot_path (model.json, atomically);
-`snapshot()` writes it on demand (the daemon at shutdown). This module imports numpy only; ident.rpem (numba)
-comes with the estimator, ident.polymodel and ident.modelfile (no SciPy) with the first snapshot.
+`snapshot()` writes it on demand (the daemon at shutdown). This module loads no SciPy; ident.rpem and
+ident.kalman (numba) come with the estimator.
+
+`live_estimator` makes the LiveEstimator the `fuelid log --identify` settings ask for, which the command line
+hands to the daemon (fuelid.logger.daemon.Estimator: the daemon imports nothing from here); `check_online` is
+the one check that a model or orders can run online (the daemon's settings, `fuelid online`).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
+
+from fuelid.errors import FuelidError
+from fuelid.ident.modelfile import load_model, save_model
+from fuelid.ident.polymodel import Structure, parameter_names, parse_orders
 
 PREDICTION_SCHEMA = {"type": "object", "properties": {
     "t": {"type": "number"}, "predicted": {"type": ["number", "null"]}, "simulated": {"type": ["number", "null"]},
@@ -94,9 +103,21 @@ def fuel_change(theta, cov, structure, gain0, du) -> tuple[float, float]:
     return 100.0 * (gains @ du / s0 - 1.0), 196.0 * math.sqrt(max(grad @ cov @ grad, 0.0))
 
 
+def check_online(structure: Structure, effects=(), source: str | None = None) -> None:
+    """FuelidError unless the online estimators can run a model of this structure and these effects: BJ/OE orders
+    (na = 0) of engine speed and torque, no effect inputs; source (a file name) starts the message."""
+    where = f"{source}: " if source else ""
+    if structure.na or structure.n_inputs != 2:
+        raise FuelidError(f"{where}the online estimator takes BJ/OE orders for engine speed and torque (na = 0)")
+    if effects:
+        raise FuelidError(f"{where}the model includes effects {list(effects)}; the online estimator has speed and "
+                          "torque only")
+
+
 def prior_estimator(model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
                     adapt: str = "gain"):
     """The recursive estimator that starts from `model` (LiveEstimator.from_model explains the options)."""
+    # numba-compiled (seconds to load on the in-cab box): loaded with an estimator, not with this module
     from fuelid.ident.kalman import GainTracker, ParameterKalman
     from fuelid.ident.rpem import RPEM
 
@@ -108,7 +129,8 @@ def prior_estimator(model, *, method: str = "rpem", forgetting: float | None = 0
 
 
 class LiveEstimator:
-    """Resample decoded records to Ts and run an ident.rpem estimator on them (module docstring).
+    """Resample decoded records to Ts and run an ident.rpem estimator on them (module docstring); the daemon's
+    fuelid.logger.daemon.Estimator.
 
     estimator       an ident.rpem.RPEM, ident.kalman.ParameterKalman or ident.kalman.GainTracker (its Ts is the
                     grid step); or None with
@@ -120,6 +142,8 @@ class LiveEstimator:
     speed           the records arrive `speed` times faster than recorded (a sped-up replay)
     idle_rpm, idle_tol_rpm, idle_min_s   the idle operating point from scratch [rpm], [rpm], [s]
     """
+
+    schemas = SCHEMAS  # the channels `feed` writes: topic -> JSON schema
 
     def __init__(self, estimator=None, *, start=None, Ts: float | None = None, torque_unit: str = "Nm",
                  fuel: str = "lfe1", engine_sa: int = 0, names=None, snapshot_path=None,
@@ -164,8 +188,6 @@ class LiveEstimator:
         relative drift per sample `drift`); adapt 'gain' (ident.kalman.GainTracker: only the common fuel gain,
         the model's dynamics and noise model held) or 'all' (every parameter: ident.rpem.RPEM or
         ident.kalman.ParameterKalman)."""
-        from fuelid.ident.polymodel import parameter_names
-
         est = prior_estimator(model, method=method, forgetting=forgetting, drift=drift, adapt=adapt)
         fuel = "flowmeter" if model.output_unit == "kg/h" else "lfe1"
         return cls(est, torque_unit=model.input_units[1] or "Nm", fuel=fuel,
@@ -175,8 +197,7 @@ class LiveEstimator:
     def from_scratch(cls, structure, Ts: float = 0.3, *, forgetting: float | None = None, **kwargs):
         """A LiveEstimator whose RPEM starts from θ = 0 at the idle operating point (module docstring);
         forgetting: constant λ, or None for λ growing towards 1 (ident.rpem)."""
-        from fuelid.ident.polymodel import parameter_names
-        from fuelid.ident.rpem import RPEM
+        from fuelid.ident.rpem import RPEM  # numba-compiled: loaded with the estimator (prior_estimator)
 
         def start(u0, y0):
             return RPEM(structure, Ts, lam=forgetting, u0=u0, y0=y0)
@@ -301,10 +322,6 @@ class LiveEstimator:
         """Write the current model to snapshot_path (atomically); False while there is none yet."""
         if self.est is None or self.snapshot_path is None:
             return False
-        import dataclasses
-
-        from fuelid.ident.modelfile import save_model
-
         model = self.est.model()
         if self.est.prior is None:
             model = dataclasses.replace(model, input_names=("EEC1.EngSpeed", "EngTorque"),
@@ -313,3 +330,31 @@ class LiveEstimator:
                                         else "LFE1.EngFuelRate", output_unit=self.unit)
         save_model(model, self.snapshot_path)
         return True
+
+    def status(self) -> dict:
+        """For the daemon's status file: waiting for the idle operating point (from scratch) or running, the
+        snapshot's path, and once running the estimator's samples, updates, rejected steps, λ and running
+        simulation fit [%] (null when not finite)."""
+        out = {"state": "running" if self.est is not None else "waiting for idle", "snapshot": str(self.snapshot_path)}
+        if self.est is not None:
+            rep = self.est.report()
+            fit = rep["running_fit_simulation_pct"]
+            out.update(samples=rep["samples"], updates=rep["updates"], rejected_steps=rep["rejected_steps"],
+                       lam=rep["lam"], fit_simulation_pct=round(fit, 2) if math.isfinite(fit) else None)
+        return out
+
+
+def live_estimator(*, model=None, orders: str | None = None, method: str = "rpem", forgetting: float | None = None,
+                   **kwargs) -> LiveEstimator:
+    """The LiveEstimator of the daemon's identify settings: from the prior model file `model` (forgetting λ
+    default 0.9995), else from scratch with `orders` ('paper' or a SPEC as `fuelid identify --orders`; default
+    paper; forgetting None: λ growing to 1). kwargs as LiveEstimator (snapshot_path, snapshot_every_s, speed).
+    FuelidError for a model or orders the online estimator cannot run."""
+    if model:
+        prior = load_model(model)
+        check_online(prior.structure, prior.effects, str(model))
+        return LiveEstimator.from_model(prior, method=method, forgetting=0.9995 if forgetting is None else forgetting,
+                                        **kwargs)
+    structure = Structure(**parse_orders(orders or "paper"))
+    check_online(structure)
+    return LiveEstimator.from_scratch(structure, forgetting=forgetting, **kwargs)

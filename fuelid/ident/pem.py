@@ -72,6 +72,7 @@ import numpy as np
 from scipy.linalg import eigh, lstsq
 from scipy.signal import lfilter
 
+from fuelid.errors import InputError
 from fuelid.ident.polymodel import PolyModel, Structure, as_inputs, from_theta, input_responses, parameter_names
 
 try:  # BLAS threads only cost time on N × d problems this narrow (8× slower on 2 cores, measured)
@@ -404,7 +405,7 @@ def _segment_starts(segments, n: int, n0: int) -> tuple[np.ndarray | None, tuple
             raise ValueError(f"segment ({a}, {b}) is empty, outside 0..{n} or overlaps the next one")
     spans = [(a, b) for a, b in spans if b - a > n0]  # nothing of a segment this short enters V
     if not spans:
-        raise ValueError(f"every segment is at most {n0} samples long (the initial-condition samples)")
+        raise InputError(f"every segment is at most {n0} samples long (the initial-condition samples)")
     idx = np.concatenate([np.arange(a, b) for a, b in spans])
     return idx, tuple(int(v) for v in np.cumsum([0] + [b - a for a, b in spans])[:-1])
 
@@ -437,7 +438,7 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
     du, dy = (u - u0, y - y0) if idx is None else (u[idx] - u0, y[idx] - y0)
     n_used = dy.size - len(starts) * s.n_start
     if n_used <= 2 * s.n_params:
-        raise ValueError(f"{dy.size} samples in {len(starts)} segment(s) are too few for {s.n_params} parameters")
+        raise InputError(f"{dy.size} samples in {len(starts)} segment(s) are too few for {s.n_params} parameters")
     if init is not None and init.structure != s:
         raise ValueError(f"init has structure {init.structure}, expected {s}")
     with threadpool_limits(1, "blas") if threadpool_limits else contextlib.nullcontext():

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fuelid.errors import FuelidError
+
 
 @dataclass(frozen=True)
 class Structure:
@@ -89,6 +91,38 @@ class Structure:
         """Samples whose predictor depends on unknown initial state: max(na, nk_i + nb_i − 1, nf_i, nc, nd)."""
         lags = [self.na, self.nc, self.nd] + [k + b - 1 for k, b in zip(self.nk, self.nb)] + list(self.nf)
         return max(lags)
+
+
+# The paper's Box-Jenkins orders (eq. 17): G_w nb=4 nf=5 nk=3, G_T nb=5 nf=5 nk=0, C and D of order 11.
+PAPER_ORDERS = dict(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11)
+
+
+def parse_orders(spec: str) -> dict:
+    """'paper' or 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11[;na=0]' → Structure keyword arguments (FuelidError if not)."""
+    if spec == "paper":
+        return dict(PAPER_ORDERS)
+    if spec == "auto":
+        raise FuelidError("--orders auto is an offline search (fuelid identify); here give paper or a SPEC")
+    out = {}
+    try:
+        for part in filter(None, (p.strip() for p in spec.replace(" ", ";").split(";"))):
+            key, value = (x.strip() for x in part.split("=", 1))
+            if key in ("nb", "nf", "nk"):
+                out[key] = tuple(int(v) for v in value.split(","))
+            elif key in ("nc", "nd", "na"):
+                out[key] = int(value)
+            else:
+                raise ValueError(f"unknown order {key!r}")
+        if "nb" not in out:
+            raise ValueError("nb is required")
+        m = len(out["nb"])
+        out.setdefault("nf", (0,) * m)
+        out.setdefault("nk", (1,) * m)
+        if not len(out["nf"]) == len(out["nk"]) == m == 2:
+            raise ValueError("nb, nf and nk need one value per input (engine speed, torque)")
+    except ValueError as exc:  # int() and unpacking say what is wrong; the message names the option
+        raise FuelidError(f"--orders {spec!r}: {exc}") from exc
+    return out
 
 
 def parameter_names(s: Structure) -> list[str]:

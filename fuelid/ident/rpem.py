@@ -69,6 +69,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from fuelid.ident.polymodel import from_theta, parameter_names
+
 RADIUS = 0.9999  # largest root radius allowed in F_i and C (ident.pem.RHO_MAX)
 MAX_HALVINGS = 8  # step halvings tried before an update is rejected
 
@@ -542,8 +544,6 @@ class RPEM:
     def model(self, **info):
         """The current estimate as a PolyModel (operating point, names and units of the prior), with the
         covariance and the `report()` (None for what is not known yet) in info, plus any extra info given."""
-        from fuelid.ident.polymodel import from_theta, parameter_names
-
         meta = {}
         if self.prior is not None:
             p = self.prior

@@ -6,8 +6,10 @@ The parts, each doing one thing:
   the `on_file_closed` callbacks run with every finished file (e.g. an upload queue).
 - `LogSink`: the python-can listener in front of the `Recorder`; rotates files without losing a frame and
   stops writing (dropping, counted) while the disk is full.
-- `IdentifyingRecorder`: with `identify` on, the Recorder that also feeds every decoded record to the online
-  estimator (ident.live, imported only then) and writes its /ident/* records into the same file.
+- `Estimator`: what the daemon needs of an online estimator, passed in by the command line (`fuelid log
+  --identify` wires in fuelid.ident.live.LiveEstimator; this package imports nothing from fuelid.ident).
+- `IdentifyingRecorder`: with an estimator, the Recorder that also feeds it every decoded record and writes
+  the records it returns (/ident/*) into the same file.
 - `BusLink`: the `can.Bus` and its `can.Notifier`, reopened with backoff after an error (interface down,
   bus-off, adapter unplugged).
 - `FlowInput`: the serial flow meter in a thread (`SerialFlowMeter` reconnects by itself).
@@ -19,24 +21,25 @@ from __future__ import annotations
 import errno
 import json
 import logging
-import math
 import os
 import shutil
+import socket
 import subprocess
 import threading
 import time
 from collections import Counter
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Protocol
 
 import can
 
 from fuelid.logger.config import LoggerConfig
+from fuelid.logger.durable import fsync_path
 from fuelid.logger.flowmeter import Calibration, SerialFlowMeter
 from fuelid.logger.mcap_log import MAGIC, recover
-from fuelid.logger.durable import fsync_path
 from fuelid.logger.recorder import Recorder, open_writer
+from fuelid.logger.upload import UploadQueue
 
 log = logging.getLogger("fuelid.log")
 
@@ -146,18 +149,35 @@ class LogFiles:
         return done
 
 
+class Estimator(Protocol):
+    """An online estimator run on the logged stream (fuelid.ident.live.LiveEstimator is one)."""
+
+    schemas: dict[str, dict]  # topic -> JSON schema of the records `feed` returns, registered in each file
+    snapshot_path: Path | None  # where `snapshot` writes the current model
+
+    def prepare(self) -> None:
+        """Load what the first record would need (compiled code) before frames arrive."""
+
+    def feed(self, topic: str, t: float, record: dict) -> list[tuple[str, float, dict]]:
+        """One decoded record received at t [s]; returns the records to log: (topic, receive time [s], record)."""
+
+    def snapshot(self) -> bool:
+        """Write the current model to snapshot_path; False while there is none yet."""
+
+    def status(self) -> dict:
+        """The estimator's entry in the status file: {"state": ..., ...}."""
+
+
 class IdentifyingRecorder(Recorder):
-    """A Recorder that feeds every decoded record (/j1939/*, /flowmeter) to a LiveEstimator and writes the
-    /ident/* records it returns, with their schemas (registered in each new file, as every channel).
+    """A Recorder that feeds every decoded record (/j1939/*, /flowmeter) to an `Estimator` and writes the
+    records it returns, with their schemas (registered in each new file, as every channel).
 
     An exception from the estimator is counted in `errors` and as an "identify" fault (logged once); the
     record that caused it is logged all the same and the estimator keeps getting the next ones."""
 
-    def __init__(self, writer, live, faults: Faults):
-        from fuelid.ident.live import SCHEMAS
-
+    def __init__(self, writer, live: Estimator, faults: Faults):
         self.live, self.faults, self.errors = live, faults, 0
-        self._schemas = SCHEMAS
+        self._schemas = live.schemas
         super().__init__(writer)
 
     def _write(self, topic: str, schema: dict, log_time_ns: int, record: dict) -> None:
@@ -174,39 +194,15 @@ class IdentifyingRecorder(Recorder):
             super()._write(ident_topic, self._schemas[ident_topic], int(t * 1e9), rec)
 
 
-def make_live_estimator(config: LoggerConfig):
-    """The ident.live.LiveEstimator the identify settings ask for (FuelidError for a bad model or orders)."""
-    from fuelid.commands.identify import parse_orders
-    from fuelid.errors import FuelidError
-    from fuelid.ident.live import LiveEstimator
-    from fuelid.ident.modelfile import load_model
-    from fuelid.ident.polymodel import Structure
-
-    common = dict(snapshot_path=config.output_dir / "model.json", snapshot_every_s=config.snapshot_s,
-                  speed=config.replay_speed)
-    if config.identify_model:
-        model = load_model(config.identify_model)
-        s = model.structure
-        if s.na or s.n_inputs != 2 or model.effects:
-            raise FuelidError(f"{config.identify_model}: the online estimator takes a BJ/OE model of engine speed "
-                              "and torque without effects")
-        forgetting = 0.9995 if config.identify_forgetting is None else config.identify_forgetting
-        return LiveEstimator.from_model(model, method=config.identify_method, forgetting=forgetting, **common)
-    structure = Structure(**parse_orders(config.identify_orders or "paper"))
-    if structure.na:
-        raise FuelidError("the online estimator takes BJ/OE orders (na = 0)")
-    return LiveEstimator.from_scratch(structure, forgetting=config.identify_forgetting, **common)
-
-
 class LogSink(can.Listener):
     """Feeds frames and meter readings to a `Recorder`, from the notifier's and the meter's threads.
 
     While no file is open (disk full), everything is dropped and counted in `dropped`. A storage error
     abandons the current file (left as `.part`, recovered when space returns) instead of stopping the bus.
-    With a LiveEstimator `live`, the recorder is an IdentifyingRecorder.
+    With an Estimator `live`, the recorder is an IdentifyingRecorder.
     """
 
-    def __init__(self, config: LoggerConfig, files: LogFiles, faults: Faults, live=None):
+    def __init__(self, config: LoggerConfig, files: LogFiles, faults: Faults, live: Estimator | None = None):
         self.config = config
         self.files = files
         self.faults = faults
@@ -430,8 +426,6 @@ def _enlarge_receive_buffer(bus: can.BusABC, size: int = 1 << 22) -> None:
     # A socketcan socket buffers ~200 frames by default: too few to ride out a slow disk or a rotation.
     sock = getattr(bus, "socket", None)
     if sock is not None:
-        import socket
-
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
         except OSError:
@@ -457,17 +451,16 @@ class FlowInput:
 
 
 class Daemon:
-    """Runs until `stop()` (SIGTERM/SIGINT in `fuelid log`), then closes the open file cleanly."""
+    """Runs until `stop()` (SIGTERM/SIGINT in `fuelid log`), then closes the open file cleanly; with an
+    `estimator`, runs it on the logged stream (the command line makes it from the identify settings)."""
 
-    def __init__(self, config: LoggerConfig):
+    def __init__(self, config: LoggerConfig, estimator: Estimator | None = None):
         self.config = config
         self.faults = Faults()
         self.files = LogFiles(config.output_dir, self.faults)
-        self.live = make_live_estimator(config) if config.identify else None
+        self.live = estimator
         self.uploads = None
         if config.upload_server:
-            from fuelid.logger.upload import UploadQueue
-
             self.uploads = UploadQueue(config.output_dir, config.upload_server, config.upload_token(), None,
                                        delete_after_upload=config.delete_after_upload)
             self.files.on_file_closed.append(self.uploads.enqueue)
@@ -594,20 +587,13 @@ class Daemon:
         }
 
     def _identify_status(self) -> dict | None:
-        """The online estimator's state: waiting for the idle operating point (from scratch) or running."""
-        live = self.live
-        if live is None:
+        """The online estimator's status, with the errors it raised (counted by the recorder)."""
+        if self.live is None:
             return None
         rec = self.sink.recorder
-        out = {"state": "running" if live.est is not None else "waiting for idle",
-               "errors": rec.errors if isinstance(rec, IdentifyingRecorder) else 0,
-               "snapshot": str(live.snapshot_path)}
-        if live.est is not None:
-            rep = live.est.report()
-            out.update(samples=rep["samples"], updates=rep["updates"], rejected_steps=rep["rejected_steps"],
-                       lam=rep["lam"],
-                       fit_simulation_pct=_finite(rep["running_fit_simulation_pct"]))
-        return out
+        status = self.live.status()
+        return {"state": status.pop("state"), "errors": rec.errors if isinstance(rec, IdentifyingRecorder) else 0,
+                **status}
 
     def write_status(self, state: str = "running") -> None:
         """Replace the status file atomically, so a reader never sees half of it."""
@@ -618,10 +604,6 @@ class Daemon:
             os.replace(tmp, path)
         except OSError as exc:  # a full disk must not stop the logging of the bus
             self.faults.occur("status", f"writing {path}: {exc}")
-
-
-def _finite(x: float) -> float | None:
-    return round(x, 2) if math.isfinite(x) else None
 
 
 def read_status(path: str | Path) -> dict:

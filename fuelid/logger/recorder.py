@@ -3,13 +3,14 @@
 `fuelid convert` drives a Recorder from recorded files, the daemon from a live `can.Notifier`; both write the
 same channels (docs/formats.md), so a replayed log and its conversion hold identical decoded values.
 """
+import hashlib
 from collections import Counter
 from dataclasses import dataclass, field
 
 import can
 
-from fuelid.dbc import FMS_DBC
 from fuelid import __version__
+from fuelid.dbc import FMS_DBC
 from fuelid.logger.decode import Decoder, message_schema
 from fuelid.logger.flowmeter import FlowReading
 from fuelid.logger.mcap_log import FLOWMETER_SCHEMA, RAW_SCHEMA, McapLogWriter, raw_record
@@ -17,8 +18,6 @@ from fuelid.logger.tp import TransportReassembler
 
 
 def dbc_sha256() -> str:
-    import hashlib
-
     return hashlib.sha256(FMS_DBC.read_bytes()).hexdigest()
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fuelid.errors import InputError
 from fuelid.sim.thermal import THERMOSTAT_C
 
 
@@ -75,19 +76,19 @@ COLD_SPAN_K = 70.0
 
 
 def parse_effects(specs) -> dict:
-    """{name: magnitude} from strings "NAME" or "NAME=MAGNITUDE"; ValueError names the bad one."""
+    """{name: magnitude} from strings "NAME" or "NAME=MAGNITUDE"; InputError names the bad one."""
     out = {}
     for spec in specs or ():
         name, _, value = spec.partition("=")
         name = name.strip()
         if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+            raise InputError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
         try:
             out[name] = float(value) if value else EFFECTS[name].default
         except ValueError:
-            raise ValueError(f"effect {name}: magnitude {value!r} is not a number") from None
+            raise InputError(f"effect {name}: magnitude {value!r} is not a number") from None
         if out[name] < 0:
-            raise ValueError(f"effect {name}: magnitude must be >= 0")
+            raise InputError(f"effect {name}: magnitude must be >= 0")
     return out
 
 

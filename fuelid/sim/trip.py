@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fuelid.errors import InputError
 from fuelid.sim import effects as fx
 from fuelid.sim import fuel, gateway, mapfuel, meter, route, thermal, vecto
 from fuelid.sim.drive import DRIVE, NEUTRAL, SHIFT, MODE_NAMES, simulate_drive
@@ -72,21 +73,21 @@ class TripConfig:
         if self.start_unix_s is None:  # frozen dataclass: set the derived default through object.__setattr__
             object.__setattr__(self, "start_unix_s", 1717236000.0 + 86400.0 * self.seed)
         if self.truth not in TRUTH_NAMES:
-            raise ValueError(f"unknown truth {self.truth!r}; known: {', '.join(TRUTH_NAMES)}")
+            raise InputError(f"unknown truth {self.truth!r}; known: {', '.join(TRUTH_NAMES)}")
         if self.truth == MAP_TRUTH and not self.engine:
             object.__setattr__(self, "engine", DEFAULT_MAP_ENGINE)
         if self.engine and self.truth != MAP_TRUTH:
-            raise ValueError(f"an engine set drives the map truth only (truth {MAP_TRUTH!r}), not {self.truth!r}")
+            raise InputError(f"an engine set drives the map truth only (truth {MAP_TRUTH!r}), not {self.truth!r}")
         if self.cycle not in route.CYCLE_NAMES:
-            raise ValueError(f"unknown cycle {self.cycle!r}; known: {', '.join(route.CYCLE_NAMES)}")
+            raise InputError(f"unknown cycle {self.cycle!r}; known: {', '.join(route.CYCLE_NAMES)}")
         if not 60.0 <= self.duration_s <= 6 * 3600.0:
-            raise ValueError("duration must be between 60 s and 6 h")
+            raise InputError("duration must be between 60 s and 6 h")
         if not 30000.0 <= self.mass_kg <= 44000.0:
-            raise ValueError("mass must be between 30,000 and 44,000 kg")
+            raise InputError("mass must be between 30,000 and 44,000 kg")
         if self.truth == "gas_p340" and "dpf_regeneration" in dict(self.effects):
-            raise ValueError("the gas truck has no diesel particulate filter")
+            raise InputError("the gas truck has no diesel particulate filter")
         if abs(fuel.TS_S / self.dt_s - round(fuel.TS_S / self.dt_s)) > 1e-9:
-            raise ValueError("the simulation step must divide Ts = 0.3 s")
+            raise InputError("the simulation step must divide Ts = 0.3 s")
 
     @property
     def diesel(self) -> bool:
@@ -357,7 +358,7 @@ def output_paths(log_path: Path) -> dict:
             stem = name[: -len(suffix)]
             break
     else:
-        raise ValueError(f"output must end in .log or .log.gz: {log_path}")
+        raise InputError(f"output must end in .log or .log.gz: {log_path}")
     gz = name.endswith(".gz")
     d = log_path.parent
     return {"log": log_path, "flow": d / (stem + (".flow.gz" if gz else ".flow")),

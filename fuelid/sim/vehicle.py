@@ -31,12 +31,6 @@ def air_density_kg_m3(pressure_kpa, temperature_c):
     return np.asarray(pressure_kpa) * 1000.0 / (R_AIR_J_KGK * (np.asarray(temperature_c) + 273.15))
 
 
-def road_load_n(truck: Truck, speed_m_s, grade_rad, air_density_kg_m3=1.225):
-    """F_roll + F_aero + F_grade = m g (C_rr cos α + sin α) + ½ ρ C_d A v²  [N]."""
-    return (truck.mass_kg * G_M_S2 * (truck.crr * np.cos(grade_rad) + np.sin(grade_rad))
-            + 0.5 * air_density_kg_m3 * truck.cda_m2 * np.square(speed_m_s))
-
-
 def wheel_speed_to_engine_rpm(truck: Truck, speed_m_s, gear_ratio):
     """n = v i_gear i_fd / r_w x 60/(2π)  [rpm] with the clutch closed."""
     return np.asarray(speed_m_s) * gear_ratio * truck.final_drive / truck.wheel_radius_m * 60.0 / (2.0 * np.pi)

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from fuelid.cli import main
+from fuelid.commands.log import estimator
 from fuelid.logger import daemon as daemon_mod
 from fuelid.logger.config import LoggerConfig
 from fuelid.logger.daemon import Daemon
@@ -36,7 +37,7 @@ class Running:
 
     def __init__(self, tmp_path, name, preserve_timestamps=False, on_file_closed=(), **config):
         self.config = LoggerConfig(interface="virtual", channel=name, output_dir=tmp_path / "logs", **config)
-        self.daemon = Daemon(self.config)
+        self.daemon = Daemon(self.config, estimator(self.config))  # as `fuelid log` wires it
         self.daemon.files.on_file_closed += on_file_closed
         self.thread = threading.Thread(target=self.daemon.run)
         self.thread.start()
@@ -189,7 +190,8 @@ def test_low_free_space_closes_the_file_cleanly(tmp_path, drive, monkeypatch):
     _wait(lambda: run.daemon.sink.recorder.stats.frames == 100)
     free["mb"] = 5.0
     _wait(lambda: run.daemon.sink.part is None, timeout=5)
-    assert len(list(run.config.output_dir.glob("*.mcap"))) == 1  # closed and renamed, not abandoned
+    # closed and renamed, not abandoned (the daemon clears `part` before it closes the file: wait for the rename)
+    _wait(lambda: len(list(run.config.output_dir.glob("*.mcap"))) == 1, timeout=5)
     free["mb"] = 50.0
     _wait(lambda: run.daemon.sink.part is not None, timeout=5)
     run.stop()
