@@ -6,6 +6,7 @@ import time
 
 import can
 import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
 from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
@@ -298,3 +299,22 @@ def test_raw_record_matches_schema():
     assert set(record) == set(RAW_SCHEMA["properties"]) == set(RAW_SCHEMA["required"])
     assert record == {"t": 12.5, "id": 0x18FEF100, "extended": True, "dlc": 2, "data": "01ff",
                       "error": False, "remote": False, "channel": 0}
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(where=st.floats(0, 1, exclude_max=True), mask=st.integers(1, 255), cut=st.booleans())
+def test_a_flipped_byte_anywhere_is_refused_or_harmless_never_silently_wrong(log, tmp_path, where, mask, cut):
+    path, written = log
+    data = path.read_bytes()[: -50 if cut else None]
+    expected = written if not cut else None
+    if cut:
+        (tmp_path / "cut.mcap").write_bytes(data)
+        expected = list(read_messages(tmp_path / "cut.mcap"))
+    blob = bytearray(data)
+    blob[int(where * len(blob))] ^= mask
+    (tmp_path / "bad.mcap").write_bytes(bytes(blob))
+    try:
+        got = list(read_messages(tmp_path / "bad.mcap"))
+    except FuelidError:
+        return
+    assert got == expected

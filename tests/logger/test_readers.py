@@ -1,15 +1,18 @@
 """Recorded-file readers: every format, malformed lines, truncated files, and real truck recordings."""
 import gzip
 import statistics
+import tempfile
 import zlib
 from collections import defaultdict
+from pathlib import Path
 
 import can
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from fuelid.errors import FuelidError
 from fuelid.logger.decode import Decoder
-from fuelid.logger.readers import FORMATS, one_timeline, open_frames, parse_candump_l, parse_candump_ta, read_frames
+from fuelid.logger.readers import FORMATS, in_range, one_timeline, open_frames, parse_candump_l, parse_candump_ta, read_frames
 
 FRAMES = [
     can.Message(timestamp=1700000000.0 + k * 0.01, arbitration_id=aid, is_extended_id=True,
@@ -357,3 +360,22 @@ def test_relative_recordings_are_placed_one_after_another_and_named(tmp_path):
     assert times == sorted(times) and len(times) == 2 * len(FRAMES)
     assert times[len(FRAMES)] == pytest.approx(times[len(FRAMES) - 1])
     assert len(notes) == 1 and str(b) in notes[0] and "relative" in notes[0]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sampled_from(["candump-L", "trc", "asc"]), st.integers(0, 10_000), st.binary(min_size=1, max_size=6))
+def test_a_mutated_line_is_skipped_never_a_crash_nor_out_of_range(fmt, where, garbage):
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "x"
+        if fmt == "candump-L":
+            path.write_text(candump_l(FRAMES))
+        else:
+            path = write_with(Path(d), f"x.{fmt}", {"trc": can.TRCWriter, "asc": can.ASCWriter}[fmt])
+        blob = bytearray(path.read_bytes())
+        at = len(blob) // 3 + where % (len(blob) * 2 // 3)  # past the header
+        blob[at : at + len(garbage)] = garbage
+        path.write_bytes(bytes(blob))
+        source = open_frames(path)
+        read = list(source)
+        assert all(in_range(m) for m in read) and source.status in ("complete", "truncated")
+        assert source.frames == len(read) <= len(FRAMES)
