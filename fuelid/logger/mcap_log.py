@@ -329,9 +329,7 @@ class _Scan:
         if opcode == Opcode.CHUNK:
             found = _verified_chunk(buf, pos, end)
             if found is None:
-                chunk = Chunk.read(ReadDataStream(io.BytesIO(buf[pos + 9 : end])))
-                chunk_records(chunk)  # raises, saying what is wrong
-                raise ValueError("damaged chunk")
+                raise ValueError(_what_is_wrong(buf, pos, end))
             return list(_records_in(found[1]))
         body = buf[pos + 9 : end]
         stream = ReadDataStream(io.BytesIO(body))
@@ -472,11 +470,12 @@ def _raw_messages(path: str | Path, topics: Iterable[str] | None,
 
 
 def _what_is_wrong(buf, start: int, end: int) -> str:
+    """Why the Chunk record at bytes [start, end) of `buf` fails verification, for the damage report."""
     try:
         chunk_records(Chunk.read(ReadDataStream(io.BytesIO(buf[start + 9 : end]))))
     except Exception as exc:  # noqa: BLE001 -- the reason is all that is wanted here
         return str(exc) or type(exc).__name__
-    return "record header differs from the index"
+    return "garbled record header"
 
 
 def read_messages(path: str | Path, topics: Iterable[str] | str | None = None, *,
