@@ -7,6 +7,7 @@ truncated ones (power cut before `close()`) by a sequential scan that stops at t
 from __future__ import annotations
 
 import io
+import itertools
 import mmap
 import struct
 import time
@@ -308,8 +309,9 @@ class _Scan:
             opcode, length = _RECORD_HEAD.unpack_from(buf, pos)
             end = pos + 9 + length
             try:
-                if opcode not in _OPCODES or end > size:
-                    raise ValueError("garbled record header")
+                followed = end == size or opcode == Opcode.FOOTER or self._record_starts_at(end)
+                if opcode not in _OPCODES or end > size or not followed:
+                    raise ValueError("garbled record header")  # a wrong length would swallow what follows
                 records = self._parse(opcode, buf, pos, end)
             except Exception as exc:  # noqa: BLE001 -- any failure to parse a whole record is damage or the cut
                 resume = end if self._record_starts_at(end) else self._next_chunk(pos + 1)
@@ -345,12 +347,9 @@ class _Scan:
         return [] if isinstance(record, Footer) else [record]
 
     def _record_starts_at(self, pos: int) -> bool:
-        """Whether a whole record plausibly starts at `pos` (the length of a damaged record is believed
-        when the record after it looks whole)."""
-        if pos + 9 > self.size:
-            return False
-        opcode, length = _RECORD_HEAD.unpack_from(self._buf, pos)
-        return opcode in _OPCODES and pos + 9 + length <= self.size
+        """Whether a record plausibly starts at `pos`: a known opcode, whole or cut by the end of the file (a
+        record's length is believed when what follows it looks like a record)."""
+        return pos < self.size and self._buf[pos] in _OPCODES
 
     def _next_chunk(self, start: int) -> int | None:
         """Offset of the first intact chunk at or after `start`, None when there is none."""
@@ -510,6 +509,16 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
         return {r.name: dict(r.metadata) for r in records if isinstance(r, Metadata)}
 
 
+def _summary_schemas_and_channels(path: Path) -> list[Schema | Channel]:
+    """The Schema and Channel records of the file's summary when its CRC vouches for it, else none."""
+    f, reader = _open(path)
+    with f:
+        if reader is None:
+            return []
+        summary = reader.get_summary()
+        return [*summary.schemas.values(), *summary.channels.values()]
+
+
 @dataclass
 class RecoverStats:
     """What `recover` found: messages per topic, bytes of the source [B] kept and lost (damaged chunks skipped,
@@ -560,7 +569,8 @@ def recover(src: str | Path, dst: str | Path) -> RecoverStats:
             writer.start(library=f"fuelid/{__version__} recover")
             schema_ids: dict[int, int] = {}  # source id -> new id
             channels: dict[int, tuple[int, str]] = {}
-            for record in scan.records():
+            # schemas and channels from an intact summary first: they survive damage to the chunk that held them
+            for record in itertools.chain(_summary_schemas_and_channels(src), scan.records()):
                 if isinstance(record, Schema) and record.id not in schema_ids:
                     schema_ids[record.id] = writer.register_schema(record.name, record.encoding, record.data)
                 elif isinstance(record, Channel) and record.id not in channels:

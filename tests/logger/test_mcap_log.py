@@ -318,3 +318,26 @@ def test_a_flipped_byte_anywhere_is_refused_or_harmless_never_silently_wrong(log
     except FuelidError:
         return
     assert got == expected
+
+
+def test_recover_keeps_the_rest_when_the_chunk_holding_the_channels_is_damaged(log, tmp_path):
+    """The first chunk holds the schema and channel records; the summary has them too."""
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    flipped, _ = _flipped(data, ends[0], 0.5, 0x04)
+    bad, fixed = tmp_path / "bad.mcap", tmp_path / "fixed.mcap"
+    bad.write_bytes(flipped)
+    stats = recover(bad, fixed)
+    assert list(read_messages(fixed)) == written[ends[0][1]:] and stats.messages_lost == ends[0][1]
+
+
+@pytest.mark.parametrize("offset", [10, 11])  # the header record's length field
+def test_a_garbled_record_length_does_not_swallow_what_follows(log, tmp_path, offset):
+    path, written = log
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x10
+    bad, fixed = tmp_path / "bad.mcap", tmp_path / "fixed.mcap"
+    bad.write_bytes(bytes(data))
+    recover(bad, fixed)
+    assert list(read_messages(fixed)) == written
