@@ -344,7 +344,7 @@ class FrameSource:
 
     def _ended(self, e: Exception) -> None:
         """How the data ended: cut (by the end of the file or of its .gz stream) or damaged."""
-        self.error = f"{type(e).__name__}: {e}".rstrip(": ")
+        self.error = str(e) or type(e).__name__
         cut = isinstance(e, EOFError) or (self.at_end and not isinstance(e, (gzip.BadGzipFile, zlib.error)))
         self.status = "truncated" if cut else "damaged"
         if self._lines is not None:
