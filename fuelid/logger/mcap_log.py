@@ -314,7 +314,8 @@ class _Scan:
                     raise ValueError("garbled record header")  # a wrong length would swallow what follows
                 records = self._parse(opcode, buf, pos, end)
             except Exception as exc:  # noqa: BLE001 -- any failure to parse a whole record is damage or the cut
-                resume = end if self._record_starts_at(end) else self._next_chunk(pos + 1)
+                whole = end == size or end < size and self._record_starts_at(end)  # its length is believable
+                resume = end if whole else self._next_chunk(pos + 1)
                 if resume is None:  # nothing intact follows: the file ends inside this record
                     return
                 self._on_damage(DamagedChunk(self._path, pos, resume, str(exc) or type(exc).__name__))

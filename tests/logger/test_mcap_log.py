@@ -341,3 +341,15 @@ def test_a_garbled_record_length_does_not_swallow_what_follows(log, tmp_path, of
     bad.write_bytes(bytes(data))
     recover(bad, fixed)
     assert list(read_messages(fixed)) == written
+
+
+def test_a_damaged_last_chunk_of_a_cut_file_is_damage_not_the_cut(log, tmp_path):
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    end, lost, start = ends[-1]
+    flipped, _ = _flipped(data[:end], ends[-1], 0.5, 0x02)  # cut right after the last chunk, which is damaged
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(flipped)
+    with pytest.raises(FuelidError, match=f"damaged chunk at bytes {start}-{end}"):
+        list(read_messages(bad))
