@@ -15,7 +15,7 @@ from fuelid.paths import os_error_message, readable_file, writable_file
 # command -> its one-line help; the module fuelid.commands.<command> holds the rest. In the order of the data flow.
 COMMANDS = {
     "convert": "convert recorded CAN logs (candump, ASC, BLF, TRC, MF4) and flow-meter captures to MCAP",
-    "recover": "rewrite an MCAP log cut by a power loss as a valid, indexed file",
+    "recover": "rewrite an MCAP log cut by a power loss or with damaged chunks as a valid, indexed file",
     "log": "log a CAN bus (and the flow meter) to rotated MCAP files until stopped; the in-cab daemon",
     "status": "show the logger daemon's health: uptime, frames/s, drops, decode errors, current file, serial, VIN",
     "replay": "play recorded CAN logs (candump, ASC, BLF, TRC, MCAP) onto a CAN bus with their original timing",

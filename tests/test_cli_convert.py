@@ -88,3 +88,79 @@ def test_missing_input_and_overwriting_input_are_refused(tmp_path, capsys):
     log.write_text("(1.0) can0 0CF00400#0000000000000000\n")
     code, _, err = convert(capsys, log, "-o", log)
     assert code == 1 and "overwrite" in err and log.read_text().startswith("(1.0)")
+
+
+# -- each input's outcome (issue 18) --
+
+def _candump(path, n=200, t0=1_700_000_000.0):
+    path.write_text("".join(f"({t0 + i * 0.01:.6f}) can0 0CF00400#00{i % 250:02X}8700401F0000\n"
+                            for i in range(n)))
+    return path
+
+
+def convert_text(capsys, *args):
+    code = main(["convert", *map(str, args)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_a_complete_input_says_so(tmp_path, capsys):
+    code, summary, _ = convert(capsys, _candump(tmp_path / "a.log"), "-o", tmp_path / "a.mcap")
+    assert code == 0 and summary["inputs"][0]["status"] == "complete" and summary["inputs"][0]["position"] is None
+    code, out, _ = convert_text(capsys, tmp_path / "a.log", "-o", tmp_path / "b.mcap")
+    assert "a.log [candump-L]: complete, 200 frames" in out
+
+
+def test_a_truncated_input_says_where_and_keeps_what_was_read(tmp_path, capsys):
+    log = _candump(tmp_path / "a.log")
+    log.write_text(log.read_text()[:-9])  # the last line cut mid-data
+    code, summary, _ = convert(capsys, log, "-o", tmp_path / "a.mcap")
+    inp = summary["inputs"][0]
+    assert code == 0 and (inp["status"], inp["position"], inp["frames"]) == ("truncated", "line 200", 199)
+    code, out, _ = convert_text(capsys, log, "-o", tmp_path / "b.mcap")
+    assert "truncated at line 200" in out
+
+
+def test_damaged_input_exits_non_zero_unless_asked_to_keep_what_can_be_read(tmp_path, capsys):
+    blf = tmp_path / "x.blf"
+    with can.BLFWriter(blf) as w:
+        for i in range(20_000):  # several containers
+            w.on_message_received(can.Message(timestamp=1_700_000_000 + i * 0.01, arbitration_id=0x0CF00400,
+                                              data=bytes([0, 125, 135, 0x40, 0x1F, 0, 0, i % 256])))
+    blob = bytearray(blf.read_bytes())
+    blob[len(blob) * 4 // 5] ^= 0x08
+    blf.write_bytes(bytes(blob))
+    out = tmp_path / "x.mcap"
+    code, out_text, err = convert_text(capsys, blf, "-o", out)
+    assert code == 1 and err.count("\n") == 1 and "damaged" in err and "--keep-damaged" in err
+    assert "x.blf [blf]: damaged at byte" in out_text and not out.exists()
+    code = main(["convert", str(blf), "-o", str(out), "--json", "--keep-damaged"])
+    summary = json.loads(capsys.readouterr().out)
+    assert code == 0 and summary["inputs"][0]["status"] == "damaged" and out.exists()
+    assert 0 < summary["frames"] < 20_000 and len(list(read_messages(out, ["/can/raw"]))) == summary["frames"]
+
+
+def test_a_foreign_file_starting_with_a_semicolon_is_refused(tmp_path, capsys):
+    csv = tmp_path / "export.csv"
+    csv.write_text(";Time;Channel;ID;DLC;Data\n0.001;1;18FEF100;8;FF 34 17 03 CC 00 FF FF\n")
+    code, _, err = convert(capsys, csv, "-o", tmp_path / "out.mcap")
+    assert code == 1 and "not a CAN recording" in err and err.count("\n") == 1
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_an_out_of_range_line_is_skipped_not_an_abort(tmp_path, capsys):
+    log = _candump(tmp_path / "a.log")
+    lines = log.read_text().splitlines(keepends=True)
+    log.write_text("".join(lines[:50] + ["(100000000000000000000.000000) can0 0CF00400#0000000000000000\n"]
+                           + lines[50:]))
+    code, summary, err = convert(capsys, log, "-o", tmp_path / "a.mcap")
+    assert code == 0 and summary["inputs"][0]["skipped_lines"] == 1 and summary["frames"] == 200
+
+
+def test_relative_time_recordings_follow_each_other_with_a_warning(tmp_path, capsys):
+    a, b = _candump(tmp_path / "a.log", t0=5.0), _candump(tmp_path / "b.log", t0=3.0)
+    out = tmp_path / "ab.mcap"
+    code, summary, _ = convert(capsys, a, b, "-o", out)
+    assert code == 0 and len(summary["warnings"]) == 1 and "b.log" in summary["warnings"][0]
+    times = [t for _, t, _ in read_messages(out, ["/can/raw"])]
+    assert times == sorted(times) and len(times) == 400

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from fuelid.errors import FuelidError
 from fuelid.logger.flowmeter import Calibration, capture_readings
-from fuelid.logger.readers import open_frames
+from fuelid.logger.readers import one_timeline, open_frames
 from fuelid.logger.recorder import Recorder, open_writer
 from fuelid.output import print_json
 from fuelid.progress import progress
@@ -18,6 +18,9 @@ def add_arguments(p):
     p.add_argument("--flow-gain", type=float, default=12.5, metavar="KG_H_PER_V", help="meter calibration gain [kg/h per V] (default 12.5: 0-10 V = 0-125 kg/h)")
     p.add_argument("--flow-offset", type=float, default=0.0, metavar="KG_H", help="meter calibration offset [kg/h] (default 0)")
     p.add_argument("--truck", default="unknown", help="truck name until a VIN is seen on the bus")
+    p.add_argument("--keep-damaged", action="store_true",
+                   help="keep the output when an input is damaged (its frames up to the damage); without it a "
+                        "damaged input is an error and no output is left")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
@@ -31,8 +34,9 @@ def run(args) -> int:
         raise FuelidError(f"output {output} would overwrite an input")
 
     sources = [open_frames(p) for p in inputs]
+    warnings: list[str] = []
     # One time-ordered stream of (time [s], kind, item): CAN frames of each input, then meter readings merged in.
-    frames = ((msg.timestamp, 0, msg) for source in sources for msg in source)
+    frames = ((msg.timestamp, 0, msg) for msg in one_timeline(sources, warnings))
     streams = [frames]
     calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
     if args.flowmeter:
@@ -51,16 +55,25 @@ def run(args) -> int:
     finally:
         writer.close()
 
-    summary = conversion_summary(recorder, sources, output)
+    damaged = [s for s in sources if s.status == "damaged"]
+    kept = args.keep_damaged or not damaged
+    if not kept:  # nothing silently wrong: frames of a damaged input are not left behind as a good log
+        output.unlink()
+    summary = conversion_summary(recorder, sources, output, warnings, kept)
     if args.json:
         print_json(summary)
     else:
         print(format_summary(summary))
+    if not kept:
+        s = damaged[0]
+        raise FuelidError(f"{s.path} is damaged at {s.position or 'an unknown place'} ({s.error}); no output "
+                          "written: --keep-damaged keeps the frames that could be read")
     return 0
 
 
-def conversion_summary(recorder, sources, output: Path) -> dict:
-    """What was read and decoded, as plain JSON-able data."""
+def conversion_summary(recorder, sources, output: Path, warnings: list[str], kept: bool = True) -> dict:
+    """What was read and decoded, as plain JSON-able data: per input its status (complete, truncated or
+    damaged), where it ended (`position`, ``line N``/``byte N``) and why (`error`)."""
     stats = recorder.stats
     messages = {}
     for (name, sa), count in sorted(stats.decoded.items()):
@@ -70,10 +83,12 @@ def conversion_summary(recorder, sources, output: Path) -> dict:
         invalid.setdefault(f"{name}.{signal}", {})[status] = count
     signals = sorted({f"{name}.{s}" for name in messages for s in recorder.decoder.signal_names(name)})
     return {
-        "output": str(output),
-        "output_bytes": output.stat().st_size,
+        "output": str(output) if kept else None,
+        "output_bytes": output.stat().st_size if kept else 0,
         "truck": recorder.vin or "unknown",
-        "inputs": [{"path": str(s.path), "format": s.format, "frames": s.frames, "skipped_lines": s.skipped} for s in sources],
+        "inputs": [{"path": str(s.path), "format": s.format, "status": s.status, "position": s.position,
+                    "error": s.error, "frames": s.frames, "skipped_lines": s.skipped} for s in sources],
+        "warnings": warnings,
         "frames": stats.frames,
         "error_frames": stats.error_frames,
         "remote_frames": stats.remote_frames,
@@ -88,9 +103,15 @@ def conversion_summary(recorder, sources, output: Path) -> dict:
 
 
 def format_summary(s: dict) -> str:
-    lines = [f"wrote {s['output']} ({s['output_bytes'] / 1e6:.2f} MB), truck {s['truck']}"]
+    if s["output"]:
+        lines = [f"wrote {s['output']} ({s['output_bytes'] / 1e6:.2f} MB), truck {s['truck']}"]
+    else:
+        lines = ["wrote nothing: an input is damaged"]
     for i in s["inputs"]:
-        lines.append(f"  read {i['path']} [{i['format']}]: {i['frames']} frames, {i['skipped_lines']} malformed lines skipped")
+        outcome = i["status"] if i["status"] == "complete" else f"{i['status']} at {i['position']} ({i['error']})"
+        lines.append(f"  read {i['path']} [{i['format']}]: {outcome}, {i['frames']} frames, "
+                     f"{i['skipped_lines']} malformed lines skipped")
+    lines += [f"warning: {w}" for w in s["warnings"]]
     lines.append(f"frames: {s['frames']} ({s['error_frames']} error, {s['remote_frames']} remote, {s['standard_frames']} 11-bit)")
     lines.append("decoder: " + ", ".join(f"{k} {v}" for k, v in s["decoder"].items()))
     lines.append("transport protocol: " + ", ".join(f"{k} {v}" for k, v in s["transport_protocol"].items()))

@@ -17,13 +17,17 @@ def add_dataset_arguments(p):
                    help="longest gap [s] a signal is held over; longer gaps split the data (default 1)")
     p.add_argument("--cycle", type=float, default=1800.0, metavar="S",
                    help="drive-cycle length [s] for the cumulative fuel error (default 1800, the paper's 30 min)")
+    p.add_argument("--skip-damaged", action="store_true",
+                   help="leave out chunks of a recording that fail their CRC (a gap, listed in the warnings) "
+                        "instead of stopping with an error")
 
 
 def build(args, paths):
     """The Dataset of `paths` with the options of add_dataset_arguments."""
     with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
         warnings.simplefilter("ignore", UserWarning)
-        return build_dataset(paths, Ts=args.ts or 0.3, fuel=args.fuel, max_gap_s=args.max_gap, cycle_s=args.cycle)
+        return build_dataset(paths, Ts=args.ts or 0.3, fuel=args.fuel, max_gap_s=args.max_gap, cycle_s=args.cycle,
+                             skip_damaged=args.skip_damaged)
 
 
 def build_for_models(args, paths, models):

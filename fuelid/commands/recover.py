@@ -1,4 +1,5 @@
-"""`fuelid recover BROKEN.mcap [-o FIXED.mcap] [--json]`: rewrite a truncated MCAP log as a valid one."""
+"""`fuelid recover BROKEN.mcap [-o FIXED.mcap] [--json]`: rewrite a truncated or damaged MCAP log as a valid one,
+keeping every intact chunk and saying what was lost."""
 from pathlib import Path
 
 from fuelid.logger.mcap_log import recover
@@ -19,8 +20,15 @@ def run(args) -> int:
     if args.json:
         print_json(summary)
         return 0
-    state = "was complete" if stats.complete else f"was truncated: {stats.bytes_lost} of {stats.bytes_total} bytes lost"
-    print(f"{args.input} {state}")
+    if stats.complete:
+        print(f"{args.input} was complete")
+    else:
+        state = "truncated" if stats.truncated else "damaged"
+        print(f"{args.input} was {state}: {stats.bytes_lost} of {stats.bytes_total} bytes lost")
+    for d in stats.damaged:
+        print(f"  skipped damaged bytes {d.start}-{d.end} ({d.reason})")
+    if stats.messages_lost:
+        print(f"  {stats.messages_lost} messages lost")
     print(f"wrote {output}: {summary['message_count']} messages, {stats.metadata_records} metadata records")
     for topic, count in sorted(stats.messages.items()):
         print(f"  {topic:<24} {count:>10}")

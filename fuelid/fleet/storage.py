@@ -16,7 +16,7 @@ from pathlib import Path
 from mcap.reader import SeekingReader
 
 from fuelid.logger.durable import fsync_path
-from fuelid.logger.mcap_log import MAGIC, METADATA_NAME
+from fuelid.logger.mcap_log import MAGIC, METADATA_NAME, damaged_chunks
 
 HEX64 = r"^[0-9a-f]{64}$"
 
@@ -92,7 +92,7 @@ def inspect_mcap(path: str | Path) -> McapInfo:
     """Check an uploaded file is a complete fuelid MCAP log and read what the registry keeps.
 
     The rule: MCAP magic at both ends, a footer and summary that mcap's reader parses with a chunk index and
-    statistics (a chunk index when it holds messages: a log of a silent bus has none), and a `fuelid` metadata record naming the truck. A file cut before its footer (a power cut
+    statistics (a chunk index when it holds messages: a log of a silent bus has none), every chunk matching its CRC, and a `fuelid` metadata record naming the truck. A file cut before its footer (a power cut
     the daemon did not recover) is refused: `fuelid recover` turns it into a complete file to upload. The
     bytes themselves are vouched for by the sha256 the client sent and the server recomputed."""
     with open(path, "rb") as f:
@@ -113,6 +113,10 @@ def inspect_mcap(path: str | Path) -> McapInfo:
         raise UploadRefused(422, "MCAP file without statistics in its summary")
     if summary.statistics.message_count and not summary.chunk_indexes:  # empty logs (bus silent) have none
         raise UploadRefused(422, "MCAP file with messages but no chunk index")
+    damaged = damaged_chunks(path)  # the sha256 vouches for the transfer, not for what the logger wrote
+    if damaged:
+        raise UploadRefused(422, f"damaged MCAP file: chunk at bytes {damaged[0].start}-{damaged[0].end} "
+                                 f"({damaged[0].reason}); run `fuelid recover` on it and upload the result")
     truck = fuelid[-1].get("truck") if fuelid else None
     if not truck:
         raise UploadRefused(422, "the MCAP file names no truck (metadata 'fuelid' has no 'truck')")

@@ -132,9 +132,10 @@ class Dataset:
         }
 
 
-def _records(sources):
+def _records(sources, damaged=None):
     """Chain (topic, log_time_ns, record) from MCAP paths (read with a progress bar on a terminal) and/or
-    record iterables; a bare list of records works too."""
+    record iterables; a bare list of records works too. A damaged chunk of a file raises FuelidError, or,
+    when a `damaged` list is given, is skipped and appended to it."""
     if isinstance(sources, (str, Path)):
         sources = [sources]
     spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
@@ -145,7 +146,7 @@ def _records(sources):
                 raise FuelidError(f"{p}: no such file")
             topics = ["/flowmeter"] + [f"/j1939/{m}" for m in Decoder().message_names()]  # not /can/raw
             first = last = None
-            for record in progress(read_messages(p, topics), desc=p.name, unit="msg"):
+            for record in progress(read_messages(p, topics, damaged=damaged), desc=p.name, unit="msg"):
                 t = record[1]
                 if first is None:
                     first = last = t
@@ -274,19 +275,23 @@ def build_dataset(
     idle_min_s: float = 3.0,
     cycle_s: float = 1800.0,
     min_cycle_s: float = 60.0,
+    skip_damaged: bool = False,
 ) -> Dataset:
     """Build a Dataset from MCAP paths and/or iterables of (topic, log_time_ns, record) records.
 
     Ts [s] grid step; fuel 'auto' (the flow meter when it has valid readings, else LFE1), 'flowmeter'
     [kg/h] or 'lfe1' [L/h]; max_gap_s [s] the longest stretch a model signal is held; idle_rpm,
     idle_tol_rpm [rpm], idle_min_s [s] the operating point; cycle_s, min_cycle_s [s] the drive cycles.
-    Raises FuelidError when engine speed, torque or the fuel signal is missing. Method: module docstring.
+    A file's damaged chunk (failing its CRC) raises FuelidError naming the bytes; with skip_damaged it is
+    left out (a gap in the data) and noted. Raises FuelidError when engine speed, torque or the fuel
+    signal is missing. Method: module docstring.
     """
     if Ts <= 0:
         raise FuelidError(f"sampling interval must be positive, got {Ts} s")
     if fuel not in ("auto", *FUEL_SIGNALS):
         raise FuelidError(f"fuel must be auto, flowmeter or lfe1, got {fuel!r}")
-    chosen, used = _choose(_collect(_records(sources)), source_preference)
+    damaged = [] if skip_damaged else None
+    chosen, used = _choose(_collect(_records(sources, damaged)), source_preference)
     if fuel == "auto":
         fuel = "flowmeter" if FUEL_SIGNALS["flowmeter"][0] in chosen else "lfe1"
     fuel_name, fuel_unit = FUEL_SIGNALS[fuel]
@@ -310,7 +315,9 @@ def build_dataset(
         ts, vs = chosen[name]
         return _resample(ts, vs, k_rows, t0, ts_ns, int(hold_s * 1e9), name in AVERAGED)
 
-    notes = []
+    notes = [f"skipped {d}" for d in damaged or ()]
+    for note in notes:
+        warnings.warn(note, stacklevel=2)
     speed, pct, y = grid(SPEED), grid(TORQUE_PCT), grid(fuel_name)
     if REF_TORQUE in chosen:
         torque, torque_unit = pct * np.median(chosen[REF_TORQUE][1]) / 100.0, "Nm"

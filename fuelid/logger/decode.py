@@ -13,7 +13,9 @@ field          valid (kept as a number)    reserved         error            not
                specific, e.g. gear park)
 2 bytes        0x0000-0xFBFF               0xFC00-0xFDFF    0xFE00-0xFEFF    0xFF00-0xFFFF
 4 bytes        0x00000000-0xFBFFFFFF       0xFC..-0xFD..    0xFExxxxxx       0xFFxxxxxx
-n < 8 bits     0 .. 2**n - 3               (none)           2**n - 2         2**n - 1
+2-bit state    00, 01                      (none)           10               11
+other bit      the SPN's states            the rest         (none)           all ones
+fields         (`SPN_STATES`)
 =============  ==========================  ===============  ===============  ===============
 
 Such values decode to ``None`` with their status in `Decoded.invalid`. A signal the frame is too short
@@ -38,6 +40,21 @@ short to hold the signal."""
 
 VI_NAME = "VI"
 VIN_FIELD = "VIN"
+VIN_ALPHABET = frozenset(b"ABCDEFGHJKLMNPRSTUVWXYZ0123456789")  # ISO 3779: no I, O, Q
+VIN_PADDING = b"\x00\xff "
+
+SPN_STATES: dict[int, frozenset[int]] = {
+    899: frozenset(range(15)),  # engine torque mode: 0-14 modes (14 "other")
+    900: frozenset(range(15)),  # retarder torque mode: the same table
+    976: frozenset(range(21)),  # PTO governor state: 0-20 states, 21-30 reserved
+    977: frozenset(range(15)),  # fan drive state: 0-14 states
+    3697: frozenset({0, 1, 4}),  # DPF lamp: off, on solid, on fast blink
+    3699: frozenset({0, 1, 2}),  # DPF passive regeneration: 2 = regeneration needed
+    3700: frozenset({0, 1, 2}),  # DPF active regeneration: 2 = regeneration needed
+    3701: frozenset({0, 1, 2, 3}),  # DPF status: regeneration not needed, needed at 3 levels
+}
+"""SPN → raw values that are states, for the bit fields that J1939-71 defines apart from the 2-bit state
+rule (00/01 states, 10 error, 11 not available): all ones is not available, every other value reserved."""
 
 
 @dataclass(slots=True)
@@ -86,21 +103,28 @@ class DecodeStats:
 
 def _compile(sig: cantools.database.Signal) -> tuple:
     """A little-endian unsigned signal as a tuple for the decode loop (tuples unpack faster than
-    attribute lookups): name, shift, mask, scale, offset, end_byte, valid_max, error_min, na_min.
+    attribute lookups): name, shift, mask, scale, offset, end_byte, valid_max, error_min, na_min, states.
 
-    raw = (payload >> shift) & mask. Raw values up to valid_max are numbers; from na_min not
+    raw = (payload >> shift) & mask. A bit field is judged by `states`, the status of each raw value (None
+    for a state); a byte field by ranges: raw values up to valid_max are numbers; from na_min not
     available, from error_min error, anything in between reserved (see the module table).
     """
     if sig.byte_order != "little_endian" or sig.is_signed:
         raise FuelidError(f"signal {sig.name}: J1939 signals are little-endian unsigned")
     n = sig.length
     mask = (1 << n) - 1
-    if n < 8:  # bit field: all ones = not available, all ones minus one = error
-        na_min, error_min, valid_max = mask, mask - 1, mask - 2
+    states = None
+    if n < 8:
+        spn = sig.dbc.attributes["SPN"].value if sig.dbc and "SPN" in sig.dbc.attributes else None
+        valid = SPN_STATES.get(spn, range(mask - 1))
+        error = None if spn in SPN_STATES else mask - 1
+        states = tuple(None if r in valid else "not_available" if r == mask else "error" if r == error
+                       else "reserved" for r in range(mask + 1))
+        na_min = error_min = valid_max = mask
     else:  # judged on the most significant byte
         na_min, error_min, valid_max = 0xFF << (n - 8), 0xFE << (n - 8), (0xFC << (n - 8)) - 1
     return (sig.name, sig.start, mask, sig.scale, sig.offset, (sig.start + n + 7) // 8,
-            valid_max, error_min, na_min)
+            valid_max, error_min, na_min, states)
 
 
 class Decoder:
@@ -183,15 +207,21 @@ class Decoder:
         invalid: dict[str, str] = {}
         if size < need:
             stats.short_frames += 1
-        for sig, shift, mask, scale, offset, end_byte, valid_max, error_min, na_min in signals:
+        for sig, shift, mask, scale, offset, end_byte, valid_max, error_min, na_min, states in signals:
             if size < end_byte:
                 status = "missing"
             else:
                 r = (raw >> shift) & mask
-                if r <= valid_max:
+                if states is not None:
+                    status = states[r]
+                    if status is None:
+                        values[sig] = r * scale + offset
+                        continue
+                elif r <= valid_max:
                     values[sig] = r * scale + offset
                     continue
-                status = "not_available" if r >= na_min else "error" if r >= error_min else "reserved"
+                else:
+                    status = "not_available" if r >= na_min else "error" if r >= error_min else "reserved"
             values[sig] = None
             invalid[sig] = status
             stats.invalid[status] += 1
@@ -255,11 +285,12 @@ def _load_dbc(path: str) -> cantools.database.Database:
 
 def _decode_vi(t: float, pgn: int, sa: int, da: int, payload: bytes, tp: str | None,
                stats: DecodeStats) -> Decoded:
-    """VI (PGN 65260): SPN 237 VIN, ASCII up to the '*' delimiter. Padding (0x00, 0xFF, spaces) and
-    any non-printable byte are dropped, so garbage never reaches the truck's name."""
-    text = bytes(payload).split(b"*", 1)[0]
-    vin = "".join(chr(b) for b in text if 0x21 <= b <= 0x7E)
-    if vin:
-        return Decoded(VI_NAME, pgn, sa, da, t, {VIN_FIELD: vin}, {}, tp)
-    stats.invalid["not_available"] += 1
-    return Decoded(VI_NAME, pgn, sa, da, t, {VIN_FIELD: None}, {VIN_FIELD: "not_available"}, tp)
+    """VI (PGN 65260): SPN 237 VIN, ASCII up to the '*' delimiter. Padding (0x00, 0xFF, spaces) around it is
+    dropped; what is left must be a VIN, 17 characters of its alphabet, or it is no VIN (``reserved``):
+    garbage never reaches the truck's name."""
+    text = bytes(payload).split(b"*", 1)[0].strip(VIN_PADDING)
+    if len(text) == 17 and VIN_ALPHABET.issuperset(text):
+        return Decoded(VI_NAME, pgn, sa, da, t, {VIN_FIELD: text.decode("ascii")}, {}, tp)
+    status = "reserved" if text else "not_available"
+    stats.invalid[status] += 1
+    return Decoded(VI_NAME, pgn, sa, da, t, {VIN_FIELD: None}, {VIN_FIELD: status}, tp)

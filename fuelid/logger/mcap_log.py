@@ -7,12 +7,15 @@ truncated ones (power cut before `close()`) by a sequential scan that stops at t
 from __future__ import annotations
 
 import io
+import itertools
+import mmap
 import struct
 import time
+import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Iterable, Iterator
+from typing import IO, Callable, Iterable, Iterator
 
 import orjson
 import zstandard
@@ -20,8 +23,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Footer, McapRecord, Message, Metadata, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.records import Channel, Chunk, Footer, McapRecord, Message, Metadata, Schema, Statistics
 from mcap.writer import CompressionType, Writer
 
 from fuelid import __version__
@@ -197,75 +199,192 @@ class McapLogWriter:
         self.close()
 
 
+@dataclass(frozen=True)
+class DamagedChunk:
+    """Bytes [`start`, `end`) of an MCAP file that fail verification: a chunk whose records do not
+    decompress or do not match their CRC, or bytes where no record parses (a garbled record header)."""
+
+    path: Path
+    start: int
+    end: int
+    reason: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: damaged chunk at bytes {self.start}-{self.end} ({self.reason})"
+
+    def to_dict(self) -> dict:
+        return {"start": self.start, "end": self.end, "bytes": self.end - self.start, "reason": self.reason}
+
+
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
+_CHUNK_HEAD_BYTES = 8 + 8 + 8 + 4 + 4 + 8  # times, uncompressed size and CRC, empty compression, records length
+_OPCODES = set(range(Opcode.HEADER, Opcode.DATA_END + 1))
+
+
+def chunk_records(chunk: Chunk) -> bytes:
+    """The uncompressed records of `chunk`, verified against its size and CRC; ValueError saying what is wrong.
+
+    (mcap's readers decompress without checking the CRC on the indexed path: a flipped byte inside a zstd
+    frame often still decompresses, to different records.)"""
+    if chunk.compression == "zstd":
+        try:
+            data = zstandard.decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+        except zstandard.ZstdError as exc:
+            raise ValueError(f"does not decompress: {exc}") from None
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise ValueError(f"compression {chunk.compression!r} not written by fuelid")
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError("uncompressed size differs from the chunk header")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError("CRC mismatch")
+    return data
+
+
+def _verified_chunk(buf, pos: int, size: int) -> tuple[Chunk, bytes, int] | None:
+    """(chunk, its verified records, end offset) when a whole, intact Chunk record starts at `pos`, else None."""
+    if pos + 9 > size:
+        return None
+    opcode, length = _RECORD_HEAD.unpack_from(buf, pos)
+    if opcode != Opcode.CHUNK or length < _CHUNK_HEAD_BYTES or pos + 9 + length > size:
+        return None
+    try:
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(buf[pos + 9 : pos + 9 + length])))
+        return chunk, chunk_records(chunk), pos + 9 + length
+    except Exception:  # noqa: BLE001 -- mcap, struct and zstd errors alike: not an intact chunk
+        return None
+
+
+def _summary_intact(buf, size: int) -> bool:
+    """Whether the footer's summary CRC (when written) matches the summary section: the chunk index, channel
+    list and statistics have no CRC of their own."""
+    footer = size - len(MAGIC) - 9 - 20
+    if footer < len(MAGIC) or buf[footer] != Opcode.FOOTER:
+        return False
+    summary_start, _, crc = struct.unpack_from("<QQI", buf, footer + 9)
+    if not len(MAGIC) <= summary_start <= footer:
+        return False
+    return crc == 0 or zlib.crc32(buf[summary_start : footer + 9 + 16]) == crc
+
+
 class _Scan:
     """Sequential reading of an MCAP file from its start, for files without a usable footer and index.
 
     Hand-written on top of mcap's record classes because mcap's StreamReader cannot tell a record cut by
     the end of the file from a whole one (short reads pass silently) and its errors discard everything
     read so far. Here a record counts only when all its bytes are present and it parses; a chunk counts
-    only when it decompresses and matches its CRC, so its messages come out all or none. `good_end` is the
-    offset just after the last record that counted; `complete` tells whether the footer was reached.
+    only when it decompresses and matches its CRC, so its messages come out all or none. Bytes where no
+    record parses are damage: the scan goes on at the next intact chunk and reports the bytes skipped to
+    `on_damage`; when no intact chunk follows, the file was cut there. `good_end` is the offset just after
+    the last record that counted; `complete` tells whether the footer was reached, `statistics` is the
+    summary's Statistics record when the summary CRC vouches for it.
     """
 
     _PARSERS = {
         Opcode.SCHEMA: Schema.read,
         Opcode.CHANNEL: Channel.read,
-        Opcode.CHUNK: Chunk.read,
         Opcode.METADATA: Metadata.read,
+        Opcode.STATISTICS: Statistics.read,
         Opcode.FOOTER: Footer.read,
     }
 
-    def __init__(self, f: IO[bytes], path: Path):
+    def __init__(self, f: IO[bytes], path: Path, on_damage: Callable[[DamagedChunk], None]):
         f.seek(0, io.SEEK_END)
         self.size = f.tell()
         f.seek(0)
         if f.read(len(MAGIC)) != MAGIC:
             raise FuelidError(f"not an MCAP file: {path}")
-        self._f = f
+        self._buf = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        self._path = path
+        self._on_damage = on_damage
         self.good_end = len(MAGIC)
         self.complete = False
+        self.statistics: Statistics | None = None
 
     def records(self) -> Iterator[McapRecord]:
         """Schema, Channel, Message and Metadata records in file order, chunks broken up."""
-        pos = self.good_end
-        while True:
-            head = self._f.read(9)
-            if len(head) < 9:
-                return
-            opcode, length = struct.unpack("<BQ", head)
-            if length > self.size - pos - 9:  # cut inside this record
-                return
-            body = self._f.read(length)
+        buf, size, pos = self._buf, self.size, len(MAGIC)
+        while pos + 9 <= size:
+            opcode, length = _RECORD_HEAD.unpack_from(buf, pos)
+            end = pos + 9 + length
             try:
-                records = self._parse(opcode, body)
-            except Exception:  # any failure to parse a whole record is damage: stop before it
-                return
-            pos += 9 + length
-            self.good_end = pos
+                followed = end == size or opcode == Opcode.FOOTER or self._record_starts_at(end)
+                if opcode not in _OPCODES or end > size or not followed:
+                    raise ValueError("garbled record header")  # a wrong length would swallow what follows
+                records = self._parse(opcode, buf, pos, end)
+            except Exception as exc:  # noqa: BLE001 -- any failure to parse a whole record is damage or the cut
+                whole = end == size or end < size and self._record_starts_at(end)  # its length is believable
+                resume = end if whole else self._next_chunk(pos + 1)
+                if resume is None:  # nothing intact follows: the file ends inside this record
+                    return
+                self._on_damage(DamagedChunk(self._path, pos, resume, str(exc) or type(exc).__name__))
+                pos = resume
+                continue
+            pos = self.good_end = end
             yield from records
             if opcode == Opcode.FOOTER:
                 self.complete = True
-                self.good_end = self.size  # the closing magic
+                self.good_end = size  # the closing magic
                 return
 
-    def _parse(self, opcode: int, body: bytes) -> list[McapRecord]:
+    def _parse(self, opcode: int, buf, pos: int, end: int) -> list[McapRecord]:
+        if opcode == Opcode.CHUNK:
+            found = _verified_chunk(buf, pos, end)
+            if found is None:
+                raise ValueError(_what_is_wrong(buf, pos, end))
+            return list(_records_in(found[1]))
+        body = buf[pos + 9 : end]
         stream = ReadDataStream(io.BytesIO(body))
         if opcode == Opcode.MESSAGE:
             return [Message.read(stream, len(body))]
         parser = self._PARSERS.get(opcode)
-        if parser is None:  # indexes, statistics, attachments: nothing to recover from them
+        if parser is None:  # indexes, attachments: nothing to recover from them
             return []
         record = parser(stream)
-        if isinstance(record, Chunk):
-            return breakup_chunk(record, validate_crc=True)
+        if isinstance(record, Statistics):
+            self.statistics = record if _summary_intact(buf, self.size) else None
+            return []
         return [] if isinstance(record, Footer) else [record]
+
+    def _record_starts_at(self, pos: int) -> bool:
+        """Whether a record plausibly starts at `pos`: a known opcode, whole or cut by the end of the file (a
+        record's length is believed when what follows it looks like a record)."""
+        return pos < self.size and self._buf[pos] in _OPCODES
+
+    def _next_chunk(self, start: int) -> int | None:
+        """Offset of the first intact chunk at or after `start`, None when there is none."""
+        pos = start
+        while (pos := self._buf.find(bytes([Opcode.CHUNK]), pos)) != -1:
+            if _verified_chunk(self._buf, pos, self.size) is not None:
+                return pos
+            pos += 1
+        return None
+
+
+def _records_in(data: bytes) -> Iterator[McapRecord]:
+    """The Schema, Channel and Message records of a chunk's verified records."""
+    stream = ReadDataStream(io.BytesIO(data))
+    while stream.count < len(data):
+        opcode, length = stream.read1(), stream.read8()
+        if opcode == Opcode.MESSAGE:
+            yield Message.read(stream, length)
+        elif opcode == Opcode.SCHEMA:
+            yield Schema.read(stream)
+        elif opcode == Opcode.CHANNEL:
+            yield Channel.read(stream)
+        else:
+            stream.read(length)
 
 
 def _indexed_reader(f: IO[bytes]) -> SeekingReader | None:
-    """mcap's own reader when the file ends in a footer with a chunk index, else None."""
+    """mcap's own reader when the file ends in a footer with a chunk index that its CRC vouches for, else None."""
     f.seek(-len(MAGIC), io.SEEK_END)
     if f.read(len(MAGIC)) != MAGIC:
         return None
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+        if not _summary_intact(buf, len(buf)):
+            return None
     f.seek(0)  # SeekingReader reads the leading magic from the current position
     reader = SeekingReader(f)
     summary = reader.get_summary()
@@ -289,18 +408,12 @@ def _open(path: str | Path) -> tuple[IO[bytes], SeekingReader | None]:
 _MESSAGE_HEAD = struct.Struct("<HIQ")  # Message record: channel id, sequence, log time (then publish time, data)
 
 
-def _chunk_messages(chunk: Chunk, topics: dict[int, str]) -> Iterator[tuple[str, int, bytes]]:
-    """(topic, log_time, data) of the chunk's messages on the channels `topics` (id → topic), in chunk order.
+def _chunk_messages(data: bytes, topics: dict[int, str]) -> Iterator[tuple[str, int, bytes]]:
+    """(topic, log_time, data) of a chunk's verified records on the channels `topics` (id → topic), in order.
 
     The records are walked by their length fields and only wanted messages are sliced out: mcap's
     breakup_chunk builds an object for every record, which made reading a decoded topic cost as much as
     reading the /can/raw frames interleaved with it in every chunk (5× slower on the 1.5 h trip)."""
-    data = zstandard.decompress(chunk.data, chunk.uncompressed_size) if chunk.compression == "zstd" else None
-    if data is None:  # other compressions: mcap's own parser
-        for record in breakup_chunk(chunk):
-            if isinstance(record, Message) and record.channel_id in topics:
-                yield topics[record.channel_id], record.log_time, record.data
-        return
     pos, end = 0, len(data)
     while pos < end:
         opcode, (length,) = data[pos], struct.unpack_from("<Q", data, pos + 1)
@@ -312,25 +425,42 @@ def _chunk_messages(chunk: Chunk, topics: dict[int, str]) -> Iterator[tuple[str,
         pos = body + length
 
 
-def _raw_messages(path: str | Path, topics: Iterable[str] | None) -> Iterator[tuple[str, int, bytes]]:
+def _damage_handler(damaged: list[DamagedChunk] | None) -> Callable[[DamagedChunk], None]:
+    """Collect damage into `damaged`, or, when the caller gave no list, stop with an error naming the bytes."""
+    if damaged is not None:
+        return damaged.append
+
+    def refuse(d: DamagedChunk) -> None:
+        raise FuelidError(f"{d}; `fuelid recover` keeps every intact chunk")
+
+    return refuse
+
+
+def _raw_messages(path: str | Path, topics: Iterable[str] | None,
+                  on_damage: Callable[[DamagedChunk], None]) -> Iterator[tuple[str, int, bytes]]:
     wanted = None if topics is None else set([topics] if isinstance(topics, str) else topics)
     f, reader = _open(path)
     with f:
         if reader is not None:
             try:
                 summary = reader.get_summary()
-                ids = {i: c.topic for i, c in summary.channels.items()
-                       if c.message_encoding == "json" and (wanted is None or c.topic in wanted)}
+            except Exception as exc:  # mcap, struct and decoding errors alike: a damaged complete file
+                raise FuelidError(f"damaged MCAP file {path} ({exc}); try `fuelid recover`") from exc
+            ids = {i: c.topic for i, c in summary.channels.items()
+                   if c.message_encoding == "json" and (wanted is None or c.topic in wanted)}
+            with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
                 for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
                     if index.message_index_offsets and not ids.keys() & index.message_index_offsets.keys():
                         continue  # the chunk's message index says none of the wanted channels is in it
-                    f.seek(index.chunk_start_offset + 1 + 8)  # past the opcode and the record length
-                    yield from _chunk_messages(Chunk.read(ReadDataStream(f)), ids)
-            except Exception as exc:  # mcap, zstd and struct errors alike: a damaged complete file
-                raise FuelidError(f"damaged MCAP file {path} ({exc}); try `fuelid recover`") from exc
+                    start, end = index.chunk_start_offset, index.chunk_start_offset + index.chunk_length
+                    found = _verified_chunk(buf, start, min(end, len(buf)))
+                    if found is None or found[2] != end:
+                        on_damage(DamagedChunk(Path(path), start, end, _what_is_wrong(buf, start, end)))
+                        continue
+                    yield from _chunk_messages(found[1], ids)
             return
         channels: dict[int, Channel] = {}
-        for record in _Scan(f, Path(path)).records():
+        for record in _Scan(f, Path(path), on_damage).records():
             if isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Message) and record.channel_id in channels:
@@ -339,37 +469,71 @@ def _raw_messages(path: str | Path, topics: Iterable[str] | None) -> Iterator[tu
                     yield channel.topic, record.log_time, record.data
 
 
-def read_messages(path: str | Path, topics: Iterable[str] | str | None = None) -> Iterator[tuple[str, int, dict]]:
+def _what_is_wrong(buf, start: int, end: int) -> str:
+    """Why the Chunk record at bytes [start, end) of `buf` fails verification, for the damage report."""
+    try:
+        chunk_records(Chunk.read(ReadDataStream(io.BytesIO(buf[start + 9 : end]))))
+    except Exception as exc:  # noqa: BLE001 -- the reason is all that is wanted here
+        return str(exc) or type(exc).__name__
+    return "garbled record header"
+
+
+def read_messages(path: str | Path, topics: Iterable[str] | str | None = None, *,
+                  damaged: list[DamagedChunk] | None = None) -> Iterator[tuple[str, int, dict]]:
     """(topic, log_time [ns], record) of every JSON message, in file order, optionally of some topics only.
 
     A complete file is read through its index; a truncated one (no footer, cut at any byte) sequentially,
-    giving every message up to its last complete chunk. Raises FuelidError for a file that is not MCAP.
+    giving every message up to its last complete chunk. Every chunk is verified against its CRC: a damaged
+    one raises FuelidError naming the file and its byte range, or, when the caller passes a `damaged` list,
+    is skipped and appended to it. Raises FuelidError for a file that is not MCAP.
     """
-    for topic, log_time, data in _raw_messages(path, topics):
+    for topic, log_time, data in _raw_messages(path, topics, _damage_handler(damaged)):
         try:
             yield topic, log_time, orjson.loads(data)
         except orjson.JSONDecodeError as exc:
             raise FuelidError(f"{path}: a message on {topic} at {log_time} ns is not JSON ({exc})") from exc
 
 
+def damaged_chunks(path: str | Path) -> list[DamagedChunk]:
+    """Every chunk of `path` that fails verification (empty for an intact file); FuelidError if not MCAP."""
+    damaged: list[DamagedChunk] = []
+    for _ in _raw_messages(path, None, damaged.append):
+        pass
+    return damaged
+
+
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """Metadata records by name, the last record of a name winning (e.g. `fuelid` with the VIN)."""
     f, reader = _open(path)
     with f:
-        records = reader.iter_metadata() if reader is not None else _Scan(f, Path(path)).records()
+        records = reader.iter_metadata() if reader is not None else _Scan(f, Path(path), lambda d: None).records()
         return {r.name: dict(r.metadata) for r in records if isinstance(r, Metadata)}
+
+
+def _summary_schemas_and_channels(path: Path) -> list[Schema | Channel]:
+    """The Schema and Channel records of the file's summary when its CRC vouches for it, else none."""
+    f, reader = _open(path)
+    with f:
+        if reader is None:
+            return []
+        summary = reader.get_summary()
+        return [*summary.schemas.values(), *summary.channels.values()]
 
 
 @dataclass
 class RecoverStats:
-    """What `recover` found: messages per topic, bytes of the source [B] kept and lost after the last
-    complete record, and whether the source was already complete (had its footer)."""
+    """What `recover` found: messages per topic, bytes of the source [B] kept and lost (damaged chunks skipped,
+    and everything after the last complete record), the `damaged` byte ranges, the messages lost when the
+    source's summary says how many it held, and whether the source was complete and intact."""
 
     messages: Counter = field(default_factory=Counter)
     metadata_records: int = 0
     bytes_total: int = 0
     bytes_recovered: int = 0
     complete: bool = False
+    truncated: bool = False
+    damaged: list[DamagedChunk] = field(default_factory=list)
+    messages_lost: int | None = None
 
     @property
     def bytes_lost(self) -> int:
@@ -384,25 +548,30 @@ class RecoverStats:
             "bytes_recovered": self.bytes_recovered,
             "bytes_lost": self.bytes_lost,
             "complete": self.complete,
+            "truncated": self.truncated,
+            "damaged": [d.to_dict() for d in self.damaged],
+            "messages_lost": self.messages_lost,
         }
 
 
 def recover(src: str | Path, dst: str | Path) -> RecoverStats:
-    """Rewrite the readable part of `src` (e.g. cut by a power loss) as a valid, indexed MCAP `dst`:
-    the same schemas, channels, metadata records and message bytes, up to the last complete chunk."""
+    """Rewrite the readable part of `src` (cut by a power loss, or with damaged chunks) as a valid, indexed
+    MCAP `dst`: the same schemas, channels, metadata records and message bytes of every intact chunk up to
+    the last complete one; damaged chunks are skipped and listed in the stats."""
     src, dst = Path(src), Path(dst)
     if dst.exists() and dst.resolve() == src.resolve():
         raise FuelidError("recover writes a new file: give an output path other than the input")
     stats = RecoverStats()
     with open(src, "rb") as f:
-        scan = _Scan(f, src)
+        scan = _Scan(f, src, stats.damaged.append)
         stats.bytes_total = scan.size
         with open(dst, "wb") as out:
             writer = Writer(out, compression=CompressionType.ZSTD)
             writer.start(library=f"fuelid/{__version__} recover")
             schema_ids: dict[int, int] = {}  # source id -> new id
             channels: dict[int, tuple[int, str]] = {}
-            for record in scan.records():
+            # schemas and channels from an intact summary first: they survive damage to the chunk that held them
+            for record in itertools.chain(_summary_schemas_and_channels(src), scan.records()):
                 if isinstance(record, Schema) and record.id not in schema_ids:
                     schema_ids[record.id] = writer.register_schema(record.name, record.encoding, record.data)
                 elif isinstance(record, Channel) and record.id not in channels:
@@ -418,6 +587,11 @@ def recover(src: str | Path, dst: str | Path) -> RecoverStats:
                     writer.add_metadata(record.name, record.metadata)
                     stats.metadata_records += 1
             writer.finish()
-        stats.bytes_recovered = scan.good_end
-        stats.complete = scan.complete
+        stats.bytes_recovered = scan.good_end - sum(d.end - d.start for d in stats.damaged)
+        stats.complete = scan.complete and not stats.damaged
+        stats.truncated = not scan.complete
+        if scan.statistics is not None:
+            stats.messages_lost = scan.statistics.message_count - sum(stats.messages.values())
+        elif not stats.damaged and scan.complete:
+            stats.messages_lost = 0
     return stats

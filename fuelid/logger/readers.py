@@ -1,22 +1,36 @@
 """Reading recorded CAN traffic as `can.Message` frames, whatever tool recorded it.
 
-Formats, recognised from the file's content (its name does not matter; ``.gz`` is undone first):
+Formats, recognised from the file's content by their real header (its name does not matter; ``.gz`` is
+undone first), one entry each in `FORMATS` (name → sniff, read), as in python-can's reader table:
 
 - candump -L (``(1543532003.571000) can1 18F00131#FFFFFF3F00FFFFFF``) and candump's printed text with
   ``-ta``/``-tz`` timestamps (`` (000.005001)  can0  18FEDF00   [8]  8A A0 28 ...``): parsed here,
   because python-can's candump reader stops at the first malformed line and has no reader for the
-  printed text at all;
-- Vector ASC and PCAN TRC (v1.x, v2.x): python-can's readers;
-- Vector BLF: python-can's reader;
-- ASAM MDF 4 from CANedge loggers: python-can's MF4 reader (needs the ``mf4`` extra, asammdf).
+  printed text at all; the first line must be one;
+- Vector ASC (``date``/``base`` header) and PCAN TRC (``;$FILEVERSION=`` header, or v1.0's numbered
+  lines): python-can's readers; TRC error frames (``ER``) are kept as error frames, as the ASC reader does;
+- Vector BLF (``LOGG``): python-can's reader;
+- ASAM MDF 4 from CANedge loggers (``MDF ``/``UnFinMF ``): python-can's MF4 reader (needs the ``mf4``
+  extra, asammdf); a gzipped MF4 is decompressed in memory.
 
 `open_frames` gives a `FrameSource`: iterate it for the frames; it counts them (`frames`) and the
-malformed lines it skipped (`skipped`). A file that ends mid-record (power loss, a cut download, a
-truncated ``.gz``) gives every frame before the cut and sets `FrameSource.truncated`. An unreadable file or an unknown format raises `FuelidError`.
+malformed lines it skipped (`skipped`: unparsable, or with a value out of range — a time that is not a
+finite number of seconds within MCAP's range, an identifier wider than its 11 or 29 bits, more data
+than the length says). Afterwards `status` says how the file ended: ``complete``; ``truncated`` (cut
+mid-record: power loss, a cut download, a truncated ``.gz``; every frame before the cut is given and
+`position` says where: ``line N`` or ``byte N``); or ``damaged`` (bytes that are not the format: a
+failed gzip CRC, a BLF container that does not decompress; frames read before it are given, frames
+after it are not, and frames already given from a gzip with a failed CRC may be wrong). An unreadable
+file or an unknown format raises `FuelidError`.
 """
 import gzip
+import io
+import logging
+import math
 import re
+import zlib
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
@@ -24,10 +38,9 @@ import can
 
 from fuelid.errors import FuelidError
 
-FORMATS = ("candump-L", "candump-ta", "asc", "trc", "blf", "mf4")
-
 _CAN_ERR_FLAG = 0x20000000  # SocketCAN marks error frames in the identifier
 _SNIFF_BYTES = 1 << 16
+MAX_TIME_S = (2**64 - 1) / 1e9  # MCAP log times are unsigned 64-bit nanoseconds
 
 # (1543532003.571000) can1 18F00131#FFFFFF3F00FFFFFF  -- also 123#R, 123##1AABB (CAN FD)
 _CANDUMP_L = re.compile(
@@ -37,6 +50,8 @@ _CANDUMP_L = re.compile(
 _CANDUMP_TA = re.compile(
     r"\s*\((\d+\.\d+)\)\s+(\S+)\s+([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})\s+\[(\d{1,2})\]"
     r"((?:\s+[0-9A-Fa-f]{2})*|\s+remote request)\s*$")
+#       1)      1841.0  0001  8  00 00 00 00 00 00 00 00   -- PCAN TRC v1.0, which has no version line
+_TRC_V1_0 = re.compile(r"\s*\d+\)\s+\d+(\.\d+)?\s+[0-9A-Fa-f]{1,8}\s+\d\s")
 
 
 def _frame(t: str, channel: str, can_id: str, data: bytes, dlc: int | None = None,
@@ -76,6 +91,47 @@ def parse_candump_ta(line: str) -> can.Message | None:
     return _frame(t, channel, can_id, data, fd=len(data) > 8)
 
 
+def in_range(msg: can.Message) -> bool:
+    """Whether every value of `msg` is one a CAN frame can have: a finite time [s] within MCAP's range,
+    an identifier within 11 or 29 bits, and (data and remote frames) as many data bytes as the DLC says."""
+    if not (math.isfinite(msg.timestamp) and 0 <= msg.timestamp <= MAX_TIME_S):
+        return False
+    if not 0 <= msg.arbitration_id <= (0x1FFFFFFF if msg.is_extended_id else 0x7FF):
+        return False
+    if msg.is_error_frame or msg.is_remote_frame:
+        return len(msg.data) <= 64
+    expected = can.util.dlc2len(msg.dlc) if msg.is_fd else min(msg.dlc, 8)
+    return 0 <= msg.dlc <= 15 and len(msg.data) == expected
+
+
+class _Lines:
+    """The lines of a text file for a line reader, counted; a last line without its newline was cut by the
+    end of the file and is withheld (`cut` is then its line number). `position` is the last line given."""
+
+    def __init__(self, f: IO[str]):
+        self._f = f
+        self.position = 0
+        self.cut: int | None = None
+
+    def __iter__(self) -> Iterator[str]:
+        for line in self._f:
+            if not line.endswith("\n"):
+                if line.strip():
+                    self.cut = self.position + 1
+                return
+            self.position += 1
+            yield line
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> "_Lines":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 class _SkipMalformed:
     """Mixin for python-can's line readers: a line whose parse raises is counted, not fatal
     (python-can would end the file there). Relies on each reader's per-line hook; the tests feed
@@ -86,7 +142,7 @@ class _SkipMalformed:
     def _guard(self, parse: Callable, *args):
         try:
             return parse(*args)
-        except (ValueError, IndexError):
+        except (ValueError, IndexError, OverflowError, KeyError):
             self.skipped += 1
             return None
 
@@ -98,102 +154,221 @@ class _ASCReader(_SkipMalformed, can.ASCReader):
 
 class _TRCReader(_SkipMalformed, can.TRCReader):
     def _parse_line(self, line):
-        return self._guard(super()._parse_line, line)
+        return self._guard(self._parse_error_or_frame, line)
+
+    def _parse_error_or_frame(self, line: str) -> can.Message | None:
+        cols = line.split()
+        if self.columns and len(cols) > 2 and cols[self.columns["T"]] == "ER":
+            return self._error_frame(cols)
+        return super()._parse_line(line)
+
+    def _error_frame(self, cols: list[str]) -> can.Message:
+        """A v2.x ``ER`` line: number, offset [ms], ER, [bus,] Rx/Tx, then the error bytes (no identifier)."""
+        direction = next(i for i, c in enumerate(cols) if c in ("Rx", "Tx"))
+        bus = self.columns.get("B")
+        data = bytes(int(b, 16) for b in cols[direction + 1 :])
+        if len(data) > 8:
+            raise ValueError("error frame with more than 8 bytes")
+        return can.Message(timestamp=float(cols[self.columns["O"]]) / 1000 + self._start_time,
+                           is_error_frame=True, arbitration_id=0, dlc=len(data), data=data,
+                           channel=int(cols[bus]) if bus is not None and bus < direction else 1,
+                           is_rx=cols[direction] == "Rx")
+
+
+class _CountWarnings(logging.Handler):
+    """Counts a python-can reader's warnings about data it skipped (e.g. a BLF container with an
+    unknown compression method): the reader goes on silently, the file is damaged."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.count = 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.count += 1
+
+
+def _first_lines(head: bytes) -> list[str]:
+    return [ln.strip() for ln in head.decode("latin-1").splitlines()[:200] if ln.strip()]
+
+
+def _is_trc(head: bytes) -> bool:
+    lines = _first_lines(head)
+    if not lines or not lines[0].startswith(";"):
+        return False
+    header = [ln for ln in lines if ln.startswith(";")]
+    data = next((ln for ln in lines if not ln.startswith(";")), "")
+    return any(ln.startswith(";$FILEVERSION=") for ln in header) or bool(_TRC_V1_0.match(data))
+
+
+def _is_asc(head: bytes) -> bool:
+    return any(ln.startswith(("date ", "base hex", "base dec")) for ln in _first_lines(head)[:5])
+
+
+def _first_line_parses(parse: Callable[[str], can.Message | None]) -> Callable[[bytes], bool]:
+    def sniff(head: bytes) -> bool:
+        lines = _first_lines(head)
+        return bool(lines) and parse(lines[0]) is not None
+    return sniff
+
+
+def _read_candump(source: "FrameSource", parse: Callable[[str], can.Message | None]) -> Iterator[can.Message]:
+    with source.lines() as lines:
+        for line in lines:
+            if not line.strip():
+                continue
+            msg = parse(line)
+            if msg is None:
+                source.skipped += 1
+            else:
+                yield msg
+
+
+def _read_lines_with(reader_cls) -> Callable[["FrameSource"], Iterator[can.Message]]:
+    def read(source: "FrameSource") -> Iterator[can.Message]:
+        with source.lines() as lines:
+            reader = reader_cls(lines)
+            try:
+                yield from reader
+            finally:
+                source.skipped += reader.skipped
+    return read
+
+
+def _read_blf(source: "FrameSource") -> Iterator[can.Message]:
+    with source.binary() as f:
+        try:
+            reader = can.BLFReader(f)
+            skipped = _CountWarnings()
+            log = logging.getLogger(can.io.blf.__name__)
+            log.addHandler(skipped)
+            read = 0
+            try:
+                for msg in reader:
+                    read += 1
+                    yield msg
+            finally:
+                log.removeHandler(skipped)
+            if skipped.count:
+                raise ValueError(f"{skipped.count} containers could not be read")
+            if reader._tail:  # python-can read to the end of the file and kept an object cut short here
+                source.at_end, source.position = True, f"byte {source.path.stat().st_size}"
+                raise ValueError("the last object is incomplete")
+            if reader.object_count and not read:
+                raise ValueError(f"the header lists {reader.object_count} objects, none could be read")
+        except Exception:
+            if not f.closed:  # python-can closes the file when it has read to its end
+                source.ended_at(f)
+            raise
+
+
+def _read_mf4(source: "FrameSource") -> Iterator[can.Message]:
+    with source.binary() as f:  # asammdf seeks all over the file: a gzipped one is given decompressed
+        data = f.read() if source.compressed else None
+    try:
+        reader = can.MF4Reader(io.BytesIO(data) if data is not None else source.path)
+    except (ImportError, NotImplementedError):
+        raise FuelidError("reading MF4 needs asammdf: pip install 'fuelid[mf4]'") from None
+    except Exception as e:  # noqa: BLE001 -- asammdf's errors on a bad file are of many kinds
+        raise FuelidError(f"cannot read {source.path} as MF4: {e}") from None
+    yield from reader
+
+
+@dataclass(frozen=True)
+class Format:
+    """A recording format: `sniff` tells it from the file's first (decompressed) bytes, `read` gives the
+    frames of a `FrameSource` in recorded order."""
+
+    name: str
+    sniff: Callable[[bytes], bool]
+    read: Callable[["FrameSource"], Iterator[can.Message]]
+
+
+FORMATS: dict[str, Format] = {f.name: f for f in [
+    Format("blf", lambda head: head.startswith(b"LOGG"), _read_blf),
+    Format("mf4", lambda head: head.startswith((b"MDF ", b"UnFinMF ")), _read_mf4),
+    Format("trc", _is_trc, _read_lines_with(_TRCReader)),
+    Format("asc", _is_asc, _read_lines_with(_ASCReader)),
+    Format("candump-L", _first_line_parses(parse_candump_l), lambda s: _read_candump(s, parse_candump_l)),
+    Format("candump-ta", _first_line_parses(parse_candump_ta), lambda s: _read_candump(s, parse_candump_ta)),
+]}
+"""Format name → Format, in the order they are tried; a new format is one entry here."""
 
 
 class FrameSource:
-    """A recorded CAN file: its `format` (one of `FORMATS`); iterating it yields its frames in recorded
-    order. After reading: `frames` read, malformed lines `skipped`, and whether the file was
-    `truncated` (`error` says how)."""
+    """A recorded CAN file: its `format` (a key of `FORMATS`); iterating it yields its frames in recorded
+    order. After reading: `frames` read, malformed lines `skipped`, and how the file ended: `status`
+    (``complete``, ``truncated`` or ``damaged``), `position` (``line N``/``byte N`` where it ended) and
+    `error` (what was wrong)."""
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self.frames = 0
         self.skipped = 0
-        self.truncated = False
+        self.status = "complete"
+        self.position: str | None = None
         self.error: str | None = None
+        self.at_end = False  # set by a reader whose failure is the end of the data (a cut, not damage)
+        self._lines: _Lines | None = None
         try:
             with open(self.path, "rb") as f:
                 self.compressed = f.read(2) == b"\x1f\x8b"
-            with self._open_binary() as f:
+            with self.binary() as f:
                 head = f.read(_SNIFF_BYTES)
-        except (OSError, EOFError) as e:
+        except (OSError, EOFError, zlib.error) as e:
             raise FuelidError(f"cannot read {self.path}: {getattr(e, 'strerror', None) or e}") from None
-        self.format = _sniff(head)
+        self.format = next((name for name, fmt in FORMATS.items() if fmt.sniff(head)), None)
         if self.format is None:
             raise FuelidError(f"{self.path}: not a CAN recording fuelid reads ({', '.join(FORMATS)})")
-        if self.format == "mf4" and self.compressed:
-            raise FuelidError(f"{self.path}: decompress MF4 files before reading them")
+
+    @property
+    def truncated(self) -> bool:
+        return self.status == "truncated"
 
     def __iter__(self) -> Iterator[can.Message]:
         try:
-            for msg in self._frames():
+            for msg in FORMATS[self.format].read(self):
+                if not in_range(msg):
+                    self.skipped += 1
+                    continue
                 self.frames += 1
                 yield msg
-        except Exception as e:  # any failure inside a reader means the file ends here; keep what came
-            self.truncated = True
-            self.error = f"{type(e).__name__}: {e}".rstrip(": ")
-
-    def _frames(self) -> Iterator[can.Message]:
-        if self.format in ("candump-L", "candump-ta"):
-            parse = parse_candump_l if self.format == "candump-L" else parse_candump_ta
-            with self._open_text() as f:
-                for line in f:
-                    if not line.strip():
-                        continue
-                    msg = parse(line)
-                    if msg is None:
-                        self.skipped += 1
-                    else:
-                        yield msg
-        elif self.format in ("asc", "trc"):
-            with self._open_text() as f:
-                reader = (_ASCReader if self.format == "asc" else _TRCReader)(f)
-                try:
-                    yield from reader
-                finally:
-                    self.skipped += reader.skipped
-        elif self.format == "blf":
-            with self._open_binary() as f:
-                yield from can.BLFReader(f)
+        except FuelidError:
+            raise
+        except Exception as e:  # noqa: BLE001 -- any failure inside a reader: the data ends here
+            self._ended(e)
         else:
-            try:
-                reader = can.MF4Reader(self.path)
-            except ImportError:
-                raise FuelidError("reading MF4 needs asammdf: pip install 'fuelid[mf4]'") from None
-            except Exception as e:
-                raise FuelidError(f"cannot read {self.path} as MF4: {e}") from None
-            yield from reader
+            if self._lines is not None and self._lines.cut is not None:
+                self.status, self.position = "truncated", f"line {self._lines.cut}"
+                self.error = "the last line is cut short"
+                self.skipped += 1
 
-    def _open_binary(self) -> IO[bytes]:
-        return gzip.open(self.path, "rb") if self.compressed else open(self.path, "rb")
+    def _ended(self, e: Exception) -> None:
+        """How the data ended: cut (by the end of the file or of its .gz stream) or damaged."""
+        self.error = str(e) or type(e).__name__
+        cut = isinstance(e, EOFError) or (self.at_end and not isinstance(e, (gzip.BadGzipFile, zlib.error)))
+        self.status = "truncated" if cut else "damaged"
+        if self._lines is not None:
+            self.position = f"line {self._lines.position + 1}"
 
-    def _open_text(self) -> IO[str]:
-        # latin-1 maps every byte, so stray binary garbage becomes a malformed line, not a crash
+    def ended_at(self, f: IO[bytes]) -> None:
+        """Note where a binary reader failed in `f` and whether nothing followed (a cut, not damage)."""
+        try:
+            self.position = f"byte {f.tell()}"
+            self.at_end = f.read(1) == b""
+        except (OSError, EOFError, zlib.error, gzip.BadGzipFile):
+            self.at_end = True
+
+    def lines(self) -> _Lines:
+        """The file's text lines (latin-1 maps every byte, so stray binary garbage is a malformed line)."""
         if self.compressed:
-            return gzip.open(self.path, "rt", encoding="latin-1", newline=None)
-        return open(self.path, encoding="latin-1")
+            f = gzip.open(self.path, "rt", encoding="latin-1", newline=None)
+        else:
+            f = open(self.path, encoding="latin-1", newline=None)
+        self._lines = _Lines(f)
+        return self._lines
 
-
-def _sniff(head: bytes) -> str | None:
-    """The format of a file starting with `head` (decompressed), None if not recognised."""
-    if head.startswith(b"LOGG"):
-        return "blf"
-    if head.startswith((b"MDF ", b"UnFinMF ")):
-        return "mf4"
-    lines = [ln.strip() for ln in head.decode("latin-1").splitlines()[:200] if ln.strip()]
-    if not lines:
-        return None
-    if lines[0].startswith(";"):
-        return "trc"
-    if any(ln.startswith(("date ", "base hex", "base dec")) for ln in lines[:5]):
-        return "asc"
-    for ln in lines:
-        if parse_candump_l(ln) is not None:
-            return "candump-L"
-        if parse_candump_ta(ln) is not None:
-            return "candump-ta"
-    return None
+    def binary(self) -> IO[bytes]:
+        return gzip.open(self.path, "rb") if self.compressed else open(self.path, "rb")
 
 
 def open_frames(path: str | Path) -> FrameSource:
@@ -204,3 +379,29 @@ def open_frames(path: str | Path) -> FrameSource:
 def read_frames(path: str | Path) -> Iterator[can.Message]:
     """The frames of a recorded CAN file in any of `FORMATS` (use `open_frames` for the counts)."""
     return iter(FrameSource(path))
+
+
+RELATIVE_BEFORE_S = 1e9
+"""Frame times [s] before this (2001-09-09 as Unix time) count from boot or from the recording's start
+(candump -ta, a logger without a clock): they say nothing about when the recording was made."""
+
+
+def one_timeline(sources: list[FrameSource], notes: list[str]) -> Iterator[can.Message]:
+    """The frames of `sources`, one recording after another in the order given. A recording after the
+    first whose times are relative (`RELATIVE_BEFORE_S`) cannot be placed by its clock, and merging it by
+    time would interleave two trips: it is shifted to start where the previous one ended, and `notes`
+    says so, naming it."""
+    end = previous = None
+    for source in sources:
+        shift = None
+        for msg in source:
+            if shift is None:
+                shift = 0.0
+                if end is not None and msg.timestamp < RELATIVE_BEFORE_S:
+                    shift = end - msg.timestamp
+                    notes.append(f"{source.path} has relative (boot-time) timestamps: placed after {previous}, "
+                                 f"shifted by {shift:+.6f} s")
+            msg.timestamp += shift
+            end = msg.timestamp if end is None else max(end, msg.timestamp)
+            yield msg
+        previous = source.path

@@ -112,6 +112,25 @@ def test_bad_uploads_are_refused_and_nothing_is_stored(tmp_path, case, status, m
         s.stop()
 
 
+def test_an_upload_with_a_damaged_chunk_is_refused_with_422(tmp_path):
+    """Hash and summary intact, one byte inside a compressed chunk flipped (as on a failing SD card)."""
+    from mcap.reader import make_reader
+    s = Server(tmp_path / "data").start()
+    try:
+        path = make_mcap(tmp_path / "x.mcap", "T1", messages=300)
+        with open(path, "rb") as f:
+            chunk = make_reader(f).get_summary().chunk_indexes[1]
+        data = bytearray(path.read_bytes())
+        data[chunk.chunk_start_offset + chunk.chunk_length - 20] ^= 0x01
+        path.write_bytes(bytes(data))
+        with pytest.raises(Rejected) as err:
+            upload_file(path, s.url, s.token("truck", "T1"))
+        assert err.value.status == 422 and "damaged MCAP file: chunk at bytes" in str(err.value)
+        assert stored_state(s) == (0, [], [])
+    finally:
+        s.stop()
+
+
 def test_upload_resumes_from_the_servers_offset_and_checks_the_hash(sqlite_server, tmp_path):
     s = sqlite_server
     token = s.token("truck", "T1")

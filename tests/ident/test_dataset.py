@@ -236,3 +236,24 @@ def test_csv_without_its_sidecar_is_a_one_line_error(tmp_path):
     (tmp_path / "d.csv-metadata.json").unlink()
     with pytest.raises(FuelidError, match="d.csv-metadata.json is missing"):
         load_dataset(out)
+
+
+def test_a_damaged_chunk_is_an_error_unless_skipping_is_asked_for(tmp_path):
+    """A flipped byte inside a compressed chunk must never become valid-looking wrong samples."""
+    from mcap.reader import make_reader
+    path = tmp_path / "trip.mcap"
+    _write_mcap(path, trip(60.0))
+    with open(path, "rb") as f:
+        chunks = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    middle = chunks[len(chunks) // 2]
+    data = bytearray(path.read_bytes())
+    data[middle.chunk_start_offset + middle.chunk_length // 2] ^= 0x08
+    path.write_bytes(bytes(data))
+    span = f"{middle.chunk_start_offset}-{middle.chunk_start_offset + middle.chunk_length}"
+    with pytest.raises(FuelidError, match=f"{path}: damaged chunk at bytes {span}"):
+        build_dataset(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        ds = build_dataset(path, skip_damaged=True, max_gap_s=0.5)
+    assert any(f"damaged chunk at bytes {span}" in note for note in ds.notes)
+    assert len(ds.segments()) == 2  # the lost second of data is a gap, not made-up samples

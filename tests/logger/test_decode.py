@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from fuelid.logger.decode import INVALID_STATUSES, Decoder, message_schema
-from fuelid.logger.j1939 import make_id
+from fuelid.logger.j1939 import make_id, parse_id
 
 
 @pytest.fixture(scope="module")
@@ -94,16 +94,49 @@ def test_two_bit_state(decoder, bits, status):
 
 def test_three_four_five_bit_fields(decoder):
     # 4 bits: EEC1 torque mode, 3 bits: DPF status, 5 bits: PTO governor state
-    assert decoder.decode(frame(EEC1, bytes([0x0E]) + bytes(7))).invalid == {"EngTorqueMode": "error"}
+    assert decoder.decode(frame(EEC1, bytes([0x0E]) + bytes(7))).values["EngTorqueMode"] == 14  # "other": a mode
+    assert decoder.decode(frame(EEC1, bytes([0x0F]) + bytes(7))).invalid == {"EngTorqueMode": "not_available"}
     assert decoder.decode(frame(EEC1, bytes([0x0D]) + bytes(7))).values["EngTorqueMode"] == 13
     d = decoder.decode(frame(DPFC1, bytes([0x06, 0x7 << 4 | 0x2 << 2 | 0x1]) + bytes(6)))
     assert d.values == {"DPFLampCommand": None, "DPFPassiveRegenStatus": 1,
-                        "DPFActiveRegenStatus": None, "DPFStatus": None}
-    assert d.invalid == {"DPFLampCommand": "error", "DPFActiveRegenStatus": "error",
-                         "DPFStatus": "not_available"}
-    assert decoder.decode(frame(CCVS1, bytes(6) + bytes([30, 0]))).invalid == {"PTOGovernorState": "error"}
+                        "DPFActiveRegenStatus": 2, "DPFStatus": None}  # 2: regeneration needed
+    assert d.invalid == {"DPFLampCommand": "reserved", "DPFStatus": "not_available"}
+    assert decoder.decode(frame(CCVS1, bytes(6) + bytes([30, 0]))).invalid == {"PTOGovernorState": "reserved"}
     assert decoder.decode(frame(CCVS1, bytes(6) + bytes([31, 0]))).invalid == {"PTOGovernorState": "not_available"}
-    assert decoder.decode(frame(CCVS1, bytes(6) + bytes([29, 0]))).values["PTOGovernorState"] == 29
+    assert decoder.decode(frame(CCVS1, bytes(6) + bytes([20, 0]))).values["PTOGovernorState"] == 20
+
+
+# Every bit field of the DBC, by SPN: its raw values that are states (J1939-71, checked against public
+# decoders: J1939_FACTS.md); the all-ones value is not available; anything else is reserved, except the
+# 2-bit switch states, where 10b is the error indicator.
+BIT_FIELD_STATES = {
+    899: set(range(15)),   # engine torque mode: 0-14 modes (14 "other")
+    900: set(range(15)),   # retarder torque mode: the same table
+    558: {0, 1},           # accelerator low-idle switch: 10b error
+    70: {0, 1}, 595: {0, 1}, 597: {0, 1}, 598: {0, 1},  # switches: 10b error
+    976: set(range(21)),   # PTO governor state: 0-20 states, 21-30 reserved
+    977: set(range(15)),   # fan drive state: 0-14 states
+    3697: {0, 1, 4},       # DPF lamp: off, on solid, on fast blink
+    3699: {0, 1, 2},       # DPF passive regeneration: 2 = regeneration needed
+    3700: {0, 1, 2},       # DPF active regeneration: 2 = regeneration needed
+    3701: {0, 1, 2, 3},    # DPF status: regeneration not needed, needed lowest/moderate/highest
+}
+SWITCHES = {558, 70, 595, 597, 598}
+
+
+def test_every_bit_field_follows_its_spns_definition(decoder):
+    bit_fields = [(m, s) for m in decoder.db.messages for s in m.signals if s.length < 8]
+    spn = lambda s: s.dbc.attributes["SPN"].value
+    assert {spn(s) for _, s in bit_fields} == set(BIT_FIELD_STATES)  # a new bit field needs its row here
+    for message, signal in bit_fields:
+        states, all_ones = BIT_FIELD_STATES[spn(signal)], (1 << signal.length) - 1
+        for raw in range(all_ones + 1):
+            data = (raw << signal.start).to_bytes(message.length, "little")
+            d = decoder.decode_payload(0.0, parse_id(message.frame_id).pgn, 0, 255, data)
+            expected = (None if raw in states else "not_available" if raw == all_ones
+                        else "error" if spn(signal) in SWITCHES and raw == 2 else "reserved")
+            assert d.invalid.get(signal.name) == expected, (signal.name, raw)
+            assert d.values[signal.name] == (raw if expected is None else None)
 
 
 def test_short_frame_decodes_its_complete_signals_and_is_counted():
@@ -175,7 +208,6 @@ def test_ec1_reference_torque_from_a_reassembled_payload(decoder):
     (b"1HGCM82633A004352*\xff\xff\xff", "1HGCM82633A004352"),
     (b"1HGCM82633A004352", "1HGCM82633A004352"),
     (b"  1HGCM82633A004352\x00\x00*garbage*", "1HGCM82633A004352"),
-    (b"\x011HG\xfeCM826\x0733A004352*", "1HGCM82633A004352"),
 ])
 def test_vin(decoder, payload, vin):
     d = decoder.decode_payload(1.0, VI, 0x00, 255, payload, tp="bam")
@@ -185,6 +217,19 @@ def test_vin(decoder, payload, vin):
 def test_empty_vin_is_not_available(decoder):
     d = decoder.decode_payload(1.0, VI, 0x00, 255, b"\xff" * 9 + b"*")
     assert d.values == {"VIN": None} and d.invalid == {"VIN": "not_available"}
+
+
+@pytest.mark.parametrize("payload", [
+    b"1HGCM82633A004352XYZ",         # printable garbage after the 17 characters
+    b"1HGCM82633A004352/../..*",
+    b"1HGCM82633A00435*",            # 16 characters
+    b"1HGCM82633A0O4352*",           # O is not in the VIN alphabet (nor I, Q)
+    b"\x011HG\xfeCM826\x0733A004352*",  # bytes dropped from the middle would make one up
+    b"1hgcm82633a004352*",           # lower case
+])
+def test_anything_but_17_vin_characters_is_not_a_vin(decoder, payload):
+    d = decoder.decode_payload(1.0, VI, 0x00, 255, payload)
+    assert d.values == {"VIN": None} and d.invalid == {"VIN": "reserved"}
 
 
 def test_schema_describes_every_signal_with_spn_and_unit(decoder):

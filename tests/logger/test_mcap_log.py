@@ -6,6 +6,7 @@ import time
 
 import can
 import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
 from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
@@ -17,6 +18,7 @@ from fuelid.logger.mcap_log import (
     FLOWMETER_SCHEMA,
     RAW_SCHEMA,
     McapLogWriter,
+    damaged_chunks,
     raw_record,
     read_messages,
     read_metadata,
@@ -157,15 +159,109 @@ def test_garbage_is_a_clear_error(tmp_path, content):
         recover(path, tmp_path / "out.mcap")
 
 
-def test_damaged_chunk_stops_the_scan_before_it(log, tmp_path):
+_CHUNK_DATA = 9 + 8 + 8 + 8 + 4 + 4 + 4 + 8  # opcode, length, times, sizes, crc, "zstd", records length
+
+
+def _flipped(data: bytes, chunk: tuple[int, int, int], fraction: float, mask: int) -> tuple[bytes, int]:
+    """`data` with one byte inside the compressed records of `chunk` (end, count, start) xor-ed with `mask`."""
+    end, _, start = chunk
+    pos = start + _CHUNK_DATA + int((end - start - _CHUNK_DATA) * fraction)
+    out = bytearray(data)
+    out[pos] ^= mask
+    return bytes(out), pos
+
+
+FLIPS = [(f, m) for f in (0.0, 0.1, 0.37, 0.5, 0.73, 0.99) for m in (0x01, 0x10, 0x80, 0xFF)]
+
+
+@pytest.mark.parametrize("fraction, mask", FLIPS)
+def test_a_flipped_byte_in_a_chunk_is_an_error_naming_the_file_and_bytes(log, tmp_path, fraction, mask):
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    bad = tmp_path / "bad.mcap"
+    flipped, _ = _flipped(data, ends[3], fraction, mask)
+    bad.write_bytes(flipped)
+    end, lost, start = ends[3]
+    with pytest.raises(FuelidError, match=rf"{bad}: damaged chunk at bytes {start}-{end}"):
+        list(read_messages(bad))
+    damaged = []  # asked for: the damaged chunk is skipped and reported, every other chunk read
+    got = list(read_messages(bad, damaged=damaged))
+    before = sum(n for _, n, _ in ends[:3])
+    assert got == written[:before] + written[before + lost:]
+    assert [(d.start, d.end) for d in damaged] == [(start, end)]
+    assert damaged_chunks(bad) == damaged and damaged_chunks(path) == []
+
+
+@pytest.mark.parametrize("fraction, mask", FLIPS[::3])
+def test_a_cut_file_with_a_damaged_chunk_is_an_error_too(log, tmp_path, fraction, mask):
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    flipped, _ = _flipped(data[:-50], ends[2], fraction, mask)  # no footer: sequential scan
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(flipped)
+    end, lost, start = ends[2]
+    with pytest.raises(FuelidError, match=rf"damaged chunk at bytes {start}-{end}"):
+        list(read_messages(bad))
+    damaged = []
+    got = list(read_messages(bad, damaged=damaged))
+    before = sum(n for _, n, _ in ends[:2])
+    assert got == written[:before] + written[before + lost:]
+    assert [(d.start, d.end) for d in damaged] == [(start, end)]
+
+
+@pytest.mark.parametrize("cut_footer", [False, True])
+@pytest.mark.parametrize("fraction", [0.2, 0.4, 0.8])
+def test_recover_skips_a_damaged_middle_chunk_and_keeps_the_rest(log, tmp_path, fraction, cut_footer):
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    k = int(len(ends) * fraction)
+    flipped, _ = _flipped(data[:-50] if cut_footer else data, ends[k], 0.5, 0x04)
+    bad, fixed = tmp_path / "bad.mcap", tmp_path / "fixed.mcap"
+    bad.write_bytes(flipped)
+    stats = recover(bad, fixed)
+    end, lost, start = ends[k]
+    before = sum(n for _, n, _ in ends[:k])
+    kept = written[:before] + written[before + lost:]
+    assert list(read_messages(fixed)) == kept
+    assert [(d.start, d.end) for d in stats.damaged] == [(start, end)]
+    assert sum(stats.messages.values()) == len(kept)
+    assert stats.bytes_lost >= end - start
+    if not cut_footer:  # the index says how many messages the chunk held
+        assert stats.messages_lost == lost
+    assert not stats.complete
+
+
+def test_damage_to_a_chunk_length_is_skipped_to_the_next_intact_chunk(log, tmp_path):
     path, written = log
     ends = _chunk_ends(path.read_bytes())
-    data = bytearray(path.read_bytes()[:-50])  # no footer: sequential scan
-    data[ends[2][2] + 100] ^= 0xFF  # inside the third chunk's compressed data
+    data = bytearray(path.read_bytes()[:-50])
+    end, lost, start = ends[5]
+    data[start + 3] ^= 0x40  # the record length: the scan must find the next chunk by itself
+    bad, fixed = tmp_path / "bad.mcap", tmp_path / "fixed.mcap"
+    bad.write_bytes(bytes(data))
+    stats = recover(bad, fixed)
+    before = sum(n for _, n, _ in ends[:5])
+    assert list(read_messages(fixed)) == written[:before] + written[before + lost:]
+    assert len(stats.damaged) == 1 and stats.damaged[0].start == start and stats.damaged[0].end <= ends[6][2]
+
+
+def test_damaged_summary_index_falls_back_to_verified_chunks(log, tmp_path):
+    """A flip in the index (no CRC of its own but the footer's summary CRC) must not drop a chunk."""
+    path, written = log
+    data = bytearray(path.read_bytes())
+    summary_start = make_reader(io.BytesIO(bytes(data))).get_summary() and _summary_start(bytes(data))
+    data[summary_start + 40] ^= 0x01
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(data))
-    got = list(read_messages(bad))
-    assert got == written[: len(got)] and len(got) == sum(n for _, n, _ in ends[:2])
+    assert list(read_messages(bad)) == written
+
+
+def _summary_start(data: bytes) -> int:
+    # footer: opcode, length, summary_start, summary_offset_start, summary_crc, then the magic
+    return int.from_bytes(data[-8 - 20 : -8 - 12], "little")
 
 
 def test_chunks_close_every_second_of_log_time(tmp_path):
@@ -203,3 +299,57 @@ def test_raw_record_matches_schema():
     assert set(record) == set(RAW_SCHEMA["properties"]) == set(RAW_SCHEMA["required"])
     assert record == {"t": 12.5, "id": 0x18FEF100, "extended": True, "dlc": 2, "data": "01ff",
                       "error": False, "remote": False, "channel": 0}
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(where=st.floats(0, 1, exclude_max=True), mask=st.integers(1, 255), cut=st.booleans())
+def test_a_flipped_byte_anywhere_is_refused_or_harmless_never_silently_wrong(log, tmp_path, where, mask, cut):
+    path, written = log
+    data = path.read_bytes()[: -50 if cut else None]
+    expected = written if not cut else None
+    if cut:
+        (tmp_path / "cut.mcap").write_bytes(data)
+        expected = list(read_messages(tmp_path / "cut.mcap"))
+    blob = bytearray(data)
+    blob[int(where * len(blob))] ^= mask
+    (tmp_path / "bad.mcap").write_bytes(bytes(blob))
+    try:
+        got = list(read_messages(tmp_path / "bad.mcap"))
+    except FuelidError:
+        return
+    assert got == expected
+
+
+def test_recover_keeps_the_rest_when_the_chunk_holding_the_channels_is_damaged(log, tmp_path):
+    """The first chunk holds the schema and channel records; the summary has them too."""
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    flipped, _ = _flipped(data, ends[0], 0.5, 0x04)
+    bad, fixed = tmp_path / "bad.mcap", tmp_path / "fixed.mcap"
+    bad.write_bytes(flipped)
+    stats = recover(bad, fixed)
+    assert list(read_messages(fixed)) == written[ends[0][1]:] and stats.messages_lost == ends[0][1]
+
+
+@pytest.mark.parametrize("offset", [10, 11])  # the header record's length field
+def test_a_garbled_record_length_does_not_swallow_what_follows(log, tmp_path, offset):
+    path, written = log
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x10
+    bad, fixed = tmp_path / "bad.mcap", tmp_path / "fixed.mcap"
+    bad.write_bytes(bytes(data))
+    recover(bad, fixed)
+    assert list(read_messages(fixed)) == written
+
+
+def test_a_damaged_last_chunk_of_a_cut_file_is_damage_not_the_cut(log, tmp_path):
+    path, written = log
+    data = path.read_bytes()
+    ends = _chunk_ends(data)
+    end, lost, start = ends[-1]
+    flipped, _ = _flipped(data[:end], ends[-1], 0.5, 0x02)  # cut right after the last chunk, which is damaged
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(flipped)
+    with pytest.raises(FuelidError, match=f"damaged chunk at bytes {start}-{end}"):
+        list(read_messages(bad))
