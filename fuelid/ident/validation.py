@@ -26,6 +26,7 @@ import numpy as np
 from scipy.stats import norm
 
 from fuelid.errors import FuelidError
+from fuelid.ident.modeldata import model_data
 from fuelid.ident.polymodel import predict, residuals, simulate
 
 
@@ -177,7 +178,7 @@ def evaluate(model, ds, k: int = 1, max_lag: int = 25) -> dict:
     """The validation metrics of a PolyModel on a Dataset, JSON-ready.
 
     The model's inputs are the data's engine speed and torque plus those of the effects it includes
-    (ident.effects.model_data; the fuel shifted when it includes the fuel delay). It runs on each segment of
+    (ident.modeldata.model_data; the fuel shifted when it includes the fuel delay). It runs on each segment of
     ds separately from zero initial state, and its first n_start samples per segment, where the state is
     unknown, are left out of every metric: simulation ŷ_s, k-step prediction ŷ_k, one-step residual ε.
     Returns
@@ -186,8 +187,6 @@ def evaluate(model, ds, k: int = 1, max_lag: int = 25) -> dict:
       whiteness {autocorr_pass, crosscorr_pass {input name: bool}, max_lag}   (eqs. 18–19 on ε)
       cycle_fuel_error_percent {cycle id: E, mean, rms}   (eq. 20 on ŷ_s, absolute flow)
     """
-    from fuelid.ident.effects import model_data
-
     if tuple(model.input_units[:2]) != tuple(ds.input_units) or model.output_unit != ds.output_unit:
         raise FuelidError(f"model units {list(model.input_units[:2])} -> {model.output_unit} do not match the "
                           f"data's {list(ds.input_units)} -> {ds.output_unit}")

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from fuelid.ident import diagnosis as dg
-from fuelid.ident.effects import DELAY_REFERENCE, estimate_fuel_delay
+from fuelid.ident.fueldelay import DELAY_REFERENCE
+from fuelid.ident.identify import estimate_fuel_delay
 from tests.ident import hidden
 
 FLOOR_TOLERANCE = 1.05

@@ -10,7 +10,7 @@ import pytest
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import report as rp
-from fuelid.ident.effects import apply_effects
+from fuelid.ident.modeldata import apply_effects
 from fuelid.ident.pem import pem
 from fuelid.ident.validation import evaluate
 from tests.ident import hidden
