@@ -125,10 +125,11 @@ from scipy.stats import chi2
 
 from fuelid.ident import effects as fx
 from fuelid.ident.fueldelay import DELAY_REFERENCE, shift_signal, sweep_fuel_shift
-from fuelid.ident.modeldata import at_operating_point, model_data
+from fuelid.ident.modeldata import at_operating_point
+from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.pem import pem, prediction_errors
-from fuelid.ident.polymodel import PolyModel, Structure, predict, residuals, simulate
-from fuelid.ident.validation import autocorr_test, crosscorr_test, cycle_fuel_error, error_table, evaluate
+from fuelid.ident.polymodel import PolyModel, Structure
+from fuelid.ident.validation import autocorr_test, crosscorr_test, cycle_fuel_error, error_table, metrics
 
 try:  # BLAS threads only cost time on N × k problems this narrow (as in ident.pem)
     from threadpoolctl import threadpool_limits
@@ -285,21 +286,18 @@ def _one_blas_thread():
 
 @dataclass
 class Run:
-    """A model run over the valid segments of a dataset: u, y the model's inputs and (shifted) fuel; ysim, ypred
-    (1-step) — N long, NaN outside the segments used; eps the prediction errors exactly as
-    ident.validation.evaluate computes them for its whiteness verdict (every segment, NaN during each one's
-    first n_start samples), so the diagnosis and the compare table never disagree on it; segs the slices used;
-    after each segment's first `warm` (= n_start) samples, stacked: e the prediction errors and Q a basis of
-    their nuisance columns (test 1), r the errors w = A ỹ − Σ B_i/F_i ũ_i before the noise filter (the
-    simulation errors when A = 1) with the basis QG of their nuisance columns projected out (test 2), and
-    QG_blocks the part of QG the held-out refit re-fits per block (QG without the initial states, which are
-    fitted on all the data)."""
+    """The diagnosis's view of a model run (ident.modelrun.ModelRun) over the segments it tests: y the model's
+    (shifted) fuel, ysim its simulation on the tested segments (NaN elsewhere); segs those segments; after each
+    one's first `warm` (= n_start) samples, stacked: e the prediction errors and Q a basis of their nuisance
+    columns (test 1), r the errors w = A ỹ − Σ B_i/F_i ũ_i before the noise filter (the simulation errors when
+    A = 1) with the basis QG of their nuisance columns projected out (test 2), and QG_blocks the part of QG the
+    held-out refit re-fits per block (QG without the initial states, which are fitted on all the data). u and eps
+    (the prediction errors on every segment, as ident.validation reads them for its whiteness verdict, so the
+    diagnosis and the compare table never disagree on it) are the ModelRun's."""
 
-    u: np.ndarray
+    model_run: ModelRun
     y: np.ndarray
     ysim: np.ndarray
-    ypred: np.ndarray
-    eps: np.ndarray
     segs: list
     warm: int
     e: np.ndarray
@@ -307,6 +305,14 @@ class Run:
     r: np.ndarray
     QG: np.ndarray
     QG_blocks: np.ndarray
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.model_run.u
+
+    @property
+    def eps(self) -> np.ndarray:
+        return self.model_run.eps
 
     @property
     def lens(self) -> list[int]:
@@ -319,27 +325,20 @@ class Run:
         return np.concatenate([np.arange(s.start + self.warm, s.stop) for s in self.segs])
 
 
-def run_model(model: PolyModel, ds) -> Run:
-    """Simulate, predict and compute ε, w and their gradients for `model` on every valid segment of ds at least
-    50 samples longer than the structure's n_start plus its initial-state columns. Each segment's filters start
-    from zero state; the free responses of 1/F_i (for w) and of D/C·1/F_i and 1/C (for ε) are nuisance columns of
-    that segment alone (free_responses), so its first minutes are tested rather than thrown away as a warm-up."""
-    u, y = model_data(model, ds)
+def run_gradients(mrun: ModelRun) -> Run:
+    """ε, w and their gradients for the model of `mrun` on each of its tested segments (ModelRun.tested). Each
+    segment's filters start from zero state; the free responses of 1/F_i (for w) and of D/C·1/F_i and 1/C (for ε)
+    are nuisance columns of that segment alone (free_responses), so its first minutes are tested rather than
+    thrown away as a warm-up."""
+    mrun.require_tested()
+    model, u, y = mrun.model, mrun.u, mrun.y
     s = model.structure
     warm = s.n_start
-    n = len(y)
-    ysim, ypred, eps = (np.full(n, np.nan) for _ in range(3))
     no_noise = Structure(nb=s.nb, nf=s.nf, nk=s.nk, na=s.na)  # the same model with C = D = 1
     theta_g = model.theta[: no_noise.n_params]  # θ lists a, b, f before c, d
-    n_initial = sum(f.size - 1 for f in model.F) * 2 + model.C.size - 1
-    segs, Zs, es, ZGs, ws, ICs, ICGs = [], [], [], [], [], [], []
-    for seg in ds.segments():
-        ok = np.isfinite(y[seg]) & np.isfinite(u[seg]).all(axis=1)
-        if seg.stop - seg.start < warm + n_initial + 50 or not ok.all():
-            continue
+    Zs, es, ZGs, ws, ICs, ICGs = [], [], [], [], [], []
+    for seg in mrun.tested:
         us, ys = u[seg] - np.asarray(model.u0), y[seg] - model.y0
-        ysim[seg] = simulate(model, u[seg])
-        ypred[seg] = predict(model, u[seg], y[seg], 1)
         e, psi = prediction_errors(model.theta, s, us, ys, jacobian=True)
         w, psi_g = prediction_errors(theta_g, no_noise, us, ys, jacobian=True)
         ones = np.ones(len(ys))
@@ -351,13 +350,6 @@ def run_model(model: PolyModel, ds) -> Run:
         ZGs.append(np.column_stack([psi_g, ones])[warm:])
         es.append(e[warm:])
         ws.append(w[warm:])
-        segs.append(seg)
-    if not segs:
-        raise ValueError(f"no valid segment of the data is longer than {warm + n_initial + 50} samples, what the "
-                         "model's initial state and the tests need")
-    for seg in ds.segments():  # the whiteness rule of ident.validation.evaluate: skip n_start, keep short segments
-        eps[seg] = residuals(model, u[seg], y[seg])
-        eps[seg.start: seg.start + s.n_start] = np.nan
     with _one_blas_thread():
         Q = nuisance_basis(np.column_stack([np.vstack(Zs), block_diag(*ICs)]))
         QI = nuisance_basis(block_diag(*ICGs))
@@ -365,7 +357,8 @@ def run_model(model: PolyModel, ds) -> Run:
         QGp = nuisance_basis(ZG - QI @ (QI.T @ ZG))
     QG = np.column_stack([QI, QGp])
     w = np.concatenate(ws)
-    return Run(u, y, ysim, ypred, eps, segs, warm, np.concatenate(es), Q, w - QG @ (QG.T @ w), QG, QGp)
+    return Run(mrun, y, mrun.on_tested(mrun.ysim), list(mrun.tested), warm, np.concatenate(es), Q,
+               w - QG @ (QG.T @ w), QG, QGp)
 
 
 def candidate_columns(model: PolyModel, ds, run: Run, effect: fx.Effect):
@@ -915,7 +908,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     when verified, a held-out drop ≥ min_drop_percent in the direction of its physics, then accepted by
     `accept_sequentially`), size, explanation, physics, tests. At most n_verify of the candidates that pass the
     tests and explain min_effect_percent are verified, by estimated drop."""
-    run = run_model(model, ds)
+    mrun = run_model(model, ds)
+    run = run_gradients(mrun)
     rows = rank_candidates(model, ds, run, candidates, alpha)
     for r in rows:
         r.update(rmse_drop_percent=None, verification=None, conditional=None, explained_by=None)
@@ -977,7 +971,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     return {
         "model": {"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         "data": ds.summary() if hasattr(ds, "summary") else {},
-        "compare": {**evaluate(model, ds), "unit": ds.output_unit},
+        "compare": {**metrics(mrun, ds), "unit": ds.output_unit},
         "held_out": base,
         "where_it_fails": where_it_fails(model, ds, run),
         "test": {"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "

@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from fuelid.ident import diagnosis as dg
-from fuelid.ident.validation import autocorr_test, crosscorr_test, evaluate
+from fuelid.ident.modelrun import ModelRun, run_model
+from fuelid.ident.validation import autocorr_test, crosscorr_test, metrics
 
 MAX_POINTS = 6000  # points per time-series trace after decimation
 PLOTLY_CONFIG = {"displaylogo": False, "responsive": True}
@@ -98,14 +99,22 @@ def _name(v) -> str:
 
 @dataclasses.dataclass
 class Curve:
-    """One model on the data: its label, colour, run (ident.diagnosis.Run: simulation, 1-step prediction,
-    prediction errors on the grid) and validation metrics (ident.validation.evaluate plus the unit)."""
+    """One model on the data: its label, colour, run (ident.modelrun.ModelRun: simulation, 1-step prediction,
+    prediction errors on the grid; drawn on the segments the diagnosis tests) and validation metrics
+    (ident.validation.metrics plus the unit)."""
 
     label: str
     colour: str
     model: object
-    run: dg.Run
+    run: ModelRun
     metrics: dict
+
+
+def tested_run(model, ds) -> ModelRun:
+    """The ModelRun of `model` on ds; ValueError when it has no segment the diagnosis could test."""
+    run = run_model(model, ds)
+    run.require_tested()
+    return run
 
 
 def structure_text(model) -> str:
@@ -161,9 +170,9 @@ def time_figure(ds, curves: list[Curve], max_points: int = MAX_POINTS) -> dict:
 
     line(np.where(ds.valid, ds.y, np.nan), "measured", MEASURED, 1.4)
     for i, c in enumerate(curves):
-        line(c.run.ysim, f"{c.label}: simulation", c.colour)
+        line(c.run.on_tested(c.run.ysim), f"{c.label}: simulation", c.colour)
         if i == 0:
-            line(c.run.ypred, f"{c.label}: 1-step prediction", "#ff7f0e", 1.0, "dot", "legendonly")
+            line(c.run.on_tested(c.run.ypred), f"{c.label}: 1-step prediction", "#ff7f0e", 1.0, "dot", "legendonly")
     return {"data": traces, "layout": _layout("Measured fuel flow and the model", "time since start [min]",
                                               f"fuel flow [{unit}]", 460)}
 
@@ -174,7 +183,7 @@ def residual_figure(ds, curves: list[Curve], worst: list[dict], max_points: int 
     tmin = _minutes(ds, ds.t)
     traces = []
     for c in curves:
-        x, y = minmax_decimate(tmin, c.run.ysim - c.run.y, max_points)
+        x, y = minmax_decimate(tmin, c.run.on_tested(c.run.ysim) - c.run.y, max_points)
         traces.append({"type": "scatter", "mode": "lines", "x": x, "y": y, "name": f"{c.label}: model − measured",
                        "line": {"color": c.colour, "width": 1.0}})
     # one label row per stretch in a band above the curves, so labels of nearby stretches never overlap
@@ -371,10 +380,10 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, title: 
 
     diagnosis = diagnosis if diagnosis is not None else dg.diagnose(model, ds)
     unit = ds.output_unit
-    curves = [Curve("before" if after else "model", COLOURS[0], model, dg.run_model(model, ds),
-                    diagnosis["compare"])]
+    curves = [Curve("before" if after else "model", COLOURS[0], model, tested_run(model, ds), diagnosis["compare"])]
     for i, (label, m) in enumerate(after, 1):
-        curves.append(Curve(label, COLOURS[i % len(COLOURS)], m, dg.run_model(m, ds), evaluate(m, ds)))
+        run = tested_run(m, ds)
+        curves.append(Curve(label, COLOURS[i % len(COLOURS)], m, run, metrics(run, ds)))
     fails = diagnosis["where_it_fails"]
     white = fails["whiteness"]
     worst = fails["worst_segments"]
