@@ -9,6 +9,8 @@ from scipy.signal import lfilter
 from scipy.stats import chi2, kstest
 
 from fuelid.ident import diagnosis as dg
+from fuelid.ident.diagnosis import statistics as st
+from fuelid.ident.diagnosis.verification import block_cv
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from tests.ident import hidden
@@ -30,13 +32,13 @@ def test_score_test_is_n_r2_for_white_noise_and_holm_is_step_down():
     rng = np.random.default_rng(0)
     e, X = rng.normal(size=5000), rng.normal(size=(5000, 2))
     e2 = e + 0.1 * X[:, 0]
-    res = dg.score_test(e2, X, hac_lags=0)
+    res = st.score_test(e2, X, hac_lags=0)
     r2 = 1 - np.sum((e2 - X @ np.linalg.lstsq(X, e2, rcond=None)[0]) ** 2) / np.sum(e2**2)
     assert res.df == 2 and res.statistic == pytest.approx(5000 * r2, rel=0.05)
     assert res.p_value == pytest.approx(chi2.sf(res.statistic, 2))
-    adj, rej = dg.holm([0.01, 0.04, 0.03, 0.5], 0.05)
+    adj, rej = st.holm([0.01, 0.04, 0.03, 0.5], 0.05)
     assert np.allclose(adj, [0.04, 0.09, 0.09, 0.5]) and rej.tolist() == [True, False, False, False]
-    assert dg.score_test(e, X[:, :1], Q=dg.nuisance_basis(X[:, :1])).df == 0  # nothing left to test
+    assert st.score_test(e, X[:, :1], Q=st.nuisance_basis(X[:, :1])).df == 0  # nothing left to test
 
 
 def test_level_test_whitens_coloured_noise_under_the_alternative():
@@ -44,15 +46,15 @@ def test_level_test_whitens_coloured_noise_under_the_alternative():
     shift a regressor as slow as the noise (the hardest case: a spurious regression without whitening) is
     flagged at 5 % in at most 12 % of 100 trials (measured 9 % over 200)."""
     n, p_null = 6000, []
-    Q = dg.nuisance_basis(np.ones((n, 1)))
+    Q = st.nuisance_basis(np.ones((n, 1)))
     for seed in range(100):
         noise = lfilter([1.0], [1.0, -0.98], np.random.default_rng(seed).normal(size=n))
         x = lfilter([1.0], [1.0, -0.98], np.random.default_rng(1000 + seed).normal(size=n))[:, None]
-        p_null.append(dg.level_test(noise - noise.mean(), x - x.mean(), [n], Q)[0].p_value)
+        p_null.append(st.level_test(noise - noise.mean(), x - x.mean(), [n], Q)[0].p_value)
     assert np.mean(np.array(p_null) < 0.05) <= 0.12
     step = (np.arange(n) > n // 2).astype(float)[:, None]
     shifted = lfilter([1.0], [1.0, -0.98], np.random.default_rng(1).normal(size=n)) + 6.0 * step[:, 0]
-    found, left = dg.level_test(shifted - shifted.mean(), step - step.mean(), [n], Q)  # noise std 5
+    found, left = st.level_test(shifted - shifted.mean(), step - step.mean(), [n], Q)  # noise std 5
     assert found.p_value < 1e-6 and left < 0.9
 
 
@@ -62,14 +64,14 @@ def test_block_cv_is_exact_leave_one_block_out_least_squares():
     rng = np.random.default_rng(3)
     Z = rng.normal(size=(500, 4))
     r = Z @ [1.0, -2.0, 0.5, 0.0] + rng.normal(size=500)
-    out = dg.block_cv(r, dg.nuisance_basis(Z), 60)
+    out = block_cv(r, st.nuisance_basis(Z), 60)
     for a in range(0, 500, 60):
         fit = np.r_[0:a, a + 60:500]
         coef = np.linalg.lstsq(Z[fit], r[fit], rcond=None)[0]
         assert np.allclose(out[a:a + 60], r[a:a + 60] - Z[a:a + 60] @ coef)
     in_sample = r - Z @ np.linalg.lstsq(Z, r, rcond=None)[0]
     assert np.sum(out**2) > np.sum(in_sample**2)
-    h_block = dg.block_cv(r, dg.nuisance_basis(Z), 60, buffer=20)  # each block fitted without it and 20 either side
+    h_block = block_cv(r, st.nuisance_basis(Z), 60, buffer=20)  # each block fitted without it and 20 either side
     for a in range(0, 500, 60):
         fit = np.r_[0:max(a - 20, 0), min(a + 80, 500):500]
         coef = np.linalg.lstsq(Z[fit], r[fit], rcond=None)[0]
@@ -82,7 +84,7 @@ def test_free_responses_span_any_initial_state():
     x = np.random.default_rng(4).normal(size=300)
     started = lfilter([1.0], F, x, zi=[0.8, -0.3])[0]
     diff = started - lfilter([1.0], F, x)
-    cols = dg.free_responses([F], 300)
+    cols = st.free_responses([F], 300)
     assert cols.shape == (300, 2)
     assert np.allclose(cols @ np.linalg.lstsq(cols, diff, rcond=None)[0], diff)
 
