@@ -62,7 +62,7 @@ def run(args) -> int:
     ds = build_for_models(args, args.inputs, [(args.model, model)])
     try:
         result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect,
-                          min_drop_percent=args.min_drop)
+                          min_drop_percent=args.min_drop).to_json()
     except ValueError as exc:
         raise FuelidError(str(exc)) from exc
     result["data"]["files"] = list(map(str, args.inputs))

@@ -53,16 +53,18 @@ class Effect:
     name and unit per column, or None when the signals it needs are not in the data.
 
     A shift effect has no build: its test regressor is d/dt of the simulated fuel of seed 2's low-order model
-    ident.fueldelay.DELAY_REFERENCE, which cannot absorb a delay (the diagnosis makes it), since
-    y(t − τ) ≈ y(t) − τ dy/dt. orders (nb, nf, nk) of each extra input when the effect is added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics);
-    sign the direction the physics moves the fuel when the effect's first regressor x grows (+1 more fuel, −1 less,
-    0 either): a candidate fitted the other way is not this effect (ident.diagnosis); scales_fuel when the effect
-    multiplies the fuel, y (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no
-    injection at all on overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient
-    of y (1 + m x) at m = 0, dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃
-    with their own dynamics) are what a refit adds; torque when the regressor is a torque (in the model's torque
-    unit per unit of its coefficient) the engine delivers and the bus does not report: the fuel burns for it
-    through the model's torque path, and the diagnosis tests that one column, B_T/F_T x."""
+    ident.fueldelay.DELAY_REFERENCE, which cannot absorb a delay (the diagnosis makes it), since y(t − τ) ≈ y(t) − τ
+    dy/dt. orders (nb, nf, nk) of each extra input when the effect is added to a model; lags [samples] at which the
+    diagnosis tests each column (an FIR basis of its dynamics); sign the direction the physics moves the fuel when
+    the effect's first regressor x grows (+1 more fuel, −1 less, 0 either): a candidate fitted the other way is not
+    this effect (ident.diagnosis); enters how the effect enters the model, which decides how the diagnosis tests it
+    (ident.diagnosis.entries): "additive" its columns added as inputs; "scales_fuel" when it multiplies the fuel, y
+    (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no injection at all on
+    overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient of y (1 + m x) at m = 0,
+    dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃ with their own dynamics) are
+    what a refit adds; "torque" when the regressor is a torque (in the model's torque unit per unit of its
+    coefficient) the engine delivers and the bus does not report: the fuel burns for it through the model's torque
+    path, and the diagnosis tests that one column, B_T/F_T x; "shift" the fuel signal's delay."""
 
     id: str
     name: str
@@ -74,8 +76,7 @@ class Effect:
     orders: tuple[int, int, int] = (1, 1, 0)
     lags: tuple[int, ...] = (0, 1, 2)
     sign: int = 0
-    scales_fuel: bool = False
-    torque: bool = False
+    enters: str = "additive"
 
 
 @dataclass
@@ -309,17 +310,17 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "The bus reports net (flywheel) torque, but fuel burns for the indicated torque, which also "
            "accelerates the crankshaft and flywheel: T_ind = T_net + J dω/dt, ω [rad/s], J [kg·m²] (seed 2's EB*).",
            ("EEC1.EngSpeed", "EC1.EngMomentOfInertia"), (190, 1794), "input", _inertia, orders=(2, 1, 0),
-           lags=(0,), sign=+1, torque=True),
+           lags=(0,), sign=+1, enters="torque"),
     Effect("fuel_delay", "fuel-signal delay",
            "The fuel-rate signal lags speed and torque (fuel-system and ECU filtering; seed 2 found 0.4 s): "
            "y_measured(t) = y(t − τ). Removed by advancing the fuel signal by τ.",
-           ("LFE1.EngFuelRate",), (183,), "shift", None, orders=(0, 0, 0), lags=(0,), sign=+1),
+           ("LFE1.EngFuelRate",), (183,), "shift", None, orders=(0, 0, 0), lags=(0,), sign=+1, enters="shift"),
     Effect("overrun_cutoff", "overrun fuel cut-off",
            "With the pedal released above idle speed the engine is motored and injects no fuel; a linear model "
            "extrapolates its torque gain to negative fuel instead.",
            ("EEC1.ActualEngPercentTorque", "EEC2.AccelPedalPos1", "EEC1.EngSpeed", "CCVS1.ClutchSwitch",
             "ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (513, 91, 190, 598, 523, 524), "regime",
-           _overrun, lags=(0,), sign=-1, scales_fuel=True),
+           _overrun, lags=(0,), sign=-1, enters="scales_fuel"),
     Effect("power_nonlinearity", "speed × torque (power) nonlinearity",
            "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
            "term is the first missing term of the map.",
@@ -340,21 +341,21 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "extra (post-injection) fuel that produces no torque.",
            ("DPFC1.DPFActiveRegenStatus",), (3700,), "regime",
            _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,), sign=+1,
-           scales_fuel=True),
+           enters="scales_fuel"),
     Effect("cold_engine", "cold engine (coolant temperature)",
            "Below operating temperature (the coolant's warm level, 80–90 °C) friction is higher and the ECU "
            "enriches: extra fuel grows with the coolant-temperature deficit and with the fuel itself.",
-           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1, scales_fuel=True),
+           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1, enters="scales_fuel"),
     Effect("ambient", "ambient temperature and pressure",
            "Air density ρ = p/(R T) (ambient temperature, barometric pressure) changes charge air, boost and "
            "pumping work: thin (warm, high) air changes the fuel in proportion to the fuel.",
            ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,), sign=+1,
-           scales_fuel=True),
+           enters="scales_fuel"),
     Effect("engine_fan", "engine fan",
            "A viscous or clutched engine fan takes power ∝ (fan speed)³ from the crankshaft that the reported "
            "torque does not include.",
            ("FD.EstPercentFanSpeed", "FD.FanDriveState"), (975, 977), "input", _fan, lags=(0,), sign=+1,
-           torque=True),
+           enters="torque"),
     Effect("retarder", "retarder / engine brake",
            "While the retarder or engine brake works (ERC1 SPN 520) no fuel is injected and the engine absorbs "
            "torque.",

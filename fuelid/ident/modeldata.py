@@ -56,7 +56,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
         eid, value = parse_effect(raw)
         effect = get_effect(eid, ds)
         used.append(effect.id)
-        if effect.form == "shift":
+        if effect.enters == "shift":
             shift = value if value is not None else parameters.get(effect.id, "sweep")
             continue
         reg = effect.build(ds)

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fuelid.ident import diagnosis as dg
+from fuelid.ident.diagnosis import Diagnosis, diagnose
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.validation import autocorr_test, crosscorr_test, metrics
 
@@ -369,7 +369,8 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, title: 
                   truck: str | None = None, files=(), max_points: int = MAX_POINTS, top: int = 12) -> str:
     """The report of `model` (ident.polymodel.PolyModel) on dataset ds as one HTML page (module docstring).
 
-    diagnosis: ident.diagnosis.diagnose(model, ds) when already computed (else it is computed here); after:
+    diagnosis: ident.diagnosis.diagnose(model, ds) when already computed (else it is computed here; its model run
+    is reused), or a saved `fuelid diagnose --json` result (the model is run again); after:
     (label, PolyModel) pairs of models refitted with effects added, compared on the same data; truck, files:
     for the header; max_points: the decimation budget per time-series trace; top: candidates shown unfolded.
     Raises ValueError (from the diagnosis) when no valid segment is long enough; FuelidError on unit mismatch.
@@ -378,9 +379,13 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, title: 
 
     from fuelid import __version__
 
-    diagnosis = diagnosis if diagnosis is not None else dg.diagnose(model, ds)
+    diagnosis = diagnosis if diagnosis is not None else diagnose(model, ds)
+    if isinstance(diagnosis, Diagnosis):  # its model run is the report's
+        run, diagnosis = diagnosis.run, diagnosis.to_json()
+    else:  # a saved `fuelid diagnose --json`: the model is run again
+        run = tested_run(model, ds)
     unit = ds.output_unit
-    curves = [Curve("before" if after else "model", COLOURS[0], model, tested_run(model, ds), diagnosis["compare"])]
+    curves = [Curve("before" if after else "model", COLOURS[0], model, run, diagnosis["compare"])]
     for i, (label, m) in enumerate(after, 1):
         run = tested_run(m, ds)
         curves.append(Curve(label, COLOURS[i % len(COLOURS)], m, run, metrics(run, ds)))

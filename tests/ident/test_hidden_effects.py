@@ -26,7 +26,7 @@ FLOOR_TOLERANCE = 1.05
 @functools.cache
 def diagnosed(effect, seed, routes_of=None):
     ds, truth, summary = hidden.simulated(effect, seed, routes_of=routes_of)
-    return dg.diagnose(hidden.identify(ds), ds), truth, summary
+    return dg.diagnose(hidden.identify(ds), ds).to_json(), truth, summary  # as `fuelid diagnose --json` prints it
 
 
 def names(row, effect, summary) -> bool:

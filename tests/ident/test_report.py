@@ -33,8 +33,9 @@ def case():
     """(dataset, model, diagnosis, after model, page) for a 15-minute trip with two DPF regenerations."""
     ds = hidden.make("dpf_regeneration", n=3000, seed=2)
     model, after = fit(ds), fit(ds, ["dpf_regeneration"])
-    diagnosis = dg.diagnose(model, ds, n_verify=1)
-    page = rp.render_report(model, ds, diagnosis, after=[("with DPF", after)], truck="TRUCK-42",
+    found = dg.diagnose(model, ds, n_verify=1)
+    diagnosis = found.to_json()
+    page = rp.render_report(model, ds, found, after=[("with DPF", after)], truck="TRUCK-42",
                             files=["trip.mcap"], top=5)
     return ds, model, diagnosis, after, page
 

@@ -37,9 +37,9 @@ from fuelid.ident.polymodel import PolyModel
 @dataclass
 class Reference:
     """Seed 2's low-order model (DELAY_REFERENCE) fitted by PEM to the run's fuel (advanced by a shift, see
-    `reference_fit`) on the run's segments: its simulation errors r with the basis Q of their nuisance columns (its simulation
-    gradient, an offset, each segment's initial state) projected out, stacked like run.r; ysim its simulated fuel
-    on the dataset grid."""
+    `reference_fit`) on the run's segments: its simulation errors r with the basis Q of their nuisance columns (its
+    simulation gradient, an offset, each segment's initial state) projected out, stacked like run.r; ysim its
+    simulated fuel on the dataset grid."""
 
     model: PolyModel
     r: np.ndarray

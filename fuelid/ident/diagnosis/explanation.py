@@ -1,5 +1,5 @@
 """One sentence an engineer acts on, and the size of the effect, from a candidate's estimated fuel
-contribution and gains."""
+contribution [output unit] and gains."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,6 +8,15 @@ from scipy.signal import lfilter
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.polymodel import PolyModel
+
+
+def contribution_on_grid(form: str, columns: np.ndarray, coef: np.ndarray, run: Run) -> np.ndarray:
+    """The fuel contribution X β [output unit] of an effect's columns X (stacked like run.r) on the dataset grid:
+    NaN outside the run, a level's mean removed (the model's offset absorbs it), a regime's kept."""
+    contribution = np.full(len(run.y), np.nan)
+    c = columns @ coef
+    contribution[run.index] = c if form == "regime" else c - c.mean()
+    return contribution
 
 
 def signals_text(effect: fx.Effect) -> str:
@@ -29,12 +38,13 @@ def torque_response(models, x: np.ndarray) -> np.ndarray:
     return np.mean([lfilter(m.B[1], m.F[1], x) for m in models], axis=0)
 
 
-def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gains: np.ndarray, torque_models,
-            ds, run: Run) -> tuple[str, dict]:
-    """One sentence an engineer acts on, and the size of the effect (JSON-ready), from its estimated fuel
-    contribution [output unit] on the grid and its steady-state gain per regressor column [output unit per
-    column unit] (for the shift: −τ [s]); torque_models the fitted models whose torque path gives the inertia
-    J: the contribution of J_bus dω/dt [Nm] is J/J_bus times what the torque path makes of it, so
+def explain(entry, effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gains: np.ndarray,
+            torque_models, ds, run: Run) -> tuple[str, dict]:
+    """One sentence an engineer acts on, and the size of the effect (JSON-ready), from its estimated fuel contribution
+    [output unit] on the grid and its steady-state gain per regressor column [output unit per column unit] (for the
+    shift: −τ [s]); entry the effect's entry kind (ident.diagnosis.entries), whose own sentence, if it has one, is
+    said unless the effect is the inertia or a regime that was on; torque_models the fitted models whose torque path
+    gives the inertia J: the contribution of J_bus dω/dt [Nm] is J/J_bus times what the torque path makes of it, so
     J = J_bus ⟨c, c_T⟩ / ⟨c_T, c_T⟩ (least squares over the samples, c_T = torque_response)."""
     unit = ds.output_unit
     ok = np.isfinite(contribution) & np.isfinite(run.y)
@@ -43,12 +53,6 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
     size = {"rms_contribution": rms}
     act = f"add effect {effect.id}"
     sig = signals_text(effect)
-    if effect.form == "shift":
-        tau = -float(gains[0])
-        size["delay_s"] = tau
-        way = "lags" if tau > 0 else "leads"
-        return f"the fuel signal {way} speed and torque by about {abs(tau):.2f} s ({sig}; first-order estimate on " \
-               f"seed 2's low-order model); {act}", size
     if effect.id == "inertia" and ds.input_units[1] == "Nm" and reg.units[0] == "Nm":
         J_bus = float(np.nanmedian(ds.extra["EC1.EngMomentOfInertia"]))
         c_T = torque_response(torque_models, reg.x[:, 0])[ok]
@@ -77,19 +81,9 @@ def explain(effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gai
                        + f", relative to the signal's most frequent value ({sig}); {act}", size
             return f"fuel is {abs(extra):.2f} {unit}{pct} {word} than the model whenever {effect.name} is on " \
                    f"({sig}); {act}", size
-    if effect.scales_fuel and effect.form != "regime":  # columns x, x·ŷ of fuel × (1 + m x)
-        # m is x·ŷ's coefficient, not read from x's own: x can be nearly constant over a trip, where a trip's fuel
-        # level is not told apart from its initial state
-        m = float(gains[1])
-        step, per = (0.1, "10 %") if reg.units[0] == "1" else (10.0, f"10 {reg.units[0]}")
-        size["relative_change_per_unit"] = m
-        return f"fuel is {100 * abs(m) * step:.1f} % {'higher' if m > 0 else 'lower'} per {per} of {reg.names[0]} " \
-               f"({sig}), in proportion to the fuel itself; {act}", size
-    if effect.torque:
-        size["torque_scale"] = float(gains[0])
-        per = reg.units[0].split("/")[-1] if "/" in reg.units[0] else ""
-        return f"fuel burns for a torque the bus does not report: {reg.names[0]} × {gains[0]:.3g} {per} ({sig}); " \
-               f"{act}", size
+    text = entry.sentence(effect, reg, gains, size, sig, act)
+    if text is not None:
+        return text, size
     if reg.x.shape[1] == 1:
         size["gain_per_unit"] = float(gains[0])
         return f"fuel changes by {gains[0]:+.3g} {unit} per {reg.units[0] or 'unit'} of {reg.names[0]} ({sig}) " \

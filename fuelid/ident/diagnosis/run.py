@@ -1,6 +1,6 @@
 """The model run the diagnosis tests (ident.modelrun.ModelRun on the segments long enough) and its gradients:
 the prediction errors ε with the nuisance columns of test 1 and the errors w before the noise filter with those
-of test 2 (ident.diagnosis.statistics), and the columns of a candidate effect in the same domains."""
+of test 2 (ident.diagnosis.statistics)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,11 +9,10 @@ import numpy as np
 from scipy.linalg import block_diag
 from scipy.signal import lfilter
 
-from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.statistics import free_responses, lagged, nuisance_basis, one_blas_thread
+from fuelid.ident.diagnosis.statistics import free_responses, nuisance_basis, one_blas_thread
 from fuelid.ident.modelrun import ModelRun
 from fuelid.ident.pem import prediction_errors
-from fuelid.ident.polymodel import PolyModel, Structure
+from fuelid.ident.polymodel import Structure
 
 
 @dataclass
@@ -91,26 +90,3 @@ def run_gradients(mrun: ModelRun) -> Run:
     w = np.concatenate(ws)
     return Run(mrun, y, mrun.on_tested(mrun.ysim), list(mrun.tested), warm, np.concatenate(es), Q,
                w - QG @ (QG.T @ w), QG, QGp)
-
-
-def candidate_columns(model: PolyModel, ds, run: Run, effect: fx.Effect):
-    """(Regressors on the dataset grid, their prewhitened lagged image ψ_x stacked over the run's segments after
-    their first run.warm samples, the lagged unfiltered columns likewise); None when the effect's signals are not
-    logged. An effect that scales the fuel (Effect.scales_fuel) has the columns x and x·ŷ (x its first regressor,
-    ŷ the model's simulated fuel); a torque the bus does not report (Effect.torque), the fuel the model's torque
-    path makes of it, B_T/(A F_T) x."""
-    reg = effect.build(ds)
-    if reg is None:
-        return None
-    if effect.scales_fuel:
-        x = reg.x[:, 0]
-        reg = fx.Regressors(np.column_stack([x, x * run.ysim]), (reg.names[0], f"{reg.names[0]} x model fuel"),
-                            (reg.units[0], f"{reg.units[0]}.{ds.output_unit}"))
-    psi, raw = [], []
-    for seg in run.segs:
-        x = lagged(np.nan_to_num(reg.x[seg]), effect.lags)
-        if effect.torque:
-            x = lfilter(model.B[1], np.convolve(model.A, model.F[1]), x, axis=0)
-        psi.append(lfilter(model.D, model.C, x, axis=0)[run.warm:])
-        raw.append(x[run.warm:])
-    return reg, np.vstack(psi), np.vstack(raw)

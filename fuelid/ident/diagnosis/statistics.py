@@ -5,10 +5,10 @@ Which effect is missing — two score tests per candidate, Holm, then verificati
 --------------------------------------------------------------------------------
 The model M gives one-step prediction errors ε = D/C (A ỹ − Σ_i B_i/F_i ũ_i) and simulation errors
 r = ỹ − Σ_i B_i/(A F_i) ũ_i. If an effect with regressors x(t) (N × k, ident.effects, at a few lags) were
-missing, y would contain Σ_l β_l x(t − l). The regressors follow the effect's physics (ident.diagnosis.run.candidate_columns): an
-effect that scales the fuel, y (1 + m x), has x and x·ŷ (ŷ the model's simulated fuel: the gradient at m = 0,
-with the model's dynamics); a torque the bus does not report, T + κ x, has the fuel the model's torque path makes
-of it, B_T/(A F_T) x (the gradient at κ = 0, one column).
+missing, y would contain Σ_l β_l x(t − l). The regressors follow how the effect enters the model
+(ident.diagnosis.entries): an effect that scales the fuel, y (1 + m x), has x and x·ŷ (ŷ the model's simulated fuel:
+the gradient at m = 0, with the model's dynamics); a torque the bus does not report, T + κ x, has the fuel the
+model's torque path makes of it, B_T/(A F_T) x (the gradient at κ = 0, one column).
 
 1. Prediction-error (score / Lagrange-multiplier) test. ε would contain ψ_x = D/C x (the gradient −∂ε/∂β at
    β = 0). With Z = [Ψ_θ, D/C·1, I_ε] (the PEM gradient at θ̂, an offset, and the free responses through which

@@ -29,7 +29,7 @@
    the effect's physics does (Effect.sign: more fuel during a regeneration, none on overrun; on trips with
    nothing hidden the bus's clipping of negative fuel at 0 makes "overrun" look like *more* fuel): the change
    adding it makes to the held-out simulated fuel covaries with the effect's first regressor x with that sign,
-   or with x·ŷ for an effect that scales the fuel (Effect.scales_fuel: air density is nearly constant within
+   or with x·ŷ for an effect that scales the fuel (Effect.enters == "scales_fuel": air density is nearly constant within
    a trip, and a trip's fuel level is not told apart from its estimated initial state).
    Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
    refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
@@ -100,13 +100,14 @@ def held_out_scores(cv: dict, ds) -> dict:
             "cycle_fuel_error_percent": error_table(cycle_fuel_error(np.where(ok, y, np.nan), ysim, ds.cycle, ds.Ts))}
 
 
-def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict, before_ysim: np.ndarray) -> dict:
+def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict,
+           before_ysim: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
     """The held-out scores with the candidate columns X (w domain) against `before` (held_out_scores of the
-    model as it is, whose held-out simulation is before_ysim): RMS simulation error [output unit] and cycle fuel
-    error [%] without and with, the drop [%], β the candidate's coefficients fitted on all the data, and the
-    change of the held-out simulated fuel [output unit] that adding it makes (stacked like run.r)."""
+    model as it is, whose held-out simulation is before_ysim): (`without_with`: RMS simulation error [output unit]
+    and cycle fuel error [%] without and with, the drop [%]; β the candidate's coefficients fitted on all the data;
+    the change of the held-out simulated fuel [output unit] that adding it makes, stacked like run.r)."""
     after = held_out_scores(cv := held_out(model, run, X), ds)
-    return {**without_with(before, after), "_beta": cv["beta"], "_change": (cv["ysim"] - before_ysim)[run.index]}
+    return without_with(before, after), cv["beta"], (cv["ysim"] - before_ysim)[run.index]
 
 
 def without_with(before: dict, after: dict) -> dict:
