@@ -48,9 +48,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.io import loadmat, savemat
 
 from fuelid.errors import FuelidError
+from fuelid.logger.decode import Decoder
 from fuelid.logger.j1939 import DEFAULT_SOURCE_PREFERENCE, preferred_source
+from fuelid.logger.mcap_log import read_messages
+from fuelid.progress import progress
 
 SPEED = "EEC1.EngSpeed"
 TORQUE_PCT = "EEC1.ActualEngPercentTorque"
@@ -137,9 +141,6 @@ def _records(sources):
     spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
     for src in sources:
         if isinstance(src, (str, Path)):
-            from fuelid.progress import progress
-            from fuelid.logger.decode import Decoder
-            from fuelid.logger.mcap_log import read_messages
             p = Path(src)
             if not p.is_file():
                 raise FuelidError(f"{p}: no such file")
@@ -379,7 +380,6 @@ def save_dataset(ds: Dataset, path) -> Path:
             for row in data:
                 f.write(",".join("" if np.isnan(v) else repr(float(v)) for v in row) + "\n")
     elif path.suffix == ".mat":
-        from scipy.io import savemat
         meta = _meta(ds)
         savemat(path, {
             "Ts": ds.Ts, "t": ds.t, "u": ds.u, "y": ds.y, "u0": ds.u0, "y0": ds.y0,
@@ -406,7 +406,6 @@ def load_dataset(path) -> Dataset:
         data = np.genfromtxt(path, delimiter=",", skip_header=2, ndmin=2)
         cols = dict(zip(names, data.T))
     elif path.suffix == ".mat":
-        from scipy.io import loadmat
         m = loadmat(path, squeeze_me=True, chars_as_strings=True)
         meta = json.loads(str(m["meta_json"]))
         ex = m["extra"]

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fuelid import __version__
 from fuelid.ident.diagnosis import Diagnosis, diagnose
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.validation import autocorr_test, crosscorr_test, metrics
@@ -247,6 +248,7 @@ def error_map_figure(emap: dict, output_unit: str, which: str = "mean_error") ->
 
 
 def _plot(fig: dict, div_id: str) -> str:
+    # plotly takes about a second to import: loaded only when a report is drawn
     import plotly.graph_objects as go  # validates every property name and value
     import plotly.io as pio
 
@@ -375,9 +377,7 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, title: 
     for the header; max_points: the decimation budget per time-series trace; top: candidates shown unfolded.
     Raises ValueError (from the diagnosis) when no valid segment is long enough; FuelidError on unit mismatch.
     """
-    import plotly.offline
-
-    from fuelid import __version__
+    import plotly.offline  # heavy: loaded only when a report is drawn (see _plot)
 
     diagnosis = diagnosis if diagnosis is not None else diagnose(model, ds)
     if isinstance(diagnosis, Diagnosis):  # its model run is the report's

@@ -58,8 +58,8 @@ Convergence reports (per sample in `Trace`, running in `report()`): the relative
 samples: the one-step prediction fit 100 (1 − ‖ε‖/‖ỹ − mean‖) and the simulation fit with v in place of ε
 (restarted when the output-error phase ends: its errors from θ = 0 would dominate the window for hours).
 
-The per-sample loop is compiled with numba (`_run`); this module imports numpy and numba only, so the in-cab
-live estimator stays light (ident.polymodel, which imports SciPy, is imported when a PolyModel is made).
+The per-sample loop is compiled with numba (`_run`); this module imports numpy, numba and ident.polymodel (which
+loads scipy.signal only on first use), so the in-cab live estimator stays light.
 """
 from __future__ import annotations
 
@@ -68,6 +68,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+
+from fuelid.ident.polymodel import from_theta, parameter_names
 
 RADIUS = 0.9999  # largest root radius allowed in F_i and C (ident.pem.RHO_MAX)
 MAX_HALVINGS = 8  # step halvings tried before an update is rejected
@@ -542,8 +544,6 @@ class RPEM:
     def model(self, **info):
         """The current estimate as a PolyModel (operating point, names and units of the prior), with the
         covariance and the `report()` (None for what is not known yet) in info, plus any extra info given."""
-        from fuelid.ident.polymodel import from_theta, parameter_names
-
         meta = {}
         if self.prior is not None:
             p = self.prior
