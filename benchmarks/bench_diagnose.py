@@ -40,7 +40,7 @@ def timing():
     for minutes in (15, 30, 60, 90):
         ds, _, _ = hidden.simulated("dpf_regeneration", 7, minutes * 60.0)
         model = hidden.identify(ds)
-        out = dg.diagnose(model, ds)
+        out = dg.diagnose(model, ds).to_json()
         total = best_of(lambda: dg.diagnose(model, ds))
         tests_only = best_of(lambda: dg.diagnose(model, ds, n_verify=0))
         print(f"{minutes:3d} min  {out['test']['samples']:7d}  {out['test']['candidates_tested']:10d}  {total:12.2f}"
@@ -48,8 +48,8 @@ def timing():
     delayed, _, _ = hidden.simulated("fuel_delay", 7, 5400.0)  # the candidate is verified by seed 2's sweep
     delayed_model = hidden.identify(delayed)
     t = best_of(lambda: dg.diagnose(delayed_model, delayed))
-    top = dg.diagnose(delayed_model, delayed)["candidates"][0]
-    print(f" 90 min with a hidden 0.4 s fuel delay (21 refits of the reference model): {t:.2f} s   top: {top['spec']}")
+    top = dg.diagnose(delayed_model, delayed).candidates[0]
+    print(f" 90 min with a hidden 0.4 s fuel delay (21 refits of the reference model): {t:.2f} s   top: {top.spec}")
     all_candidates = list(fx.EFFECTS.values()) + fx.generic_effects(ds)
     for k in (10, 25, len(all_candidates)):
         t = best_of(lambda: dg.diagnose(model, ds, candidates=all_candidates[:k], n_verify=0))
@@ -69,7 +69,7 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
     for effect in EFFECTS:
         for seed in range(first_seed, first_seed + seeds):
             ds, truth, summary = hidden.simulated(effect, seed)
-            out = dg.diagnose(hidden.identify(ds), ds)
+            out = dg.diagnose(hidden.identify(ds), ds).to_json()
             top = out["candidates"][0]
             v = top["verification"] or {}
             floor = float(np.sqrt(np.mean(truth["noise"] ** 2)))
@@ -91,7 +91,7 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
         alarms = 0
         for seed in range(first_null_seed, first_null_seed + n):
             ds, _, _ = hidden.simulated(None, seed, routes_of=routes_of)
-            out = dg.diagnose(hidden.identify(ds), ds)
+            out = dg.diagnose(hidden.identify(ds), ds).to_json()
             top = out["candidates"][0]
             alarm = top["significant"]
             alarms += alarm

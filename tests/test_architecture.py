@@ -54,20 +54,11 @@ def lazy_allowed(target: str) -> bool:
 
 # Function-level imports inside fuelid.ident that the split of effects/validation/diagnosis (issue 14, items 3-5)
 # removes. TEMPORARY: the merge of that work empties this set; nothing may be added to it.
-PENDING_IDENT_SPLIT = {
-    ("fuelid.ident.effects", "fuelid.ident.validation"),
-    ("fuelid.ident.validation", "fuelid.ident.effects"),
-    ("fuelid.ident.effects", "fuelid.ident.pem"),
-    ("fuelid.ident.effects", "fuelid.ident.polymodel"),
-    ("fuelid.ident.effects", "fuelid.dbc"),
-    ("fuelid.ident.effects", "cantools"),
-    ("fuelid.ident.effects", "warnings"),
-    ("fuelid.ident.report", "fuelid"),
-}
+PENDING_IDENT_SPLIT: set[tuple[str, str]] = set()
 
 # Modules with an `except (FuelidError, ValueError)` left because ident.diagnosis raises ValueError for data too
 # short for its tests. TEMPORARY: emptied when the diagnosis split raises fuelid.errors.InputError there.
-PENDING_DIAGNOSIS_ERRORS = {"fuelid.fleet.jobs"}
+PENDING_DIAGNOSIS_ERRORS: set[str] = set()
 
 
 def module_name(path: Path) -> str:

@@ -1,7 +1,6 @@
 """fuelid diagnose: where a fuel model fails on measurements, and which physical effect it is missing."""
 
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
-from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis import diagnose
 from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
@@ -56,11 +55,8 @@ def format_report(result: dict, top: int = 8) -> str:
 def run(args) -> int:
     model = load_model(args.model)
     ds = build_for_models(args, args.inputs, [(args.model, model)])
-    try:
-        result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect,
-                          min_drop_percent=args.min_drop)
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from exc
+    result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect,
+                      min_drop_percent=args.min_drop).to_json()
     result["data"]["files"] = list(map(str, args.inputs))
     result["model"]["file"] = args.model
     if args.json:

@@ -67,14 +67,15 @@ def run(args) -> int:
         raise FuelidError(f"--max-points must be at least 100, got {args.max_points}")
     model, *after = [load_model(p) for p in model_paths]
     ds = build_for_models(args, data_paths, list(zip(model_paths, [model, *after])))
-    try:
-        diagnosis = (saved_diagnosis(args.diagnosis, model_paths[0], data_paths) if args.diagnosis else
-                     diagnose(model, ds, alpha=args.alpha, n_verify=args.verify))
-        out = write_report(args.output, model, ds, diagnosis=diagnosis,
-                           after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],
-                           title=args.title, truck=truck_name(data_paths), files=data_paths,
-                           max_points=args.max_points)
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from exc
-    print(f"{out}: {out.stat().st_size / 1e6:.1f} MB; {diagnosis['verdict']}")
+    if args.diagnosis:
+        diagnosis = saved_diagnosis(args.diagnosis, model_paths[0], data_paths)
+        verdict = diagnosis["verdict"]
+    else:
+        diagnosis = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify)
+        verdict = diagnosis.verdict
+    out = write_report(args.output, model, ds, diagnosis=diagnosis,
+                       after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],
+                       title=args.title, truck=truck_name(data_paths), files=data_paths,
+                       max_points=args.max_points)
+    print(f"{out}: {out.stat().st_size / 1e6:.1f} MB; {verdict}")
     return 0

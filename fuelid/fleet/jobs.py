@@ -51,7 +51,7 @@ def _write_json(path: Path, obj) -> None:
     os.replace(tmp, path)
 
 
-def _report(out: Path, model, diagnosis: dict, ds, truck: str, files: list[str]) -> tuple[str | None, str | None]:
+def _report(out: Path, model, diagnosis, ds, truck: str, files: list[str]) -> tuple[str | None, str | None]:
     """(report.html path, None) by ident.report.write_report, or (None, why) when the report fails: the model
     and diagnosis are the job's product, the report only shows them."""
     path = out / "report.html"
@@ -105,9 +105,9 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             previous = load_model(previous_model) if previous_model else None
             model = identify_model(ds, structure, files=paths, init=previous)
             lap("identify")
-            diagnosis = diagnose(model, ds)
+            found = diagnose(model, ds)
             lap("diagnose")
-        except (FuelidError, ValueError) as exc:  # ValueError: ident.diagnosis's "no segment long enough" (pending)
+        except FuelidError as exc:
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None
         previous_metrics = None
         if previous is not None and abs(previous.Ts - ds.Ts) < 1e-9:
@@ -116,10 +116,11 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             except FuelidError:  # another fuel unit or effects whose signals this data lacks: not comparable
                 pass
         save_model(model, model_path)
+        diagnosis = found.to_json()
         diagnosis["data"]["files"] = paths
         diagnosis["model"]["file"] = str(model_path)
         _write_json(diagnosis_path, diagnosis)
-        report_path, report_error = _report(out, model, diagnosis, ds, truck, paths)
+        report_path, report_error = _report(out, model, found, ds, truck, paths)
         lap("write")
 
     def metrics(m):

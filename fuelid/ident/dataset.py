@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.io import loadmat, savemat
 
 from fuelid.errors import FuelidError
 from fuelid.logger.decode import Decoder, signal_units
@@ -448,7 +449,6 @@ def save_dataset(ds: Dataset, path) -> Path:
     if path.suffix == ".csv":
         _write_csv(ds, path)
     elif path.suffix == ".mat":
-        from scipy.io import savemat  # only for .mat files
         meta = _meta(ds)
         savemat(path, {
             "Ts": ds.Ts, "t": ds.t, "u": ds.u, "y": ds.y, "u0": ds.u0, "y0": ds.y0,
@@ -470,7 +470,6 @@ def load_dataset(path) -> Dataset:
     if path.suffix == ".csv":
         meta, cols = _read_csv(path)
     elif path.suffix == ".mat":
-        from scipy.io import loadmat  # only for .mat files
         m = loadmat(path, squeeze_me=True, chars_as_strings=True)
         meta = json.loads(str(m["meta_json"]))
         ex = m["extra"]

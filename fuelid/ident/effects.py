@@ -22,21 +22,25 @@ values) — so an effect nobody listed is still found and named by its DBC signa
 same as the simulator's (`fuelid simulate --effect ID=MAG`): the diagnosis says "add effect ID" and
 `fuelid identify --effect ID` adds it.
 
+This module is the catalogue only: what an effect is and the regressors it builds. The fuel shift and seed
+2's sweep are ident.fueldelay; how a model's effects become its inputs, ident.modeldata; the sweep with the
+model itself, ident.identify.
+
 Regressors are plain arrays on the Dataset grid (N samples, Ts [s]); samples where a signal is unknown are
 NaN, and `columns` fills a bus signal's short gaps by holding its last value (what the ECU last said), and
 leading unknowns by its first value.
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
 from dataclasses import dataclass, field
 from typing import Callable
 
+import cantools
 import numpy as np
-from scipy.ndimage import shift as _spline_shift
 
-from fuelid.ident.polymodel import Structure
+from fuelid.errors import InputError
+from fuelid.dbc import FMS_DBC
 
 RPM_TO_RAD_S = 2.0 * np.pi / 60.0
 
@@ -50,16 +54,18 @@ class Effect:
     name and unit per column, or None when the signals it needs are not in the data.
 
     A shift effect has no build: its test regressor is d/dt of the simulated fuel of seed 2's low-order model
-    DELAY_REFERENCE, which cannot absorb a delay (the diagnosis makes it), since y(t − τ) ≈ y(t) − τ dy/dt. orders (nb, nf, nk) of each extra input when the effect is
-    added to a model; lags [samples] at which the diagnosis tests each column (an FIR basis of its dynamics);
-    sign the direction the physics moves the fuel when the effect's first regressor x grows (+1 more fuel, −1 less,
-    0 either): a candidate fitted the other way is not this effect (ident.diagnosis); scales_fuel when the effect
-    multiplies the fuel, y (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no
-    injection at all on overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient
-    of y (1 + m x) at m = 0, dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃
-    with their own dynamics) are what a refit adds; torque when the regressor is a torque (in the model's torque
-    unit per unit of its coefficient) the engine delivers and the bus does not report: the fuel burns for it
-    through the model's torque path, and the diagnosis tests that one column, B_T/F_T x."""
+    ident.fueldelay.DELAY_REFERENCE, which cannot absorb a delay (the diagnosis makes it), since y(t − τ) ≈ y(t) − τ
+    dy/dt. orders (nb, nf, nk) of each extra input when the effect is added to a model; lags [samples] at which the
+    diagnosis tests each column (an FIR basis of its dynamics); sign the direction the physics moves the fuel when
+    the effect's first regressor x grows (+1 more fuel, −1 less, 0 either): a candidate fitted the other way is not
+    this effect (ident.diagnosis); enters how the effect enters the model, which decides how the diagnosis tests it
+    (ident.diagnosis.entries): "additive" its columns added as inputs; "scales_fuel" when it multiplies the fuel, y
+    (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no injection at all on
+    overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient of y (1 + m x) at m = 0,
+    dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃ with their own dynamics) are
+    what a refit adds; "torque" when the regressor is a torque (in the model's torque unit per unit of its
+    coefficient) the engine delivers and the bus does not report: the fuel burns for it through the model's torque
+    path, and the diagnosis tests that one column, B_T/F_T x; "shift" the fuel signal's delay."""
 
     id: str
     name: str
@@ -71,8 +77,7 @@ class Effect:
     orders: tuple[int, int, int] = (1, 1, 0)
     lags: tuple[int, ...] = (0, 1, 2)
     sign: int = 0
-    scales_fuel: bool = False
-    torque: bool = False
+    enters: str = "additive"
 
 
 @dataclass
@@ -88,10 +93,6 @@ class Regressors:
 
 @functools.lru_cache(maxsize=1)
 def _dbc_spns() -> dict[str, int]:
-    import cantools
-
-    from fuelid.dbc import FMS_DBC
-
     db = cantools.database.load_file(str(FMS_DBC))
     return {f"{m.name}.{s.name}": s.spn for m in db.messages for s in m.signals if s.spn is not None}
 
@@ -310,17 +311,17 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "The bus reports net (flywheel) torque, but fuel burns for the indicated torque, which also "
            "accelerates the crankshaft and flywheel: T_ind = T_net + J dω/dt, ω [rad/s], J [kg·m²] (seed 2's EB*).",
            ("EEC1.EngSpeed", "EC1.EngMomentOfInertia"), (190, 1794), "input", _inertia, orders=(2, 1, 0),
-           lags=(0,), sign=+1, torque=True),
+           lags=(0,), sign=+1, enters="torque"),
     Effect("fuel_delay", "fuel-signal delay",
            "The fuel-rate signal lags speed and torque (fuel-system and ECU filtering; seed 2 found 0.4 s): "
            "y_measured(t) = y(t − τ). Removed by advancing the fuel signal by τ.",
-           ("LFE1.EngFuelRate",), (183,), "shift", None, orders=(0, 0, 0), lags=(0,), sign=+1),
+           ("LFE1.EngFuelRate",), (183,), "shift", None, orders=(0, 0, 0), lags=(0,), sign=+1, enters="shift"),
     Effect("overrun_cutoff", "overrun fuel cut-off",
            "With the pedal released above idle speed the engine is motored and injects no fuel; a linear model "
            "extrapolates its torque gain to negative fuel instead.",
            ("EEC1.ActualEngPercentTorque", "EEC2.AccelPedalPos1", "EEC1.EngSpeed", "CCVS1.ClutchSwitch",
             "ETC2.TransCurrentGear", "ETC2.TransSelectedGear"), (513, 91, 190, 598, 523, 524), "regime",
-           _overrun, lags=(0,), sign=-1, scales_fuel=True),
+           _overrun, lags=(0,), sign=-1, enters="scales_fuel"),
     Effect("power_nonlinearity", "speed × torque (power) nonlinearity",
            "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
            "term is the first missing term of the map.",
@@ -341,21 +342,21 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "extra (post-injection) fuel that produces no torque.",
            ("DPFC1.DPFActiveRegenStatus",), (3700,), "regime",
            _state("DPFC1.DPFActiveRegenStatus", lambda x: x == 1, "DPF regeneration"), lags=(0,), sign=+1,
-           scales_fuel=True),
+           enters="scales_fuel"),
     Effect("cold_engine", "cold engine (coolant temperature)",
            "Below operating temperature (the coolant's warm level, 80–90 °C) friction is higher and the ECU "
            "enriches: extra fuel grows with the coolant-temperature deficit and with the fuel itself.",
-           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1, scales_fuel=True),
+           ("ET1.EngCoolantTemp",), (110,), "input", _cold, lags=(0,), sign=+1, enters="scales_fuel"),
     Effect("ambient", "ambient temperature and pressure",
            "Air density ρ = p/(R T) (ambient temperature, barometric pressure) changes charge air, boost and "
            "pumping work: thin (warm, high) air changes the fuel in proportion to the fuel.",
            ("AMB.AmbientAirTemp", "AMB.BarometricPress"), (171, 108), "input", _ambient, lags=(0,), sign=+1,
-           scales_fuel=True),
+           enters="scales_fuel"),
     Effect("engine_fan", "engine fan",
            "A viscous or clutched engine fan takes power ∝ (fan speed)³ from the crankshaft that the reported "
            "torque does not include.",
            ("FD.EstPercentFanSpeed", "FD.FanDriveState"), (975, 977), "input", _fan, lags=(0,), sign=+1,
-           torque=True),
+           enters="torque"),
     Effect("retarder", "retarder / engine brake",
            "While the retarder or engine brake works (ERC1 SPN 520) no fuel is injected and the engine absorbs "
            "torque.",
@@ -430,7 +431,7 @@ def get_effect(effect_id: str, ds=None) -> Effect:
             if e.id == effect_id:
                 return e
     known = ", ".join(EFFECTS)
-    raise ValueError(f"unknown effect {effect_id!r}: built in are {known}; any logged signal SIG also as "
+    raise InputError(f"unknown effect {effect_id!r}: built in are {known}; any logged signal SIG also as "
                      "level:SIG, rate:SIG or state:SIG")
 
 
@@ -438,136 +439,3 @@ def parse_effect(spec: str) -> tuple[str, float | None]:
     """'ID' or 'ID=VALUE' (fuel_delay=0.4 fixes the shift [s]) → (id, value or None)."""
     name, _, value = spec.partition("=")
     return ALIASES.get(name.strip(), name.strip()), (float(value) if value else None)
-
-
-# ---- the fuel-signal time shift ------------------------------------------------------------------------
-
-def shift_signal(y, shift_samples: float, segments=None) -> np.ndarray:
-    """y(t + s·Ts): y advanced by s samples (fractional allowed) by cubic-spline interpolation, separately in
-    each segment (slices; default the whole array); the samples within |s| of a segment's end are held."""
-    y = np.asarray(y, float)
-    out = np.full_like(y, np.nan)
-    for seg in segments or [slice(0, y.size)]:
-        out[seg] = _spline_shift(y[seg], -shift_samples, order=3, mode="nearest")
-    return out
-
-
-def sweep_fuel_shift(score: Callable[[float], float], shifts_s=None) -> dict:
-    """Seed 2's fuel-shift sensitivity sweep: score(τ) [any error, e.g. RMSE] for each advance τ [s] of the
-    fuel signal (default −1…1 s in 0.1 s steps), the best τ refined by a parabola through the best point
-    and its neighbours. Returns {"shifts_s", "scores", "best_s"}."""
-    shifts = np.round(np.arange(-1.0, 1.0001, 0.1), 10) if shifts_s is None else np.asarray(shifts_s, float)
-    scores = np.array([score(float(s)) for s in shifts])
-    k = int(np.nanargmin(scores))
-    best = shifts[k]
-    if 0 < k < shifts.size - 1:
-        s0, s1, s2 = scores[k - 1: k + 2]
-        curv = s0 - 2 * s1 + s2
-        if curv > 0:
-            best = shifts[k] + 0.5 * (s0 - s2) / curv * (shifts[k + 1] - shifts[k])
-    return {"shifts_s": shifts.tolist(), "scores": scores.tolist(), "best_s": float(best)}
-
-
-# ---- effects as model inputs ---------------------------------------------------------------------------
-
-@dataclass
-class EffectInputs:
-    """What `apply_effects` gives a fit: extra inputs u (N × k) with names, units and orders (nb, nf, nk) per
-    column, the fuel y (advanced by the fuel-delay shift when that effect is on) and the effect parameters."""
-
-    u: np.ndarray
-    names: tuple[str, ...]
-    units: tuple[str, ...]
-    orders: tuple[tuple[int, int, int], ...]
-    y: np.ndarray
-    effects: tuple[str, ...]
-    parameters: dict
-
-    def extend(self, structure):
-        """The model structure with one more input per extra column."""
-        nb, nf, nk = (tuple(o[j] for o in self.orders) for j in range(3))
-        return Structure(nb=structure.nb + nb, nf=structure.nf + nf, nk=structure.nk + nk,
-                         nc=structure.nc, nd=structure.nd, na=structure.na)
-
-
-DELAY_REFERENCE = Structure(nb=(2, 2), nf=(1, 1), nk=(0, 0))
-"""Seed 2's low-order model (output error, two taps and one pole per input, no dead time): the fuel delay is
-estimated and tested on it, since its dynamics cannot absorb a delay the way the paper's five torque taps do."""
-
-
-def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
-    """Seed 2's sweep with the model itself: for each advance τ [s] the fuel is shifted, the model of `structure`
-    on inputs u (N × m) refitted by PEM (warm-started from the fit at τ = 0) on the valid segments, and its
-    simulation RMSE [fuel unit] taken; `sweep_fuel_shift` picks τ."""
-    import warnings
-
-    from fuelid.ident.pem import pem
-    from fuelid.ident.polymodel import simulate
-    from fuelid.ident.validation import rmse
-
-    segs = ds.segments()
-    idx = np.concatenate([np.arange(s.start, s.stop) for s in segs])
-    u0 = np.r_[ds.u0, np.zeros(u.shape[1] - 2)]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        base = pem(u[idx], ds.y[idx], structure, ds.Ts, u0=u0, y0=ds.y0)
-
-        def score(tau):
-            y = shift_signal(ds.y, tau / ds.Ts, segs)[idx]
-            m = pem(u[idx], y, structure, ds.Ts, init=base, u0=u0, y0=ds.y0, max_iter=20)
-            return rmse(y, simulate(m, u[idx]))
-
-        return sweep_fuel_shift(score, shifts_s)
-
-
-def apply_effects(ds, ids, parameters: dict | None = None, structure=None) -> EffectInputs:
-    """Extra inputs and shifted fuel for the effects `ids` ("ID" or "ID=VALUE") on dataset ds.
-
-    parameters: {"fuel_delay": τ [s]} the fuel advance; when fuel_delay is asked for without τ, τ is estimated
-    by `estimate_fuel_delay` with the model structure `structure` (speed, torque inputs; required then).
-    Raises ValueError for an unknown id or an effect whose signals are not logged.
-    """
-    parameters = dict(parameters or {})
-    cols, names, units, orders, used = [], [], [], [], []
-    y = np.asarray(ds.y, float)
-    shift = None
-    for raw in ids:
-        eid, value = parse_effect(raw)
-        effect = get_effect(eid, ds)
-        used.append(effect.id)
-        if effect.form == "shift":
-            shift = value if value is not None else parameters.get(effect.id, "sweep")
-            continue
-        reg = effect.build(ds)
-        if reg is None:
-            raise ValueError(f"effect {effect.id}: its signals ({', '.join(effect.signals)}) are not in the data")
-        cols.append(reg.x)
-        names += [f"{effect.id}: {n}" for n in reg.names]
-        units += list(reg.units)
-        orders += [effect.orders] * reg.x.shape[1]
-    u = np.hstack(cols) if cols else np.zeros((len(y), 0))
-    if shift == "sweep":
-        if structure is None:
-            raise ValueError("fuel_delay needs its shift: give fuel_delay=SECONDS (or a structure to sweep with)")
-        ext = EffectInputs(u, (), (), tuple(orders), y, (), {}).extend(structure)
-        shift = estimate_fuel_delay(ds, np.hstack([ds.u, u]), ext)["best_s"]
-    if shift is not None:
-        parameters["fuel_delay"] = float(shift)
-        y = shift_signal(y, shift / ds.Ts, ds.segments())
-    return EffectInputs(u, tuple(names), tuple(units), tuple(orders), y, tuple(used), parameters)
-
-
-def at_operating_point(ds, model):
-    """ds with the model's speed and torque operating point u0 (regime columns are deviations from it)."""
-    return dataclasses.replace(ds, u0=np.asarray(model.u0[:2], float))
-
-
-def model_data(model, ds) -> tuple[np.ndarray, np.ndarray]:
-    """(u, y) on which `model` runs: the dataset's speed and torque plus the extra inputs of the effects the
-    model includes (model.effects, shift from model.info['effect_parameters']; regimes use the model's
-    operating point), and the (shifted) fuel."""
-    fx = apply_effects(at_operating_point(ds, model), model.effects, model.info.get("effect_parameters"))
-    u = np.hstack([ds.u, fx.u])
-    if u.shape[1] != len(model.B):
-        raise ValueError(f"model has {len(model.B)} inputs but the data and its effects give {u.shape[1]}")
-    return u, fx.y

@@ -33,8 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fuelid.ident import diagnosis as dg
-from fuelid.ident.validation import autocorr_test, crosscorr_test, evaluate
+from fuelid import __version__
+from fuelid.ident.diagnosis import Diagnosis, diagnose
+from fuelid.ident.modelrun import ModelRun, run_model
+from fuelid.ident.validation import autocorr_test, crosscorr_test, metrics
 
 MAX_POINTS = 6000  # points per time-series trace after decimation
 PLOTLY_CONFIG = {"displaylogo": False, "responsive": True}
@@ -98,14 +100,22 @@ def _name(v) -> str:
 
 @dataclasses.dataclass
 class Curve:
-    """One model on the data: its label, colour, run (ident.diagnosis.Run: simulation, 1-step prediction,
-    prediction errors on the grid) and validation metrics (ident.validation.evaluate plus the unit)."""
+    """One model on the data: its label, colour, run (ident.modelrun.ModelRun: simulation, 1-step prediction,
+    prediction errors on the grid; drawn on the segments the diagnosis tests) and validation metrics
+    (ident.validation.metrics plus the unit)."""
 
     label: str
     colour: str
     model: object
-    run: dg.Run
+    run: ModelRun
     metrics: dict
+
+
+def tested_run(model, ds) -> ModelRun:
+    """The ModelRun of `model` on ds; ValueError when it has no segment the diagnosis could test."""
+    run = run_model(model, ds)
+    run.require_tested()
+    return run
 
 
 def structure_text(model) -> str:
@@ -167,9 +177,9 @@ def time_figure(ds, curves: list[Curve], max_points: int = MAX_POINTS) -> dict:
 
     line(np.where(ds.valid, ds.y, np.nan), "measured", MEASURED, 1.4)
     for i, c in enumerate(curves):
-        line(c.run.ysim, f"{c.label}: simulation", c.colour)
+        line(c.run.on_tested(c.run.ysim), f"{c.label}: simulation", c.colour)
         if i == 0:
-            line(c.run.ypred, f"{c.label}: 1-step prediction", "#ff7f0e", 1.0, "dot", "legendonly")
+            line(c.run.on_tested(c.run.ypred), f"{c.label}: 1-step prediction", "#ff7f0e", 1.0, "dot", "legendonly")
     return {"data": traces, "layout": _layout("Measured fuel flow and the model", "time since start [min]",
                                               f"fuel flow [{unit}]", 460)}
 
@@ -180,7 +190,7 @@ def residual_figure(ds, curves: list[Curve], worst: list[dict], max_points: int 
     tmin = _minutes(ds, ds.t)
     traces = []
     for c in curves:
-        x, y = minmax_decimate(tmin, c.run.ysim - c.run.y, max_points)
+        x, y = minmax_decimate(tmin, c.run.on_tested(c.run.ysim) - c.run.y, max_points)
         traces.append({"type": "scatter", "mode": "lines", "x": x, "y": y, "name": f"{c.label}: model − measured",
                        "line": {"color": c.colour, "width": 1.0}})
     # one label row per stretch in a band above the curves, so labels of nearby stretches never overlap
@@ -244,6 +254,7 @@ def error_map_figure(emap: dict, output_unit: str, which: str = "mean_error") ->
 
 
 def _plot(fig: dict, div_id: str) -> str:
+    # plotly takes about a second to import: loaded only when a report is drawn
     import plotly.graph_objects as go  # validates every property name and value
     import plotly.io as pio
 
@@ -366,21 +377,24 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, title: 
                   truck: str | None = None, files=(), max_points: int = MAX_POINTS, top: int = 12) -> str:
     """The report of `model` (ident.polymodel.PolyModel) on dataset ds as one HTML page (module docstring).
 
-    diagnosis: ident.diagnosis.diagnose(model, ds) when already computed (else it is computed here); after:
+    diagnosis: ident.diagnosis.diagnose(model, ds) when already computed (else it is computed here; its model run
+    is reused), or a saved `fuelid diagnose --json` result (the model is run again); after:
     (label, PolyModel) pairs of models refitted with effects added, compared on the same data; truck, files:
     for the header; max_points: the decimation budget per time-series trace; top: candidates shown unfolded.
     Raises ValueError (from the diagnosis) when no valid segment is long enough; FuelidError on unit mismatch.
     """
-    import plotly.offline
+    import plotly.offline  # heavy: loaded only when a report is drawn (see _plot)
 
-    from fuelid import __version__
-
-    diagnosis = diagnosis if diagnosis is not None else dg.diagnose(model, ds)
+    diagnosis = diagnosis if diagnosis is not None else diagnose(model, ds)
+    if isinstance(diagnosis, Diagnosis):  # its model run is the report's
+        run, diagnosis = diagnosis.run, diagnosis.to_json()
+    else:  # a saved `fuelid diagnose --json`: the model is run again
+        run = tested_run(model, ds)
     unit = ds.output_unit
-    curves = [Curve("before" if after else "model", COLOURS[0], model, dg.run_model(model, ds),
-                    diagnosis["compare"])]
+    curves = [Curve("before" if after else "model", COLOURS[0], model, run, diagnosis["compare"])]
     for i, (label, m) in enumerate(after, 1):
-        curves.append(Curve(label, COLOURS[i % len(COLOURS)], m, dg.run_model(m, ds), evaluate(m, ds)))
+        run = tested_run(m, ds)
+        curves.append(Curve(label, COLOURS[i % len(COLOURS)], m, run, metrics(run, ds)))
     fails = diagnosis["where_it_fails"]
     white = fails["whiteness"]
     worst = fails["worst_segments"]

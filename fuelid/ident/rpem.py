@@ -58,8 +58,8 @@ Convergence reports (per sample in `Trace`, running in `report()`): the relative
 samples: the one-step prediction fit 100 (1 − ‖ε‖/‖ỹ − mean‖) and the simulation fit with v in place of ε
 (restarted when the output-error phase ends: its errors from θ = 0 would dominate the window for hours).
 
-The per-sample loop is compiled with numba (`_run`); this module imports numpy and numba only, so the in-cab
-live estimator stays light (ident.polymodel, which imports SciPy, is imported when a PolyModel is made).
+The per-sample loop is compiled with numba (`_run`); this module imports numpy, numba and ident.polymodel (which
+loads scipy.signal only on first use), so the in-cab live estimator stays light.
 """
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Validation metrics of seed paper 000 (Section IV–V): fit, whiteness tests, cumulative fuel error.
 
 Plain functions over arrays. Samples that are NaN (invalid stretches of a dataset) are left out of every
-sum, so a signal with gaps can be passed as it is; a model must still be run per segment by the caller
-(``evaluate`` does that for a PolyModel and a Dataset).
+sum, so a signal with gaps can be passed as it is; a model is run per segment by ident.modelrun, whose
+ModelRun `metrics` reads (``evaluate`` runs a PolyModel on a Dataset and reads it).
 
 Correlations follow Ljung, *System Identification* (1999), §16.6, as MATLAB's ``resid`` does:
 
@@ -25,8 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
-from fuelid.errors import FuelidError
-from fuelid.ident.polymodel import predict, residuals, simulate
+from fuelid.errors import FuelidError, InputError
+from fuelid.ident.modelrun import ModelRun, run_model
+from fuelid.ident.polymodel import predict
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ def _centred(x) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(x, dtype=float)
     ok = np.isfinite(x)
     if not ok.any():
-        raise ValueError("no finite samples")
+        raise InputError("no finite samples")
     x = np.where(ok, x - x[ok].mean(), 0.0)
     return x, ok
 
@@ -163,44 +164,47 @@ def error_table(errors) -> dict[str, float]:
     return {"mean": float(v.mean()), "rms": float(np.sqrt(np.mean(v ** 2)))}
 
 
-def _per_segment(fn, segments, n: int, n_skip: int = 0) -> np.ndarray:
-    """fn(slice) run on each segment, NaN elsewhere (n samples) and on each segment's first n_skip samples."""
-    out = np.full(n, np.nan)
-    for s in segments:
-        r = np.asarray(fn(s), float)
-        r[:n_skip] = np.nan
-        out[s] = r
-    return out
-
-
 def evaluate(model, ds, k: int = 1, max_lag: int = 25) -> dict:
-    """The validation metrics of a PolyModel on a Dataset, JSON-ready.
+    """The validation metrics of a PolyModel on a Dataset, JSON-ready: `metrics` of its run (ident.modelrun).
 
     The model's inputs are the data's engine speed and torque plus those of the effects it includes
-    (ident.effects.model_data; the fuel shifted when it includes the fuel delay). It runs on each segment of
-    ds separately from zero initial state, and its first n_start samples per segment, where the state is
-    unknown, are left out of every metric: simulation ŷ_s, k-step prediction ŷ_k, one-step residual ε.
+    (ident.modeldata.model_data; the fuel shifted when it includes the fuel delay). Raises FuelidError when its
+    units are not the data's or the data lack its effects' signals."""
+    check_units(model, ds)
+    return metrics(run_model(model, ds), ds, k, max_lag)
+
+
+def check_units(model, ds) -> None:
+    """Raise FuelidError unless the model's speed, torque and fuel units are the dataset's."""
+    if tuple(model.input_units[:2]) != tuple(ds.input_units) or model.output_unit != ds.output_unit:
+        raise FuelidError(f"model units {list(model.input_units[:2])} -> {model.output_unit} do not match the "
+                          f"data's {list(ds.input_units)} -> {ds.output_unit}")
+
+
+def metrics(run: ModelRun, ds, k: int = 1, max_lag: int = 25) -> dict:
+    """The validation metrics of a model run (ident.modelrun.ModelRun) on dataset ds, JSON-ready.
+
+    The model ran on each segment of ds separately from zero initial state, and its first n_start samples per
+    segment, where the state is unknown, are left out of every metric: simulation ŷ_s, k-step prediction ŷ_k,
+    one-step residual ε.
     Returns
       fit_percent {simulation, prediction}   [%]   (fit_percent)
       rmse {simulation, prediction}          [output unit]
       whiteness {autocorr_pass, crosscorr_pass {input name: bool}, max_lag}   (eqs. 18–19 on ε)
       cycle_fuel_error_percent {cycle id: E, mean, rms}   (eq. 20 on ŷ_s, absolute flow)
     """
-    from fuelid.ident.effects import model_data
-
-    if tuple(model.input_units[:2]) != tuple(ds.input_units) or model.output_unit != ds.output_unit:
-        raise FuelidError(f"model units {list(model.input_units[:2])} -> {model.output_unit} do not match the "
-                          f"data's {list(ds.input_units)} -> {ds.output_unit}")
-    try:
-        u, y = model_data(model, ds) if model.effects else (ds.u, ds.y)
-    except ValueError as exc:
-        raise FuelidError(str(exc)) from exc
-    segs, n0, N = ds.segments(), model.structure.n_start, len(ds)
-    ysim = _per_segment(lambda s: simulate(model, u[s]), segs, N, n0)
-    ypred = _per_segment(lambda s: predict(model, u[s], y[s], k), segs, N, n0)
-    eps = _per_segment(lambda s: residuals(model, u[s], y[s]), segs, N, n0)
+    check_units(run.model, ds)
+    model, u, eps = run.model, run.u, run.eps
+    ysim = run.settled(run.ysim)
+    if k == 1:
+        ypred = run.settled(run.ypred)
+    else:
+        ypred = np.full(len(run.y), np.nan)
+        for s in run.segments:
+            ypred[s] = predict(model, u[s], run.y[s], k)
+        ypred = run.settled(ypred)
     used = np.isfinite(eps)
-    y = np.where(used, y, np.nan)
+    y = np.where(used, run.y, np.nan)
     auto = autocorr_test(eps, max_lag)
     cross = crosscorr_test(eps, np.where(used[:, None], u, np.nan), max_lag)
     cycles = cycle_fuel_error(y, ysim, ds.cycle, ds.Ts)

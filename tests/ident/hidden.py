@@ -29,6 +29,7 @@ from scipy.ndimage import shift as spline_shift
 from scipy.signal import lfilter
 
 from fuelid.ident.dataset import Dataset
+from fuelid.ident.identify import effect_inputs
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure
 
@@ -172,9 +173,7 @@ def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitu
 
 def identify(ds, structure: Structure = PAPER, effects=()) -> PolyModel:
     """The model `fuelid identify` makes of ds (paper orders by default) with the effects added."""
-    from fuelid.ident.effects import apply_effects
-
-    fx = apply_effects(ds, list(effects), structure=structure)
+    fx = effect_inputs(ds, list(effects), structure)
     u = np.hstack([ds.u, fx.u])
     segs = [s for s in ds.segments() if s.stop - s.start > 100]
     with warnings.catch_warnings():

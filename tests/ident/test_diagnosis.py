@@ -9,6 +9,11 @@ from scipy.signal import lfilter
 from scipy.stats import chi2, kstest
 
 from fuelid.ident import diagnosis as dg
+from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis import statistics as st
+from fuelid.ident.diagnosis.entries import ENTRIES
+from fuelid.ident.diagnosis.verification import block_cv
+from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from tests.ident import hidden
 
@@ -29,13 +34,13 @@ def test_score_test_is_n_r2_for_white_noise_and_holm_is_step_down():
     rng = np.random.default_rng(0)
     e, X = rng.normal(size=5000), rng.normal(size=(5000, 2))
     e2 = e + 0.1 * X[:, 0]
-    res = dg.score_test(e2, X, hac_lags=0)
+    res = st.score_test(e2, X, hac_lags=0)
     r2 = 1 - np.sum((e2 - X @ np.linalg.lstsq(X, e2, rcond=None)[0]) ** 2) / np.sum(e2**2)
     assert res.df == 2 and res.statistic == pytest.approx(5000 * r2, rel=0.05)
     assert res.p_value == pytest.approx(chi2.sf(res.statistic, 2))
-    adj, rej = dg.holm([0.01, 0.04, 0.03, 0.5], 0.05)
+    adj, rej = st.holm([0.01, 0.04, 0.03, 0.5], 0.05)
     assert np.allclose(adj, [0.04, 0.09, 0.09, 0.5]) and rej.tolist() == [True, False, False, False]
-    assert dg.score_test(e, X[:, :1], Q=dg.nuisance_basis(X[:, :1])).df == 0  # nothing left to test
+    assert st.score_test(e, X[:, :1], Q=st.nuisance_basis(X[:, :1])).df == 0  # nothing left to test
 
 
 def test_level_test_whitens_coloured_noise_under_the_alternative():
@@ -43,15 +48,15 @@ def test_level_test_whitens_coloured_noise_under_the_alternative():
     shift a regressor as slow as the noise (the hardest case: a spurious regression without whitening) is
     flagged at 5 % in at most 12 % of 100 trials (measured 9 % over 200)."""
     n, p_null = 6000, []
-    Q = dg.nuisance_basis(np.ones((n, 1)))
+    Q = st.nuisance_basis(np.ones((n, 1)))
     for seed in range(100):
         noise = lfilter([1.0], [1.0, -0.98], np.random.default_rng(seed).normal(size=n))
         x = lfilter([1.0], [1.0, -0.98], np.random.default_rng(1000 + seed).normal(size=n))[:, None]
-        p_null.append(dg.level_test(noise - noise.mean(), x - x.mean(), [n], Q)[0].p_value)
+        p_null.append(st.level_test(noise - noise.mean(), x - x.mean(), [n], Q)[0].p_value)
     assert np.mean(np.array(p_null) < 0.05) <= 0.12
     step = (np.arange(n) > n // 2).astype(float)[:, None]
     shifted = lfilter([1.0], [1.0, -0.98], np.random.default_rng(1).normal(size=n)) + 6.0 * step[:, 0]
-    found, left = dg.level_test(shifted - shifted.mean(), step - step.mean(), [n], Q)  # noise std 5
+    found, left = st.level_test(shifted - shifted.mean(), step - step.mean(), [n], Q)  # noise std 5
     assert found.p_value < 1e-6 and left < 0.9
 
 
@@ -61,14 +66,14 @@ def test_block_cv_is_exact_leave_one_block_out_least_squares():
     rng = np.random.default_rng(3)
     Z = rng.normal(size=(500, 4))
     r = Z @ [1.0, -2.0, 0.5, 0.0] + rng.normal(size=500)
-    out = dg.block_cv(r, dg.nuisance_basis(Z), 60)
+    out = block_cv(r, st.nuisance_basis(Z), 60)
     for a in range(0, 500, 60):
         fit = np.r_[0:a, a + 60:500]
         coef = np.linalg.lstsq(Z[fit], r[fit], rcond=None)[0]
         assert np.allclose(out[a:a + 60], r[a:a + 60] - Z[a:a + 60] @ coef)
     in_sample = r - Z @ np.linalg.lstsq(Z, r, rcond=None)[0]
     assert np.sum(out**2) > np.sum(in_sample**2)
-    h_block = dg.block_cv(r, dg.nuisance_basis(Z), 60, buffer=20)  # each block fitted without it and 20 either side
+    h_block = block_cv(r, st.nuisance_basis(Z), 60, buffer=20)  # each block fitted without it and 20 either side
     for a in range(0, 500, 60):
         fit = np.r_[0:max(a - 20, 0), min(a + 80, 500):500]
         coef = np.linalg.lstsq(Z[fit], r[fit], rcond=None)[0]
@@ -81,59 +86,59 @@ def test_free_responses_span_any_initial_state():
     x = np.random.default_rng(4).normal(size=300)
     started = lfilter([1.0], F, x, zi=[0.8, -0.3])[0]
     diff = started - lfilter([1.0], F, x)
-    cols = dg.free_responses([F], 300)
+    cols = st.free_responses([F], 300)
     assert cols.shape == (300, 2)
     assert np.allclose(cols @ np.linalg.lstsq(cols, diff, rcond=None)[0], diff)
 
 
 @pytest.mark.parametrize("effect, check", [
-    ("dpf_regeneration", lambda r: 8 < r["size"]["percent_change_when_on"] < 14),
-    ("inertia", lambda r: abs(r["size"]["inertia_kgm2"] - hidden.J) < 0.2 * hidden.J),
+    ("dpf_regeneration", lambda r: 8 < r.size["percent_change_when_on"] < 14),
+    ("inertia", lambda r: abs(r.size["inertia_kgm2"] - hidden.J) < 0.2 * hidden.J),
 ])
 def test_hidden_effect_is_found_first_explained_and_verified(effect, check):
     ds = hidden.make(effect, seed=1)
     out = dg.diagnose(fitted(ds), ds)
-    top = out["candidates"][0]
-    assert top["effect"] == effect and top["significant"]
-    assert top["p_value"] < 1e-3 and top["estimated_drop_percent"] > 5
-    v = top["verification"]  # the held-out error falls by ≥ 25 % or to the noise floor (+5 %)
+    top = out.candidates[0]
+    assert top.effect == effect and top.significant
+    assert top.p_value < 1e-3 and top.estimated_drop_percent > 5
+    v = top.verification  # the held-out error falls by ≥ 25 % or to the noise floor (+5 %)
     assert v["rmse_drop_percent"] > 25 or (v["rmse_drop_percent"] > 5 and v["rmse_with"] < 1.05 * NOISE_FLOOR), v
-    assert check(top), top["size"]
-    assert f"add effect {effect}" in top["explanation"] and out["verdict"].startswith("Missing effect")
+    assert check(top), top.size
+    assert f"add effect {effect}" in top.explanation and out.verdict.startswith("Missing effect")
     for key in ("effect", "signals", "spns", "statistic", "p_value", "significant", "rmse_drop_percent",
                 "explanation", "p_holm", "test_significant", "estimated_drop_percent", "verification", "tests"):
-        assert key in top
+        assert key in top.to_json()  # what `fuelid diagnose --json` lists
 
 
 def test_an_effect_nobody_listed_is_found_and_named_by_its_bus_signal():
     """Fuel 1.5 L/h higher while an unknown ECU state is 2: found as that signal's state, by its DBC name."""
     ds = hidden.make("unlisted", seed=1)
     out = dg.diagnose(fitted(ds), ds)
-    top = out["candidates"][0]
-    assert top["effect"] == "state:XX.UnknownState" and top["significant"], out["verdict"]
-    assert top["verification"]["rmse_drop_percent"] > 5 and "XX.UnknownState" in top["explanation"]
+    top = out.candidates[0]
+    assert top.effect == "state:XX.UnknownState" and top.significant, out.verdict
+    assert top.verification["rmse_drop_percent"] > 5 and "XX.UnknownState" in top.explanation
 
 
 def test_a_fuel_signal_delay_is_named_with_its_size_though_the_model_absorbs_it():
     """A 0.4 s delay, tested on seed 2's reference model, which cannot absorb it; the model's own taps absorb part
     of it (with the paper's five torque taps, all: tests/ident/test_hidden_effects.py)."""
     ds = hidden.make("fuel_delay", seed=1, delay_s=0.4)
-    top = dg.diagnose(fitted(ds), ds)["candidates"][0]
-    v = top["verification"]
-    assert top["effect"] == "fuel_delay" and top["significant"] and "tests" in top
-    assert abs(top["size"]["delay_s"] - 0.4) <= 0.1 and top["spec"] == f"fuel_delay={top['size']['delay_s']:.2f}"
+    top = dg.diagnose(fitted(ds), ds).candidates[0]
+    v = top.verification
+    assert top.effect == "fuel_delay" and top.significant and top.tests is not None
+    assert abs(top.size["delay_s"] - 0.4) <= 0.1 and top.spec == f"fuel_delay={top.size['delay_s']:.2f}"
     assert v["reference"]["rmse_drop_percent"] > max(5, v["rmse_drop_percent"]) and v["direction"] == 1
-    assert "lags speed and torque" in top["explanation"]
+    assert "lags speed and torque" in top.explanation
 
 
 def test_a_candidate_fitted_against_its_physics_is_not_confirmed():
     """Fuel 11 % lower while SPN 3700 says 'regenerating' is something, but not a DPF regeneration."""
     ds = hidden.make("dpf_regeneration", seed=1, size=-0.11)
     out = dg.diagnose(fitted(ds), ds)
-    row = next(r for r in out["candidates"] if r["effect"] == "dpf_regeneration")
-    assert row["test_significant"] and row["verification"]["rmse_drop_percent"] > 5
-    assert row["verification"]["direction"] == -1 and not row["significant"]
-    assert "the other way" in row["explanation"]
+    row = next(r for r in out.candidates if r.effect == "dpf_regeneration")
+    assert row.test_significant and row.verification["rmse_drop_percent"] > 5
+    assert row.verification["direction"] == -1 and not row.significant
+    assert "the other way" in row.explanation
 
 
 def test_no_hidden_effect_no_significant_candidate_and_calibrated_p_values():
@@ -143,10 +148,10 @@ def test_no_hidden_effect_no_significant_candidate_and_calibrated_p_values():
     for seed in range(12):
         ds = hidden.make(None, n=4000, seed=100 + seed)
         m = fitted(ds)
-        rows = [r for r in dg.rank_candidates(m, ds, dg.run_model(m, ds)) if r["testable"]]
-        alarms += any(r["test_significant"] for r in rows)
+        rows = [r for r in dg.rank_candidates(m, ds, dg.run_gradients(run_model(m, ds))) if r.testable]
+        alarms += any(r.test_significant for r in rows)
         for r in rows:
-            for test, result in r["tests"].items():
+            for test, result in r.tests.items():
                 p_values.setdefault(test, []).append(result["p_value"])
     assert alarms <= 1
     for p in p_values.values():
@@ -156,12 +161,27 @@ def test_no_hidden_effect_no_significant_candidate_and_calibrated_p_values():
 def test_where_it_fails_sections():
     ds = hidden.make("dpf_regeneration", n=4000, seed=2)
     out = dg.diagnose(fitted(ds), ds, n_verify=0)
-    worst = out["where_it_fails"]["worst_segments"]
+    worst = out.where_it_fails["worst_segments"]
     assert worst and "DPF active regeneration" in worst[0]["context"]
-    emap = out["where_it_fails"]["error_map"]
+    emap = out.where_it_fails["error_map"]
     assert np.array(emap["count"]).sum() > 3000 and len(emap["speed_edges_rpm"]) == 9
-    white, compared = out["where_it_fails"]["whiteness"], out["compare"]["whiteness"]
+    white, compared = out.where_it_fails["whiteness"], out.compare["whiteness"]
     assert not white["autocorr_pass"]  # the regeneration is left in the residual
     assert white["autocorr_pass"] == compared["autocorr_pass"]  # one settling rule: the report never says both
     assert white["crosscorr_pass"] == compared["crosscorr_pass"]
-    assert out["compare"]["fit_percent"]["simulation"] > 50
+    assert out.compare["fit_percent"]["simulation"] > 50
+
+
+def test_every_effect_enters_the_model_one_known_way():
+    """Each catalogue effect's entry kind is one of ident.diagnosis.entries.ENTRIES (the one place a new kind goes)."""
+    ds = hidden.make(None, n=500)
+    assert {e.enters for e in list(fx.EFFECTS.values()) + fx.generic_effects(ds)} <= set(ENTRIES)
+    assert fx.EFFECTS["fuel_delay"].enters == "shift" and fx.EFFECTS["engine_fan"].enters == "torque"
+
+
+def test_an_untested_candidate_lists_only_what_was_found():
+    """A candidate whose bus signals are not logged serialises without test results (as `fuelid diagnose --json`)."""
+    c = dg.Candidate("pto", "power take-off", "regime", ["CCVS1.PTOGovernorState"], [976], "…", "not testable")
+    assert list(c.to_json()) == ["effect", "name", "form", "signals", "spns", "testable", "statistic", "df",
+                                 "p_value", "significant", "test_significant", "estimated_drop_percent",
+                                 "explanation", "rmse_drop_percent", "verification", "conditional", "explained_by"]

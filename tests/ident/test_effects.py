@@ -1,4 +1,4 @@
-"""ident.effects: the effect library, its regressors, the fuel shift and apply_effects."""
+"""ident.effects: the effect library and its regressors."""
 import numpy as np
 import pytest
 
@@ -47,38 +47,3 @@ def test_regressors_units_and_physics():
 
 def test_held_fills_gaps_with_the_last_value():
     assert np.array_equal(fx.held([np.nan, 1, np.nan, np.nan, 3, np.nan]), [1, 1, 1, 1, 3, 3])
-
-
-def test_fractional_shift_and_sweep_find_a_hidden_delay():
-    """Seed 2's static model and ±1 s sweep: a 0.4 s fuel delay is found within ±0.1 s."""
-    rng = np.random.default_rng(3)
-    ts, n = 0.3, 6000
-    t = np.arange(n) * ts
-    speed = 600 + 1300 * np.abs(np.sin(t / 37)) + np.convolve(rng.normal(0, 60, n), np.ones(5) / 5, "same")
-    torque = 800 + 700 * np.sin(t / 11 + 1) + np.convolve(rng.normal(0, 100, n), np.ones(3) / 3, "same")
-    fuel = 2.5 + 0.002 * (speed - 600) + 0.03 * torque + 1e-5 * (speed - 600) * torque / 10
-    measured = fx.shift_signal(fuel, -0.4 / ts) + rng.normal(0, 0.3, n)  # lags by 0.4 s
-
-    def static_rmse(tau):
-        y = fx.shift_signal(measured, tau / ts)
-        X = np.column_stack([np.ones(n), speed, torque, speed * torque, speed**2, torque**2])
-        r = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
-        return float(np.sqrt(np.mean(r[10:-10] ** 2)))
-
-    sweep = fx.sweep_fuel_shift(static_rmse)
-    assert abs(sweep["best_s"] - 0.4) <= 0.1
-    assert len(sweep["shifts_s"]) == 21
-
-
-def test_apply_effects_gives_inputs_orders_and_structure():
-    ds = hidden.make(None, n=2000)
-    out = fx.apply_effects(ds, ["inertia", "dpf_regeneration", "fuel_delay=0.3"])
-    assert out.u.shape == (2000, 4) and out.effects == ("inertia", "dpf_regeneration", "fuel_delay")
-    assert out.parameters == {"fuel_delay": 0.3}
-    s = out.extend(hidden.STRUCTURE)
-    assert s.n_inputs == 6 and s.nb[2:] == (2, 1, 1, 1)
-    assert np.allclose(out.y[5:-5], fx.shift_signal(ds.y, 1.0)[5:-5])
-    with pytest.raises(ValueError, match="unknown effect"):
-        fx.apply_effects(ds, ["warp_drive"])
-    with pytest.raises(ValueError, match="fuel_delay needs"):
-        fx.apply_effects(ds, ["fuel_delay"])

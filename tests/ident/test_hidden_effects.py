@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from fuelid.ident import diagnosis as dg
-from fuelid.ident.effects import DELAY_REFERENCE, estimate_fuel_delay
+from fuelid.ident.fueldelay import DELAY_REFERENCE
+from fuelid.ident.identify import estimate_fuel_delay
 from tests.ident import hidden
 
 FLOOR_TOLERANCE = 1.05
@@ -25,7 +26,7 @@ FLOOR_TOLERANCE = 1.05
 @functools.cache
 def diagnosed(effect, seed, routes_of=None):
     ds, truth, summary = hidden.simulated(effect, seed, routes_of=routes_of)
-    return dg.diagnose(hidden.identify(ds), ds), truth, summary
+    return dg.diagnose(hidden.identify(ds), ds).to_json(), truth, summary  # as `fuelid diagnose --json` prints it
 
 
 def names(row, effect, summary) -> bool:

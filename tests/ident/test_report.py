@@ -10,7 +10,8 @@ import pytest
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import report as rp
-from fuelid.ident.effects import apply_effects
+from fuelid.ident.modeldata import apply_effects
+from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from fuelid.ident.validation import evaluate
 from tests.ident import hidden
@@ -32,8 +33,9 @@ def case():
     """(dataset, model, diagnosis, after model, page) for a 15-minute trip with two DPF regenerations."""
     ds = hidden.make("dpf_regeneration", n=3000, seed=2)
     model, after = fit(ds), fit(ds, ["dpf_regeneration"])
-    diagnosis = dg.diagnose(model, ds, n_verify=1)
-    page = rp.render_report(model, ds, diagnosis, after=[("with DPF", after)], truck="TRUCK-42",
+    found = dg.diagnose(model, ds, n_verify=1)
+    diagnosis = found.to_json()
+    page = rp.render_report(model, ds, found, after=[("with DPF", after)], truck="TRUCK-42",
                             files=["trip.mcap"], top=5)
     return ds, model, diagnosis, after, page
 
@@ -148,7 +150,7 @@ def test_figures_carry_the_diagnosis_numbers_and_units(case):
     np.testing.assert_allclose(fig["data"][0]["x"], np.arange(1, len(auto["lags"])) * ds.Ts)
     assert fig["data"][1]["y"] == [auto["bound"]] * 2 and fig["data"][2]["y"] == [-auto["bound"]] * 2
 
-    run = dg.run_model(model, ds)
+    run = run_model(model, ds)
     curves = [rp.Curve("before", "#000", model, run, diagnosis["compare"])]
     res = rp.residual_figure(ds, curves, fails["worst_segments"])
     assert [n["text"].split(" ", 1)[1] for n in res["layout"]["annotations"]] == \

@@ -1,0 +1,21 @@
+"""The diagnosis loop: compare a model with measurements, see where it fails, learn which physical effect is
+missing (ident.effects), and verify it by refitting.
+
+The package follows the loop, each module using only those before it:
+
+    statistics    the score tests, the AR whitener, Holm (plain arrays)
+    run           the model run the diagnosis tests (ident.modelrun) and its gradients
+    failures      where the model fails: whiteness, worst stretches, error map
+    verification  the linearised refit scored on held-out blocks
+    delay         the fuel-signal delay, tested and verified on seed 2's reference model
+    explanation   the sentence and the size of an effect
+    candidate     Candidate, a candidate effect as a typed record, and what its tests found
+    entries       how an effect enters the model (additive, scales the fuel, a torque, a shift): its columns,
+                  tests and verification, one class per kind
+    ranking       the candidates' tests, Holm, verification, the conditional check: `diagnose` → Diagnosis
+"""
+from fuelid.ident.diagnosis.candidate import Candidate
+from fuelid.ident.diagnosis.ranking import Diagnosis, diagnose, rank_candidates
+from fuelid.ident.diagnosis.run import Run, run_gradients
+
+__all__ = ["Candidate", "Diagnosis", "Run", "diagnose", "rank_candidates", "run_gradients"]

@@ -1,0 +1,74 @@
+"""A candidate effect of the diagnosis as a typed record: what its tests found (`Evidence`) and what the diagnosis
+says of it (`Candidate`, serialised by `to_json` as `fuelid diagnose --json` lists it)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fuelid.ident import effects as fx
+
+JSON_FIELDS = ("effect", "spec", "name", "form", "signals", "spns", "statistic", "df", "p_value", "log10_p",
+               "testable", "tests", "estimated_drop_percent", "size", "explanation", "physics", "p_holm",
+               "test_significant", "significant", "rmse_drop_percent", "verification", "conditional", "explained_by")
+UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "statistic", "df", "p_value",
+                   "significant", "test_significant", "estimated_drop_percent", "explanation", "rmse_drop_percent",
+                   "verification", "conditional", "explained_by")
+
+
+@dataclass
+class Evidence:
+    """What an entry kind's test of an effect found (ident.diagnosis.entries): reg its regressors on the dataset
+    grid, x their lagged columns in the fuel domain stacked like Run.r, tests {name: ScoreTest}, left the fraction
+    of the simulation error left after fitting them, coef the coefficients the explanation starts from, ref the
+    reference model of a fuel-signal delay (ident.diagnosis.delay.Reference) or None."""
+
+    reg: fx.Regressors
+    x: np.ndarray
+    tests: dict
+    left: float
+    coef: np.ndarray
+    ref: object = None
+
+
+@dataclass
+class Candidate:
+    """One candidate effect (ident.diagnosis.diagnose's docstring lists the fields). `tests` is None when its bus
+    signals are not in the data (then it serialises only the fields an untested candidate has); definition,
+    entry, reg, x, w (x in the domain of w, A x), X (its verified columns) and ref are the working data of the
+    diagnosis, never serialised."""
+
+    effect: str
+    name: str
+    form: str
+    signals: list
+    spns: list
+    physics: str
+    explanation: str
+    spec: str | None = None
+    statistic: float | None = None
+    df: int = 0
+    p_value: float | None = None
+    log10_p: float = 0.0
+    testable: bool = False
+    tests: dict | None = None
+    estimated_drop_percent: float | None = None
+    size: dict | None = None
+    p_holm: float | None = None
+    test_significant: bool = False
+    significant: bool = False
+    rmse_drop_percent: float | None = None
+    verification: dict | None = None
+    conditional: dict | None = None
+    explained_by: str | None = None
+    definition: fx.Effect | None = field(default=None, repr=False)
+    entry: object = field(default=None, repr=False)
+    reg: fx.Regressors | None = field(default=None, repr=False)
+    x: np.ndarray | None = field(default=None, repr=False)
+    w: np.ndarray | None = field(default=None, repr=False)
+    X: np.ndarray | None = field(default=None, repr=False)
+    ref: object = field(default=None, repr=False)
+
+    def to_json(self) -> dict:
+        """The candidate as `fuelid diagnose --json` lists it."""
+        return {k: getattr(self, k) for k in (JSON_FIELDS if self.tests is not None else UNTESTED_FIELDS)}

@@ -1,0 +1,201 @@
+"""How an effect enters the model, for the diagnosis: each entry kind (ident.effects.Effect.enters) says how its
+regressors become the test's columns, how it is tested and verified, and how its size is said. A new kind is one
+class here and its name in ENTRIES.
+
+    additive     y + Σ_l β_l x(t − l): the effect's columns at its lags (an input, a nonlinearity, a regime)
+    scales_fuel  y (1 + m x): the columns x and x·ŷ (ŷ the model's simulated fuel: the gradient at m = 0, with
+                 the model's dynamics); its direction is judged on x·ŷ
+    torque       a torque T + κ x the fuel burns for and the bus does not report: the fuel the model's torque
+                 path makes of it, B_T/(A F_T) x (the gradient at κ = 0, one column)
+    shift        the fuel signal's delay y(t − τ): tested and verified on seed 2's reference model
+                 (ident.diagnosis.delay), not on the model itself
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis.candidate import Candidate, Evidence
+from fuelid.ident.diagnosis.delay import reference_fit, shift_test, verify_shift
+from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain, signals_text, static_gain
+from fuelid.ident.diagnosis.run import Run
+from fuelid.ident.diagnosis.statistics import lagged, level_test, one_blas_thread, score_test
+from fuelid.ident.diagnosis.verification import verify
+from fuelid.ident.modeldata import at_operating_point
+from fuelid.ident.polymodel import PolyModel
+
+
+class Additive:
+    """y + Σ_l β_l x(t − l), tested on the model itself by both tests (ident.diagnosis.statistics, 1–2) and
+    verified by its linearised refit (ident.diagnosis.verification); a regressor in the model's torque unit is
+    verified with its image through the torque path beside it."""
+
+    retested = True  # re-tested given the effects accepted before it (ident.diagnosis.ranking, 5)
+    drop_in_verdict = True  # the verdict quotes the model's held-out RMS error drop
+    also_through_torque = True
+
+    def regressors(self, reg: fx.Regressors, run: Run, ds) -> fx.Regressors:
+        """The regressors the test uses, from the effect's own (on the dataset grid)."""
+        return reg
+
+    def path(self, model: PolyModel, x: np.ndarray) -> np.ndarray:
+        """The lagged columns x of one segment in the fuel domain."""
+        return x
+
+    def columns(self, model: PolyModel, ds, run: Run, effect: fx.Effect):
+        """(Regressors on the dataset grid, their prewhitened lagged image ψ_x stacked over the run's segments
+        after their first run.warm samples, the lagged columns in the fuel domain likewise); None when the
+        effect's signals are not logged."""
+        reg = effect.build(ds)
+        if reg is None:
+            return None
+        reg = self.regressors(reg, run, ds)
+        psi, raw = [], []
+        for seg in run.segs:
+            x = self.path(model, lagged(np.nan_to_num(reg.x[seg]), effect.lags))
+            psi.append(lfilter(model.D, model.C, x, axis=0)[run.warm:])
+            raw.append(x[run.warm:])
+        return reg, np.vstack(psi), np.vstack(raw)
+
+    def test(self, model: PolyModel, ds, run: Run, effect: fx.Effect) -> Evidence | None:
+        """Both tests on the model itself; None when the effect's signals are not logged."""
+        cols = self.columns(model, ds, run, effect)
+        if cols is None:
+            return None
+        reg, psi, raw = cols
+        with one_blas_thread():
+            pred = score_test(run.e, psi, run.Q)
+            level, left = level_test(run.r, lfilter(model.A, [1.0], raw, axis=0), run.lens, run.QG)  # w has A x
+        return Evidence(reg, raw, {"prediction_error": pred, "simulation_error": level}, left, pred.coef)
+
+    def direction_regressor(self, c: Candidate, run: Run) -> np.ndarray:
+        """The regressor the refit's change of the fuel must covary with in the effect's direction (Effect.sign):
+        its first column x (for a regime: the mean change on minus off)."""
+        return c.x[:, 0]
+
+    def verify(self, c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray) -> dict:
+        """verify() the candidate against the model as it is (with its torque-path column when its regressor is a
+        torque); its explanation re-made from the refit's β."""
+        effect, X, Xy = c.definition, c.w, c.x
+        through_torque = (self.also_through_torque and effect.form == "input"
+                          and c.reg.units == (ds.input_units[1],))
+        if through_torque:
+            X, Xy = (np.column_stack(p) for p in zip((X, Xy), torque_path_columns(model, run, c.reg.x[:, 0])))
+        v, beta, change = verify(run, X, model, ds, base, base_ysim)
+        c.X = X  # for the conditional check on top of the candidates accepted before it
+        # does the fuel rise or fall with the effect? The covariance of the change adding it makes to the held-out
+        # fuel (its own part and the model's re-fitted gains and offset together) with its direction regressor
+        x0 = self.direction_regressor(c, run)
+        v["direction"] = int(np.sign((change - change.mean()) @ (x0 - x0.mean())))
+        if v["rmse_drop_percent"] > 0:  # the held-out-checked refit measures it better
+            n_lagged = c.x.shape[1]
+            gains = beta[:n_lagged].reshape(len(effect.lags), -1).sum(axis=0)
+            if through_torque:
+                gains = gains + beta[-1] * static_gain(model, 1)
+            c.explanation, c.size = explain(self, effect, c.reg, contribution_on_grid(effect.form, Xy, beta, run),
+                                            gains, [model], at_operating_point(ds, model), run)
+        return v
+
+    def relevance(self, v: dict) -> float:
+        """The held-out RMS error drop [%] that decides a verification."""
+        return v["rmse_drop_percent"]
+
+    def sentence(self, effect, reg, gains, size: dict, sig: str, act: str) -> str | None:
+        """The kind's own explanation (ident.diagnosis.explanation.explain), None for the common ones."""
+        return None
+
+
+class ScalesFuel(Additive):
+    """y (1 + m x): a regeneration's post-injection, enrichment when cold or in thin air, no injection at all on
+    overrun. Tested on x and x·ŷ; its direction judged on x·ŷ."""
+
+    def regressors(self, reg, run, ds):
+        x = reg.x[:, 0]
+        return fx.Regressors(np.column_stack([x, x * run.ysim]), (reg.names[0], f"{reg.names[0]} x model fuel"),
+                             (reg.units[0], f"{reg.units[0]}.{ds.output_unit}"))
+
+    def direction_regressor(self, c, run):
+        # x·ŷ: air density is nearly constant within a trip, and a trip's fuel level is not told apart from its
+        # estimated initial state
+        return c.x[:, 0] * run.ysim[run.index]
+
+    def sentence(self, effect, reg, gains, size, sig, act):
+        if effect.form == "regime":  # said as a regime's change while on (explain)
+            return None
+        # m is x·ŷ's coefficient, not read from x's own: x can be nearly constant over a trip, where a trip's fuel
+        # level is not told apart from its initial state
+        m = float(gains[1])
+        step, per = (0.1, "10 %") if reg.units[0] == "1" else (10.0, f"10 {reg.units[0]}")
+        size["relative_change_per_unit"] = m
+        return f"fuel is {100 * abs(m) * step:.1f} % {'higher' if m > 0 else 'lower'} per {per} of {reg.names[0]} " \
+               f"({sig}), in proportion to the fuel itself; {act}"
+
+
+class Torque(Additive):
+    """A torque T + κ x the engine delivers and the bus does not report (in the model's torque unit per unit of
+    κ): tested as the fuel the model's torque path makes of it, B_T/(A F_T) x."""
+
+    also_through_torque = False  # it is through the torque path already
+
+    def path(self, model, x):
+        return lfilter(model.B[1], np.convolve(model.A, model.F[1]), x, axis=0)
+
+    def sentence(self, effect, reg, gains, size, sig, act):
+        size["torque_scale"] = float(gains[0])
+        per = reg.units[0].split("/")[-1] if "/" in reg.units[0] else ""
+        return f"fuel burns for a torque the bus does not report: {reg.names[0]} × {gains[0]:.3g} {per} ({sig}); " \
+               f"{act}"
+
+
+class Shift(Additive):
+    """The fuel signal's delay y(t − τ), tested and verified on seed 2's reference model (ident.diagnosis.delay);
+    a property of the signal path, so not re-tested given fuelling effects."""
+
+    retested = False
+    drop_in_verdict = False  # the explanation says what the delay does to the model itself
+
+    def test(self, model, ds, run, effect):
+        ref = reference_fit(ds, run)
+        test, left, x = shift_test(ds, run, ref)
+        grid = np.full(len(ds.t), np.nan)
+        grid[run.index] = x[:, 0]
+        reg = fx.Regressors(grid[:, None], ("d/dt reference model's fuel",), (f"{ds.output_unit}/s",))
+        return Evidence(reg, x, {"reference_model_shift": test}, left, test.coef, ref)
+
+    def verify(self, c, model, ds, run, base, base_ysim):
+        v = verify_shift(c.ref, model, ds, run, base)
+        tau = v["reference"]["delay_s"]
+        c.spec = f"{c.effect}={tau:.2f}"
+        c.size = {"delay_s": tau}
+        own = v["rmse_drop_percent"]
+        c.explanation = (
+            f"the fuel signal {'lags' if tau > 0 else 'leads'} speed and torque by {abs(tau):.2f} s "
+            f"({signals_text(c.definition)}): seed 2's low-order model, whose dynamics cannot absorb a delay, fits "
+            f"{v['reference']['rmse_drop_percent']:.1f} % better on held-out data with it; "
+            + (f"this model's own dynamics absorb it (held-out RMS error {-own:+.1f} % with it)" if own < 2.0 else
+               f"this model's held-out RMS error falls {own:.1f} % with it") + f"; add effect {c.spec}")
+        return v
+
+    def relevance(self, v):
+        return v["reference"]["rmse_drop_percent"]  # the reference model's (verify_shift)
+
+    def sentence(self, effect, reg, gains, size, sig, act):
+        tau = -float(gains[0])
+        size["delay_s"] = tau
+        way = "lags" if tau > 0 else "leads"
+        return f"the fuel signal {way} speed and torque by about {abs(tau):.2f} s ({sig}; first-order estimate on " \
+               f"seed 2's low-order model); {act}"
+
+
+ENTRIES = {"additive": Additive(), "scales_fuel": ScalesFuel(), "torque": Torque(), "shift": Shift()}
+
+
+def torque_path_columns(model: PolyModel, run: Run, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A torque-like regressor x (N, the model's torque unit) through the model's torque path, stacked like run.r:
+    (B_T/F_T x, the column of the w domain; B_T/(A F_T) x, its fuel [output unit]) — ∂w/∂κ and ∂ŷ/∂κ when the
+    torque the fuel burns for is T + κ x (ident.diagnosis.verification)."""
+    x = np.nan_to_num(x)
+    B, F = model.B[1], model.F[1]
+    cols = [(lfilter(B, F, x[s])[run.warm:], lfilter(B, np.convolve(model.A, F), x[s])[run.warm:]) for s in run.segs]
+    return np.concatenate([c[0] for c in cols]), np.concatenate([c[1] for c in cols])

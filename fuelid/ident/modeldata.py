@@ -1,0 +1,94 @@
+"""The effects of a model as its data: the extra inputs (ident.effects' regressors, one MISO input per column,
+each with the effect's orders) beside engine speed and torque, and the fuel advanced by the fuel-signal delay
+when the model includes it (ident.fueldelay),
+
+    u = [speed, torque, x_1 … x_k],   y(t + τ).
+
+`apply_effects` makes them for a fit, `model_data` for a fitted model (its effects, its τ, its operating point).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from fuelid.errors import InputError
+from fuelid.ident.effects import get_effect, parse_effect
+from fuelid.ident.fueldelay import shift_signal
+from fuelid.ident.polymodel import Structure
+
+
+@dataclass
+class EffectInputs:
+    """What `apply_effects` gives a fit: extra inputs u (N × k) with names, units and orders (nb, nf, nk) per
+    column, the fuel y (advanced by the fuel-delay shift when that effect is on) and the effect parameters."""
+
+    u: np.ndarray
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    orders: tuple[tuple[int, int, int], ...]
+    y: np.ndarray
+    effects: tuple[str, ...]
+    parameters: dict
+
+    def extend(self, structure):
+        """The model structure with one more input per extra column."""
+        nb, nf, nk = (tuple(o[j] for o in self.orders) for j in range(3))
+        return Structure(nb=structure.nb + nb, nf=structure.nf + nf, nk=structure.nk + nk,
+                         nc=structure.nc, nd=structure.nd, na=structure.na)
+
+
+def apply_effects(ds, ids, parameters: dict | None = None,
+                  estimate_shift: Callable[[EffectInputs], float] | None = None) -> EffectInputs:
+    """Extra inputs and shifted fuel for the effects `ids` ("ID" or "ID=VALUE") on dataset ds.
+
+    parameters: {"fuel_delay": τ [s]} the fuel advance; when fuel_delay is asked for without τ, τ [s] is
+    estimate_shift(the EffectInputs of the other effects, fuel not shifted), e.g. ident.identify's sweep with
+    the model (required then).
+    Raises ValueError for an unknown id or an effect whose signals are not logged.
+    """
+    parameters = dict(parameters or {})
+    cols, names, units, orders, used = [], [], [], [], []
+    y = np.asarray(ds.y, float)
+    shift = None
+    for raw in ids:
+        eid, value = parse_effect(raw)
+        effect = get_effect(eid, ds)
+        used.append(effect.id)
+        if effect.enters == "shift":
+            shift = value if value is not None else parameters.get(effect.id, "sweep")
+            continue
+        reg = effect.build(ds)
+        if reg is None:
+            raise InputError(f"effect {effect.id}: its signals ({', '.join(effect.signals)}) are not in the data")
+        cols.append(reg.x)
+        names += [f"{effect.id}: {n}" for n in reg.names]
+        units += list(reg.units)
+        orders += [effect.orders] * reg.x.shape[1]
+    u = np.hstack(cols) if cols else np.zeros((len(y), 0))
+    if shift == "sweep":
+        if estimate_shift is None:
+            raise InputError("fuel_delay needs its shift: give fuel_delay=SECONDS (or a structure to sweep with)")
+        shift = estimate_shift(EffectInputs(u, (), (), tuple(orders), y, (), {}))
+    if shift is not None:
+        parameters["fuel_delay"] = float(shift)
+        y = shift_signal(y, shift / ds.Ts, ds.segments())
+    return EffectInputs(u, tuple(names), tuple(units), tuple(orders), y, tuple(used), parameters)
+
+
+def at_operating_point(ds, model):
+    """ds with the model's speed and torque operating point u0 (regime columns are deviations from it)."""
+    return dataclasses.replace(ds, u0=np.asarray(model.u0[:2], float))
+
+
+def model_data(model, ds) -> tuple[np.ndarray, np.ndarray]:
+    """(u, y) on which `model` runs: the dataset's speed and torque plus the extra inputs of the effects the
+    model includes (model.effects, shift from model.info['effect_parameters']; regimes use the model's
+    operating point), and the (shifted) fuel."""
+    fx = apply_effects(at_operating_point(ds, model), model.effects, model.info.get("effect_parameters"))
+    u = np.hstack([ds.u, fx.u])
+    if u.shape[1] != len(model.B):
+        raise InputError(f"model has {len(model.B)} inputs but the data and its effects give {u.shape[1]}")
+    return u, fx.y
