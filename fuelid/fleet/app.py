@@ -239,7 +239,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
 
     def stored_reply(row: dict, truck: str | None, status: str) -> dict:
         if truck is not None and row["truck"] != truck:
-            raise HTTPException(403, f"this file is stored for truck {row['truck']}, not {truck}")
+            raise HTTPException(403, f"this file is stored for another truck, not {truck}")  # never say which
         return {**row, "status": status, "offset": row["size_bytes"], "stored": True}
 
     def check_size(size: int) -> None:

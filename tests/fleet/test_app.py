@@ -218,3 +218,17 @@ def test_serve_refuses_an_unreachable_database_in_one_line(tmp_path, capsys):
                    "postgresql+psycopg://nobody@127.0.0.1:1/fuelid"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("fuelid serve: error: cannot start: ") and err.count("\n") == 1
+
+
+def test_a_refusal_never_names_another_truck(sqlite_server, tmp_path):
+    """A truck asking for a file another truck stored learns only that it is not its own."""
+    s = sqlite_server
+    path = make_mcap(tmp_path / "t2.mcap", "SECRETTRUCK2")
+    stored = upload_file(path, s.url, s.token("truck", "SECRETTRUCK2"))
+    t1 = s.token("truck", "T1")
+    put = f"{s.url}/api/v1/uploads/{stored['sha256']}?size={path.stat().st_size}&offset=0"
+    for attempt in (lambda: upload_file(path, s.url, t1), lambda: request("PUT", put, t1, data=path.read_bytes())):
+        with pytest.raises(Rejected) as err:
+            attempt()
+        assert err.value.status == 403 and "another truck" in str(err.value)
+        assert "SECRETTRUCK2" not in str(err.value) + json.dumps(err.value.body)
