@@ -34,6 +34,7 @@ log = logging.getLogger("fuelid.upload")
 API = "/api/v1"
 CHUNK_BYTES = 8 << 20  # bytes per PUT: a cut costs at most this much resending, and memory stays bounded
 JOURNAL = "upload-queue.json"
+JOURNAL_RETRY_S = 1.0  # a journal write that failed is tried again this often [s]
 
 
 class UploadError(FuelidError):
@@ -184,6 +185,9 @@ class UploadQueue:
     The queue is a journal `spool_dir/upload-queue.json` (pending paths, and those the server refused for
     good with its reason) rewritten atomically on every change, so a restart or power cut loses nothing: the
     next UploadQueue on the same spool_dir carries on, and the server's offset makes a cut upload resume.
+    A journal that cannot be written (disk full) is retried every JOURNAL_RETRY_S while uploads go on
+    (`journal_error` in the status); a damaged one found at start is set aside and the queue rebuilt from
+    the `*.mcap` files in spool_dir, so the logger always starts.
     Unreachable server, timeouts and 5xx → wait and retry with exponential backoff (`initial_backoff_s` up to
     `max_backoff_s` [s]); a refusal (401/403/413/422 ...) moves the file to `rejected` and goes on with the
     next. With `delete_after_upload` a file is deleted only after the server confirmed its sha256 and size.
@@ -202,25 +206,58 @@ class UploadQueue:
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
-        self.pending, self.rejected = self._load()
         self.uploaded = 0
         self.last_error: str | None = None
+        self.journal_error: str | None = None  # why the journal on disk is behind the queue, None when it is not
+        self.journal_set_aside: str | None = None  # where a damaged journal found at start was moved
+        self.pending, self.rejected = self._load()
         self._thread = threading.Thread(target=self._run, name="fuelid-upload", daemon=True)
         if start:
             self._thread.start()
 
     def _load(self) -> tuple[list[str], list[dict]]:
         try:
-            state = json.loads(self._journal.read_text())
-            return list(state.get("pending", [])), list(state.get("rejected", []))
+            state = json.loads(self._journal.read_bytes())
+            pending, rejected = state.get("pending", []), state.get("rejected", [])
+            if not (all(isinstance(p, str) for p in pending) and all(isinstance(r, dict) for r in rejected)):
+                raise ValueError("pending must be paths, rejected must be records")
+            return list(pending), list(rejected)
         except FileNotFoundError:
             return [], []
-        except (ValueError, AttributeError) as exc:
-            raise FuelidError(f"unreadable upload journal {self._journal}: {exc}") from exc
+        except (OSError, ValueError, AttributeError, TypeError) as exc:
+            return self._rebuild(exc), []
+
+    def _rebuild(self, exc: Exception) -> list[str]:
+        """Set a damaged journal aside and queue every closed file in the folder again: logging comes first, and
+        a file the server already holds costs one request ("already stored"); refusals are forgotten (tried again)."""
+        aside = self._journal.with_name(f"{JOURNAL}.damaged-{time.time():.0f}")
+        try:
+            os.replace(self._journal, aside)
+        except OSError as move_exc:  # unreadable and immovable: the next write replaces it
+            aside = Path(f"{self._journal} (not moved: {move_exc.strerror})")
+        self.journal_set_aside = str(aside)
+        pending = [str(p.resolve()) for p in sorted(self.spool_dir.glob("*.mcap"))]
+        log.error("upload: damaged journal %s (%s) set aside as %s; queued the %d files in %s again",
+                  self._journal, exc, aside.name, len(pending), self.spool_dir)
+        self.pending, self.rejected = pending, []
+        self._save()
+        return pending
 
     def _save(self) -> None:
+        """Write the journal; on failure (disk full, I/O error) keep going and try again from the upload thread."""
         state = {"version": 1, "truck": self.truck, "pending": self.pending, "rejected": self.rejected}
-        write_atomic(self._journal, json.dumps(state, indent=1).encode())
+        try:
+            write_atomic(self._journal, json.dumps(state, indent=1).encode())
+        except OSError as exc:
+            if self.journal_error is None:
+                log.error("upload: cannot write the journal %s: %s (retrying; the queue goes on in memory)",
+                          self._journal, exc)
+            self.journal_error = f"cannot write {self._journal.name}: {exc}"
+            self._wake.set()
+            return
+        if self.journal_error is not None:
+            log.info("upload: journal %s written again", self._journal)
+            self.journal_error = None
 
     def enqueue(self, path: str | Path) -> None:
         """Queue a closed file (an absolute path is kept); queuing a path twice uploads it once."""
@@ -235,7 +272,8 @@ class UploadQueue:
         """Counts for a status file: queued, uploaded since start, refused, and the last error."""
         with self._lock:
             return {"queued": len(self.pending), "uploaded": self.uploaded, "rejected": len(self.rejected),
-                    "last_error": self.last_error}
+                    "last_error": self.last_error, "journal_error": self.journal_error,
+                    "journal_set_aside": self.journal_set_aside}
 
     def _done(self, path: str, rejected_reason: str | None = None) -> None:
         with self._lock:
@@ -246,35 +284,46 @@ class UploadQueue:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            with self._lock:
-                path = self.pending[0] if self.pending else None
-            if path is None:
-                self._wake.wait()
-                self._wake.clear()
-                continue
-            if not os.path.exists(path):
-                log.warning("upload: %s vanished before upload; dropped from the queue", path)
-                self._done(path, "file missing")
-                continue
             try:
-                reply = upload_file(path, self.server_url, self.token, truck=self.truck,
-                                    chunk_bytes=self.chunk_bytes, timeout_s=self.timeout_s, cancel=self._stop)
-            except Rejected as exc:
-                log.error("upload: server refused %s: %s", path, exc)
-                self.last_error = str(exc)
-                self._done(path, str(exc))
-                continue
-            except (Unavailable, OSError) as exc:
-                self.last_error = str(exc)
+                self._step()
+            except Exception as exc:  # nothing may end the thread while files wait: say it, wait, go on
+                log.exception("upload: unexpected error")
+                self.last_error = f"{type(exc).__name__}: {exc}"
                 self._stop.wait(self._backoff.next())
-                continue
-            self._backoff.reset()
-            self.last_error = None
-            if self.delete_after_upload:  # upload_file returned only on a confirmation matching the file
-                os.remove(path)
-            self.uploaded += 1
-            log.info("upload: %s %s (%s)", path, reply["status"], reply["sha256"][:12])
-            self._done(path)
+
+    def _step(self) -> None:
+        """Upload the first queued file (one attempt), or wait for one; retry a journal write that failed."""
+        with self._lock:
+            if self.journal_error is not None:
+                self._save()
+            path = self.pending[0] if self.pending else None
+        if path is None:
+            self._wake.wait(None if self.journal_error is None else JOURNAL_RETRY_S)
+            self._wake.clear()
+            return
+        if not os.path.exists(path):
+            log.warning("upload: %s vanished before upload; dropped from the queue", path)
+            self._done(path, "file missing")
+            return
+        try:
+            reply = upload_file(path, self.server_url, self.token, truck=self.truck,
+                                chunk_bytes=self.chunk_bytes, timeout_s=self.timeout_s, cancel=self._stop)
+        except Rejected as exc:
+            log.error("upload: server refused %s: %s", path, exc)
+            self.last_error = str(exc)
+            self._done(path, str(exc))
+            return
+        except (Unavailable, OSError) as exc:
+            self.last_error = str(exc)
+            self._stop.wait(self._backoff.next())
+            return
+        self._backoff.reset()
+        self.last_error = None
+        if self.delete_after_upload:  # upload_file returned only on a confirmation matching the file
+            os.remove(path)
+        self.uploaded += 1
+        log.info("upload: %s %s (%s)", path, reply["status"], reply["sha256"][:12])
+        self._done(path)
 
     def stop(self, timeout_s: float = 10.0) -> None:
         """Stop after the chunk in flight; what is still queued stays in the journal for the next start."""

@@ -107,3 +107,56 @@ def test_upload_needs_a_token(tmp_path, monkeypatch, capsys):
                  "http://127.0.0.1:9"]) == 1
     err = capsys.readouterr().err
     assert "token" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_damaged_journal_is_set_aside_and_rebuilt_from_the_folder(tmp_path):
+    from fuelid.logger.config import LoggerConfig
+    from fuelid.logger.daemon import Daemon
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    files = [make_mcap(logs / f"fuelid-2026010{k}T000000.000Z.mcap", "T1", seed=k) for k in range(2)]
+    damaged = b'{"version": 1, "pending": ["/x/a.mc'  # a write cut short on a file system without atomic rename
+    (logs / "upload-queue.json").write_bytes(damaged)
+    token = tmp_path / "token"
+    token.write_text("fuelid_x\n")
+    daemon = Daemon(LoggerConfig(interface="virtual", output_dir=logs, upload_server="http://127.0.0.1:9",
+                                 upload_token_file=token))  # logging starts all the same
+    try:
+        assert daemon.uploads.pending == [str(f) for f in files]  # rebuilt from the closed files in the folder
+        assert daemon.uploads.status()["journal_set_aside"].startswith(str(logs / "upload-queue.json.damaged"))
+    finally:
+        daemon.uploads.stop()
+    [aside] = logs.glob("upload-queue.json.damaged*")
+    assert aside.read_bytes() == damaged
+    assert json.loads((logs / "upload-queue.json").read_text())["pending"] == [str(f) for f in files]
+
+
+def test_a_failed_journal_write_is_retried_and_shown(tmp_path, monkeypatch):
+    from fuelid.logger import upload
+
+    disk = {"full": True}
+    real = upload.write_atomic
+
+    def write_atomic(path, data):
+        if disk["full"]:
+            raise OSError(28, "No space left on device")
+        real(path, data)
+
+    monkeypatch.setattr(upload, "write_atomic", write_atomic)
+    server = Server(tmp_path / "data").start()
+    try:
+        files = [make_mcap(tmp_path / f"{k}.mcap", "T1", seed=k) for k in range(2)]
+        with UploadQueue(tmp_path / "spool", server.url, server.token("truck", "T1"), "T1",
+                         initial_backoff_s=0.05, max_backoff_s=0.1) as q:
+            q.enqueue(files[0])  # the journal cannot be written: queued in memory all the same
+            wait_for(lambda: q.status()["uploaded"] == 1)  # the upload thread survives its journal's failures
+            q.enqueue(files[1])
+            wait_for(lambda: q.status()["uploaded"] == 2)
+            assert "No space left" in q.status()["journal_error"] and q._thread.is_alive()
+            assert not (tmp_path / "spool" / "upload-queue.json").exists()
+            disk["full"] = False  # space is back: the journal catches up
+            wait_for(lambda: q.status()["journal_error"] is None)
+            assert json.loads((tmp_path / "spool" / "upload-queue.json").read_text())["pending"] == []
+    finally:
+        server.stop()
