@@ -37,6 +37,7 @@ from fuelid.logger.flowmeter import Calibration, SerialFlowMeter
 from fuelid.logger.mcap_log import MAGIC, recover
 from fuelid.logger.durable import fsync_path
 from fuelid.logger.recorder import Recorder, open_writer
+from fuelid.logger.relabel import relabel
 
 log = logging.getLogger("fuelid.log")
 
@@ -218,6 +219,7 @@ class LogSink(can.Listener):
         self.dropped = 0
         self.record_errors = 0
         self.closed_files = 0
+        self.unlabelled: set[str] = set()  # files closed before the VIN was seen, naming the configured truck
 
     # --- the notifier's and the meter's threads
 
@@ -296,6 +298,8 @@ class LogSink(can.Listener):
             self.faults.occur("storage", f"closing {part.name}: {exc}")
             return
         self.closed_files += 1
+        if self.recorder.vin is None:
+            self.unlabelled.add(str(final.resolve()))
         log.info("closed %s", final)
 
     def _abandon(self, exc: Exception) -> None:
@@ -468,13 +472,16 @@ class Daemon:
         if config.upload_server:
             from fuelid.logger.upload import UploadQueue
 
-            self.uploads = UploadQueue(config.output_dir, config.upload_server, config.upload_token(), None,
-                                       delete_after_upload=config.delete_after_upload)
+            config.upload_token()  # no token at all: refuse to start (FuelidError); later it is re-read per upload
+            self.uploads = UploadQueue(config.output_dir, config.upload_server, config.upload_token, None,
+                                       delete_after_upload=config.delete_after_upload, prepare=self._name_truck,
+                                       start=False)
             self.files.on_file_closed.append(self.uploads.enqueue)
         self.sink = LogSink(config, self.files, self.faults, self.live)
         self.bus: BusLink | None = None
         self.flow: FlowInput | None = None
         self._stop = threading.Event()
+        self._vin_known = False  # for the upload queue: the files closed before the VIN were queued again
         self._started = time.time()
         self._rate = (time.monotonic(), 0)  # (when, frames) of the last status, for frames/s
 
@@ -484,6 +491,8 @@ class Daemon:
     def run(self) -> None:
         for line in self.files.recover_orphans():
             log.info("%s", line)
+        if self.uploads:
+            self.uploads.start()
         if self.live:
             self.live.prepare()  # compile or load the estimator's loop before frames arrive
         self.sink.open()
@@ -499,6 +508,7 @@ class Daemon:
                 if now >= next_status:
                     self._check_disk()
                     self._check_serial()
+                    self._check_identity()
                     self.write_status()
                     next_status = now + STATUS_S
                 self._stop.wait(TICK_S)
@@ -537,6 +547,27 @@ class Daemon:
                 log.info("%s", line)
             if self.sink.open():
                 self.faults.clear("storage", f"{free_mb:.1f} MB free, writing again")
+
+    def _check_identity(self) -> None:
+        """Once the VIN is first seen, the files closed before it (refused by the VIN's token) go again."""
+        if self.uploads and self.sink.unlabelled and self.sink.recorder.vin and not self._vin_known:
+            self._vin_known = True
+            self.uploads.retry(self.sink.unlabelled)
+
+    def _name_truck(self, path: str) -> None:
+        """Run by the upload queue just before it sends `path`: a file of this session closed before the VIN
+        was seen gets the VIN as its truck (relabelled), once the VIN is known."""
+        vin = self.sink.recorder.vin if self.sink.recorder else None
+        if not vin or path not in self.sink.unlabelled:
+            return
+        try:
+            relabel(path, {"truck": vin})  # an OSError (disk full) propagates: the queue tries again later
+            log.info("relabelled %s with the truck's VIN %s", Path(path).name, vin)
+        except OSError:
+            raise
+        except Exception as exc:  # a damaged file: sent as it is, for the server to judge
+            self.faults.occur("relabel", f"{Path(path).name}: {type(exc).__name__}: {exc}")
+        self.sink.unlabelled.discard(path)
 
     def _check_serial(self) -> None:
         if self.flow is None:

@@ -25,6 +25,7 @@ import urllib.parse
 import urllib.request
 from email.message import Message
 from pathlib import Path
+from typing import Callable
 
 from fuelid.errors import FuelidError
 from fuelid.logger.durable import write_atomic
@@ -35,6 +36,7 @@ API = "/api/v1"
 CHUNK_BYTES = 8 << 20  # bytes per PUT: a cut costs at most this much resending, and memory stays bounded
 JOURNAL = "upload-queue.json"
 JOURNAL_RETRY_S = 1.0  # a journal write that failed is tried again this often [s]
+CURED_BY_A_NEW_TOKEN = (401, 403)  # refusals tried again when the token changes (unknown token, wrong role/truck)
 
 
 class UploadError(FuelidError):
@@ -189,16 +191,27 @@ class UploadQueue:
     (`journal_error` in the status); a damaged one found at start is set aside and the queue rebuilt from
     the `*.mcap` files in spool_dir, so the logger always starts.
     Unreachable server, timeouts and 5xx → wait and retry with exponential backoff (`initial_backoff_s` up to
-    `max_backoff_s` [s]); a refusal (401/403/413/422 ...) moves the file to `rejected` and goes on with the
-    next. With `delete_after_upload` a file is deleted only after the server confirmed its sha256 and size.
+    `max_backoff_s` [s]); a refusal of the file (403/413/422 ...) moves it to `rejected` and goes on with the
+    next. A refusal that a change can cure is tried again after the change: a 401 (unknown token) holds the
+    whole queue until `token` (a string, or a function re-read every `token_check_s` [s], e.g. of the token
+    file) gives another token, and then files refused with 401/403 are queued again; `retry(paths)` queues
+    refused files again on the caller's word (e.g. relabelled with the VIN). `prepare(path)`, when given, runs
+    in the upload thread just before each attempt (relabelling happens there, never under an upload).
+    With `delete_after_upload` a file is deleted only after the server confirmed its sha256 and size.
     """
 
-    def __init__(self, spool_dir: str | Path, server_url: str, token: str, truck: str | None, *,
+    def __init__(self, spool_dir: str | Path, server_url: str, token: str | Callable[[], str], truck: str | None, *,
                  delete_after_upload: bool = False, initial_backoff_s: float = 1.0, max_backoff_s: float = 300.0,
-                 timeout_s: float = 60.0, chunk_bytes: int = CHUNK_BYTES, start: bool = True):
+                 timeout_s: float = 60.0, chunk_bytes: int = CHUNK_BYTES, token_check_s: float = 5.0,
+                 prepare: Callable[[str], None] | None = None, start: bool = True):
         self.spool_dir = Path(spool_dir)
         self.spool_dir.mkdir(parents=True, exist_ok=True)
-        self.server_url, self.token, self.truck = server_url, token, truck
+        self.server_url, self.truck = server_url, truck
+        self._token_source = token if callable(token) else (lambda: token)
+        self.token_check_s, self.prepare = token_check_s, prepare
+        self._token: str | None = None  # the token of the last attempt
+        self._refused_token: str | None = None  # the token the server answered 401 to
+        self._again: set[str] = set()  # files to queue again even if the attempt in flight is refused
         self.delete_after_upload = delete_after_upload
         self.timeout_s, self.chunk_bytes = timeout_s, chunk_bytes
         self._backoff = Backoff(initial_backoff_s, max_backoff_s)
@@ -213,7 +226,10 @@ class UploadQueue:
         self.pending, self.rejected = self._load()
         self._thread = threading.Thread(target=self._run, name="fuelid-upload", daemon=True)
         if start:
-            self._thread.start()
+            self.start()
+
+    def start(self) -> None:
+        self._thread.start()
 
     def _load(self) -> tuple[list[str], list[dict]]:
         try:
@@ -275,12 +291,52 @@ class UploadQueue:
                     "last_error": self.last_error, "journal_error": self.journal_error,
                     "journal_set_aside": self.journal_set_aside}
 
-    def _done(self, path: str, rejected_reason: str | None = None) -> None:
+    def retry(self, paths) -> None:
+        """Queue refused files again (the cause of their refusal changed); one being uploaded now is queued
+        again even if this attempt is refused."""
+        paths = {str(Path(p).resolve()) for p in paths}
+        with self._lock:
+            self._again |= paths & set(self.pending)
+            self._requeue(lambda r: r["path"] in paths)
+        self._wake.set()
+
+    def _requeue(self, which: Callable[[dict], bool]) -> None:
+        # Called with the lock held.
+        back = [r for r in self.rejected if which(r)]
+        if back:
+            self.rejected = [r for r in self.rejected if not which(r)]
+            self.pending += [r["path"] for r in back if r["path"] not in self.pending]
+            log.info("upload: %d refused files queued again", len(back))
+            self._save()
+
+    def _done(self, path: str, refusal: Rejected | str | None = None) -> None:
         with self._lock:
             self.pending.remove(path)
-            if rejected_reason is not None:
-                self.rejected.append({"path": path, "error": rejected_reason, "at_unix_s": time.time()})
+            if path in self._again:  # its refusal's cause changed during the attempt
+                self._again.discard(path)
+                if refusal is not None:
+                    self.pending.append(path)
+                    refusal = None
+            if refusal is not None:
+                self.rejected.append({"path": path, "error": str(refusal), "at_unix_s": time.time(),
+                                      "status": getattr(refusal, "status", None)})
             self._save()
+
+    def _current_token(self) -> str | None:
+        """The token to use now, or None while there is none or only the one the server refused."""
+        try:
+            token = self._token_source()
+        except FuelidError as exc:  # the token file is missing or empty: wait for it
+            self.last_error = str(exc)
+            return None
+        if token == self._refused_token:
+            return None
+        if self._token is not None and token != self._token:
+            log.info("upload: the token changed; files it refused are queued again")
+            with self._lock:
+                self._requeue(lambda r: r.get("status") in CURED_BY_A_NEW_TOKEN)
+        self._token, self._refused_token = token, None
+        return token
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -297,8 +353,10 @@ class UploadQueue:
             if self.journal_error is not None:
                 self._save()
             path = self.pending[0] if self.pending else None
-        if path is None:
-            self._wake.wait(None if self.journal_error is None else JOURNAL_RETRY_S)
+        token = self._current_token()
+        if path is None or token is None:  # nothing to send, or no usable token: look again later
+            self._wake.wait(JOURNAL_RETRY_S if self.journal_error is not None else
+                            self.token_check_s if token is None or callable(self._token_source) else None)
             self._wake.clear()
             return
         if not os.path.exists(path):
@@ -306,12 +364,19 @@ class UploadQueue:
             self._done(path, "file missing")
             return
         try:
-            reply = upload_file(path, self.server_url, self.token, truck=self.truck,
+            if self.prepare is not None:
+                self.prepare(path)
+            reply = upload_file(path, self.server_url, token, truck=self.truck,
                                 chunk_bytes=self.chunk_bytes, timeout_s=self.timeout_s, cancel=self._stop)
         except Rejected as exc:
-            log.error("upload: server refused %s: %s", path, exc)
             self.last_error = str(exc)
-            self._done(path, str(exc))
+            if exc.status == 401:  # the token, not the file: hold the queue until there is another one
+                self._refused_token = token
+                self.last_error += "; waiting for a new token"
+                log.error("upload: server refused the token: %s; waiting for a new token", exc)
+                return
+            log.error("upload: server refused %s: %s", path, exc)
+            self._done(path, exc)
             return
         except (Unavailable, OSError) as exc:
             self.last_error = str(exc)

@@ -3,6 +3,7 @@ waits for the network with backoff, and deletes a local file only after the serv
 import json
 import time
 
+from fuelid.logger.mcap_log import read_messages
 from fuelid.logger.upload import UploadQueue
 from tests.fleet.conftest import Server, make_mcap
 
@@ -158,5 +159,62 @@ def test_a_failed_journal_write_is_retried_and_shown(tmp_path, monkeypatch):
             disk["full"] = False  # space is back: the journal catches up
             wait_for(lambda: q.status()["journal_error"] is None)
             assert json.loads((tmp_path / "spool" / "upload-queue.json").read_text())["pending"] == []
+    finally:
+        server.stop()
+
+
+def test_a_refused_token_holds_the_queue_until_a_new_token_is_installed(tmp_path):
+    server = Server(tmp_path / "data").start()
+    try:
+        token_file = tmp_path / "token"
+        token_file.write_text("fuelid_mistyped\n")
+        files = [make_mcap(tmp_path / f"{k}.mcap", "T1", seed=k) for k in range(2)]
+        with UploadQueue(tmp_path / "spool", server.url, lambda: token_file.read_text().strip(), None,
+                         initial_backoff_s=0.05, max_backoff_s=0.1, token_check_s=0.05) as q:
+            for f in files:
+                q.enqueue(f)
+            wait_for(lambda: q.status()["last_error"] is not None)
+            time.sleep(0.3)
+            status = q.status()
+            assert "HTTP 401" in status["last_error"] and "new token" in status["last_error"]
+            assert (status["queued"], status["rejected"]) == (2, 0)  # nothing refused for good: the token was
+            token_file.write_text(server.token("truck", "T1") + "\n")  # the right token
+            wait_for(lambda: q.status()["uploaded"] == 2)
+            assert q.status()["last_error"] is None
+    finally:
+        server.stop()
+
+
+def test_files_closed_before_the_vin_are_relabelled_and_uploaded(tmp_path):
+    """The truck sends its VIN only after the first files were closed (named "unknown", refused by the
+    VIN's token): once the VIN is seen, those files are relabelled and uploaded."""
+    from tests.logger import traffic
+    from tests.logger.test_daemon import Running
+
+    server = Server(tmp_path / "data").start()
+    try:
+        token_file = tmp_path / "truck.token"
+        token_file.write_text(server.token("truck", traffic.VIN) + "\n")
+        msgs = traffic.frames(2.0)
+        vin = [m for m in msgs if m.arbitration_id & 0x1FFFFF00 in (0x1CECFF00, 0x1CEBFF00)]
+        others = [m for m in msgs if m not in vin]
+        run = Running(tmp_path, "relabel", rotate_s=0.3, upload_server=server.url, upload_token_file=token_file)
+        uploads = run.daemon.uploads
+        uploads._backoff.initial_s = uploads._backoff.max_s = 0.05
+        for m in others[: len(others) // 2]:
+            run.tx.send(m)
+        wait_for(lambda: uploads.status()["rejected"] >= 1)  # a file named "unknown": 403
+        assert "HTTP 403" in uploads.status()["last_error"]
+        for m in vin + others[len(others) // 2:]:
+            run.tx.send(m)
+        wait_for(lambda: run.daemon.sink.recorder.vin == traffic.VIN)
+        wait_for(lambda: run.daemon.sink.closed_files >= 3 and uploads.status()["queued"] == 0
+                 and uploads.status()["rejected"] == 0)
+        uploaded = uploads.status()["uploaded"]
+        run.stop()
+        with server.engine.connect() as conn:
+            trucks = [t for (t,) in conn.exec_driver_sql("SELECT truck FROM files").all()]
+        assert len(trucks) == uploaded >= 3 and set(trucks) == {traffic.VIN}
+        assert len(run.raw()) == len(msgs)  # relabelling kept every frame
     finally:
         server.stop()
