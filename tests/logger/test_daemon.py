@@ -196,6 +196,48 @@ def test_low_free_space_closes_the_file_cleanly(tmp_path, drive, monkeypatch):
     assert len(run.raw()) == 100
 
 
+def _orphan(directory, msgs, name="fuelid-20260101T000000.000Z.mcap.part"):
+    """A `.part` file as a power cut leaves it (here closed, which recovery treats the same)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    writer = open_writer(directory / name, truck="t")
+    writer.add_channel("/can/raw", RAW_SCHEMA)
+    for m in msgs:
+        writer.write("/can/raw", int(m.timestamp * 1e9), raw_record(m))
+    writer.close()
+    return directory / name
+
+
+def test_disk_full_during_recovery_keeps_the_orphan_and_retries(tmp_path, drive, monkeypatch, caplog):
+    _, msgs = drive
+    orphan = _orphan(tmp_path / "logs", msgs[:100])
+    real = daemon_mod.recover
+    disk = {"full": True}
+
+    def recover(src, dst):
+        if disk["full"]:  # the disk fills up while the recovered copy is written
+            dst.write_bytes(b"\x89MCAP0\r\n" + bytes(1000))
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(src, dst)
+
+    monkeypatch.setattr(daemon_mod, "recover", recover)
+    caplog.set_level(logging.INFO, logger="fuelid.log")
+    closed = []
+    run = Running(tmp_path, "recover-full", on_file_closed=[closed.append])
+    time.sleep(2.5)  # a few retries while the disk stays full
+    logs = run.config.output_dir
+    assert orphan.exists() and not list(logs.glob("*.bad")) and not list(logs.glob("*.recovering"))
+    assert run.status()["faults_active"]["recovery"].startswith(orphan.name)
+    disk["full"] = False  # space is back
+    final = orphan.with_name(orphan.name[: -len(".part")])
+    _wait(lambda: final.exists(), timeout=5)
+    run.stop()
+    assert closed[0] == final and not orphan.exists()
+    assert [r["id"] for _, _, r in read_messages(final, "/can/raw")] == [m.arbitration_id for m in msgs[:100]]
+    status = run.status()
+    assert "recovery" not in status["faults_active"] and status["faults"]["recovery"] >= 2
+    assert len([r for r in caplog.records if r.levelno == logging.WARNING and "recovery" in r.getMessage()]) == 1
+
+
 def test_malformed_traffic_keeps_logging(tmp_path, monkeypatch):
     run = Running(tmp_path, "malformed")
     real = daemon_mod.Recorder.on_message_received
