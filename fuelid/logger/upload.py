@@ -237,11 +237,19 @@ class UploadQueue:
             pending, rejected = state.get("pending", []), state.get("rejected", [])
             if not (all(isinstance(p, str) for p in pending) and all(isinstance(r, dict) for r in rejected)):
                 raise ValueError("pending must be paths, rejected must be records")
-            return list(pending), list(rejected)
+            return list(pending) + self._closed_since_journal(set(pending) | {r.get("path") for r in rejected}), \
+                list(rejected)
         except FileNotFoundError:
             return [], []
         except (OSError, ValueError, AttributeError, TypeError) as exc:
             return self._rebuild(exc), []
+
+    def _closed_since_journal(self, listed: set[str]) -> list[str]:
+        """Files in spool_dir written after the journal's last write and not in it: closed while the journal
+        could not be written (every change rewrites it, so normally there are none)."""
+        since = self._journal.stat().st_mtime
+        later = [str(p.resolve()) for p in sorted(self.spool_dir.glob("*.mcap")) if p.stat().st_mtime > since]
+        return [p for p in later if p not in listed]
 
     def _rebuild(self, exc: Exception) -> list[str]:
         """Set a damaged journal aside and queue every closed file in the folder again: logging comes first, and

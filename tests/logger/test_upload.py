@@ -218,3 +218,20 @@ def test_files_closed_before_the_vin_are_relabelled_and_uploaded(tmp_path):
         assert len(run.raw()) == len(msgs)  # relabelling kept every frame
     finally:
         server.stop()
+
+
+def test_files_closed_while_the_journal_could_not_be_written_are_queued_at_the_next_start(tmp_path, monkeypatch):
+    from fuelid.logger import upload
+
+    spool = tmp_path / "logs"
+    spool.mkdir()
+    first = make_mcap(spool / "fuelid-20260101T000000.000Z.mcap", "T1", seed=1)
+    queue = UploadQueue(spool, "http://127.0.0.1:9", "t", None, start=False)
+    queue.enqueue(first)
+    monkeypatch.setattr(upload, "write_atomic", lambda path, data: (_ for _ in ()).throw(OSError(28, "No space")))
+    time.sleep(0.01)
+    second = make_mcap(spool / "fuelid-20260101T010000.000Z.mcap", "T1", seed=2)
+    queue.enqueue(second)  # the journal cannot say so; then the logger stops
+    monkeypatch.undo()
+    again = UploadQueue(spool, "http://127.0.0.1:9", "t", None, start=False)
+    assert again.pending == [str(first), str(second)]
