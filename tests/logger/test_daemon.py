@@ -3,6 +3,7 @@ import errno
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -236,6 +237,53 @@ def test_disk_full_during_recovery_keeps_the_orphan_and_retries(tmp_path, drive,
     status = run.status()
     assert "recovery" not in status["faults_active"] and status["faults"]["recovery"] >= 2
     assert len([r for r in caplog.records if r.levelno == logging.WARNING and "recovery" in r.getMessage()]) == 1
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """An 8 MB tmpfs: a disk that really fills up (root only; skips where mounting is not allowed)."""
+    mnt = tmp_path / "tiny"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if done.returncode:
+        pytest.skip(f"cannot mount a tmpfs: {done.stderr.strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def test_a_real_full_disk_costs_one_warning_and_no_file(tmp_path, tiny_disk, caplog):
+    """On a disk that fills up: the orphan whose recovered copy does not fit stays `.part`; the file being
+    written when a write fails (ENOSPC) is abandoned with one warning; once space returns both are recovered."""
+    rng = np.random.default_rng(1)
+    frames = [can.Message(timestamp=1_700_000_000 + k * 1e-3, arbitration_id=0x0CF00400, data=rng.bytes(8))
+              for k in range(60_000)]
+    logs = tiny_disk / "logs"
+    orphan = _orphan(logs, frames[:30_000])
+    assert orphan.stat().st_size > 1_000_000
+    filler = tiny_disk / "filler"
+    filler.write_bytes(bytes(int(shutil.disk_usage(tiny_disk).free - 500_000)))  # 0.5 MB left
+    caplog.set_level(logging.INFO)
+    run = Running(tiny_disk, "tiny", min_free_mb=0.01)
+    assert orphan.exists() and not list(logs.glob("*.bad")) and not list(logs.glob("*.recovering"))
+    writing = run.daemon.sink.part
+    for m in frames:
+        run.tx.send(can.Message(arbitration_id=m.arbitration_id, data=m.data))
+    _wait(lambda: run.daemon.sink.part is None and run.daemon.sink.dropped > 0, timeout=30)
+    filler.unlink()  # space is back
+    _wait(lambda: run.daemon.sink.part is not None and not run.daemon.files.postponed
+          and not writing.exists(), timeout=10)
+    run.stop()
+    assert not list(logs.glob("*.part")) and not list(logs.glob("*.bad")) and not list(logs.glob("*.recovering"))
+    final = orphan.with_name(orphan.name[: -len(".part")])
+    assert sum(1 for _ in read_messages(final, "/can/raw")) == 30_000
+    assert sum(1 for _ in read_messages(writing.with_name(writing.name[: -len(".part")]), "/can/raw")) > 1000
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert not [w for w in warnings if "error logging message" in w]  # the SDK's per-message warnings
+    assert len([w for w in warnings if w.startswith("storage")]) == 1
+    status = run.status()
+    assert status["faults"]["storage"] >= 1 and status["faults"]["recovery"] >= 1
 
 
 def test_malformed_traffic_keeps_logging(tmp_path, monkeypatch):
