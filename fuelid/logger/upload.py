@@ -363,8 +363,7 @@ class UploadQueue:
             path = self.pending[0] if self.pending else None
         token = self._current_token()
         if path is None or token is None:  # nothing to send, or no usable token: look again later
-            self._wake.wait(JOURNAL_RETRY_S if self.journal_error is not None else
-                            self.token_check_s if token is None or callable(self._token_source) else None)
+            self._wake.wait(JOURNAL_RETRY_S if self.journal_error is not None else self.token_check_s)
             self._wake.clear()
             return
         if not os.path.exists(path):

@@ -200,18 +200,19 @@ def test_files_closed_before_the_vin_are_relabelled_and_uploaded(tmp_path):
         others = [m for m in msgs if m not in vin]
         run = Running(tmp_path, "relabel", rotate_s=0.3, upload_server=server.url, upload_token_file=token_file)
         uploads = run.daemon.uploads
-        uploads._backoff.initial_s = uploads._backoff.max_s = 0.05
-        for m in others[: len(others) // 2]:
-            run.tx.send(m)
-        wait_for(lambda: uploads.status()["rejected"] >= 1)  # a file named "unknown": 403
-        assert "HTTP 403" in uploads.status()["last_error"]
-        for m in vin + others[len(others) // 2:]:
-            run.tx.send(m)
-        wait_for(lambda: run.daemon.sink.recorder.vin == traffic.VIN)
-        wait_for(lambda: run.daemon.sink.closed_files >= 3 and uploads.status()["queued"] == 0
-                 and uploads.status()["rejected"] == 0)
-        uploaded = uploads.status()["uploaded"]
-        run.stop()
+        try:
+            for m in others[: len(others) // 2]:
+                run.tx.send(m)
+            wait_for(lambda: uploads.status()["rejected"] >= 1)  # a file named "unknown": 403
+            assert "HTTP 403" in uploads.status()["last_error"]
+            for m in vin + others[len(others) // 2:]:
+                run.tx.send(m)
+            wait_for(lambda: run.daemon.sink.recorder.vin == traffic.VIN)
+            wait_for(lambda: run.daemon.sink.closed_files >= 3 and uploads.status()["queued"] == 0
+                     and uploads.status()["rejected"] == 0)
+            uploaded = uploads.status()["uploaded"]
+        finally:
+            run.stop()
         with server.engine.connect() as conn:
             trucks = [t for (t,) in conn.exec_driver_sql("SELECT truck FROM files").all()]
         assert len(trucks) == uploaded >= 3 and set(trucks) == {traffic.VIN}
