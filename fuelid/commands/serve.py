@@ -18,6 +18,12 @@ def add_arguments(p):
     p.add_argument("--workers", type=int, metavar="N", help="local cluster worker processes (default: Dask's)")
     p.add_argument("--max-upload-mb", type=float, default=1024.0, metavar="MB",
                    help="largest file accepted [MiB] (default 1024); larger → 413")
+    p.add_argument("--max-partial-uploads", type=int, default=8, metavar="N",
+                   help="partial (unfinished) uploads one truck may hold (default 8); more → 429")
+    p.add_argument("--max-partial-mb", type=float, metavar="MB",
+                   help="bytes one truck's partial uploads may hold [MiB] (default twice --max-upload-mb)")
+    p.add_argument("--partial-expiry-h", type=float, default=168.0, metavar="H",
+                   help="delete a partial upload H hours after its last byte arrived (default 168: a week)")
     p.add_argument("--refit-after", type=float, default=600.0, metavar="S",
                    help="identify a truck again S seconds after its last new file (default 600)")
     p.add_argument("--refit-window-h", type=float, default=24.0, metavar="H",
@@ -32,12 +38,15 @@ def run(args) -> int:
 
     from fuelid.fleet.app import MiB, Settings, create_app
 
-    if args.max_upload_mb <= 0 or args.refit_window_h <= 0:
-        raise FuelidError("--max-upload-mb and --refit-window-h must be positive")
+    if min(args.max_upload_mb, args.refit_window_h, args.max_partial_uploads, args.partial_expiry_h,
+           args.max_partial_mb or 1) <= 0:
+        raise FuelidError("--max-upload-mb, --refit-window-h and the partial-upload limits must be positive")
     settings = Settings(data_dir=Path(args.data_dir), database_url=args.database_url,
                         max_upload_bytes=int(args.max_upload_mb * MiB), scheduler=args.scheduler,
                         workers=args.workers, refit_after_s=None if args.no_auto_refit else args.refit_after,
-                        refit_window_s=args.refit_window_h * 3600.0)
+                        refit_window_s=args.refit_window_h * 3600.0, max_partial_uploads=args.max_partial_uploads,
+                        max_partial_bytes=int(args.max_partial_mb * MiB) if args.max_partial_mb else None,
+                        partial_expiry_s=args.partial_expiry_h * 3600.0)
     try:
         app = create_app(settings)
     except Exception as exc:  # unreachable database, bad URL, unwritable data dir

@@ -49,6 +49,10 @@ def run(args) -> int:
     if upload:
         lines.append(f"upload:     {upload['queued']} queued, {upload['uploaded']} uploaded, {upload['rejected']} refused"
                      + (f"; last error: {upload['last_error']}" if upload["last_error"] else ""))
+        if upload.get("journal_error"):
+            lines.append(f"  now: upload journal: {upload['journal_error']}")
+        if upload.get("journal_set_aside"):
+            lines.append(f"  damaged upload journal set aside: {upload['journal_set_aside']}")
     if s["faults"]:
         lines.append("faults:     " + ", ".join(f"{k} {v}" for k, v in s["faults"].items())
                      + "".join(f"\n  now: {k}: {v}" for k, v in s["faults_active"].items()))

@@ -36,7 +36,10 @@ class Settings:
     """Server configuration: `data_dir` (blobs, job scratch, the SQLite database unless `database_url`),
     upload size limit [bytes], Dask scheduler address (None: a LocalCluster of `workers` processes), and
     the debounce after new data before a truck's refit [s] (None: no refits on new data), and how much of a
-    truck's newest recorded time a refit uses [s]."""
+    truck's newest recorded time a refit uses [s]. Partial uploads are bounded per uploader (the truck a
+    token uploads for, or "admin"): at most `max_partial_uploads` files and `max_partial_bytes` (their bytes
+    held plus the declared size of the one growing; default twice the upload limit), and deleted
+    `partial_expiry_s` [s] after their last byte arrived."""
 
     data_dir: Path
     database_url: str | None = None
@@ -45,6 +48,9 @@ class Settings:
     workers: int | None = None
     refit_after_s: float | None = 600.0
     refit_window_s: float = 24 * 3600.0
+    max_partial_uploads: int = 8
+    max_partial_bytes: int | None = None
+    partial_expiry_s: float = 7 * 24 * 3600.0
 
 
 # --- response models (the OpenAPI description, checked by the schemathesis tests) ---
@@ -157,9 +163,12 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     engine = db.open_database(data_dir, settings.database_url)
     store = BlobStore(data_dir)
     swept = store.sweep(db.registered_hashes(engine))
+    expired = store.expire_partials(settings.partial_expiry_s)
     interrupted = db.fail_interrupted_jobs(engine)
-    if swept or interrupted:
-        log.warning("startup: removed %d unregistered blobs, marked %d interrupted jobs failed", swept, interrupted)
+    if swept or expired or interrupted:
+        log.warning("startup: removed %d unregistered blobs and %d expired partial uploads, marked %d interrupted "
+                    "jobs failed", swept, expired, interrupted)
+    max_partial_bytes = settings.max_partial_bytes or 2 * settings.max_upload_bytes
     refits = RefitManager(engine, store, data_dir / "jobs",
                           runner_factory or dask_runner_factory(settings.scheduler, settings.workers),
                           settings.refit_after_s, settings.refit_window_s)
@@ -240,13 +249,25 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
 
     def stored_reply(row: dict, truck: str | None, status: str) -> dict:
         if truck is not None and row["truck"] != truck:
-            raise HTTPException(403, f"this file is stored for truck {row['truck']}, not {truck}")
+            raise HTTPException(403, f"this file is stored for another truck, not {truck}")  # never say which
         return {**row, "status": status, "offset": row["size_bytes"], "stored": True}
 
     def check_size(size: int) -> None:
         if size > settings.max_upload_bytes:
             raise HTTPException(413, f"file of {size} B exceeds the server's limit of "
                                      f"{settings.max_upload_bytes} B")
+
+    def check_partial_quota(part: Path, uploader: str, size: int) -> None:
+        """Refuse (429: retry later) a PUT that would take the uploader past its partial-upload bounds."""
+        store.expire_partials(settings.partial_expiry_s, keep=set(upload_locks))
+        others = [p for p in store.partials(uploader) if p != part]
+        held = sum(p.stat().st_size for p in others if p.exists())
+        if not part.exists() and len(others) >= settings.max_partial_uploads:
+            raise HTTPException(429, f"{len(others)} partial uploads held for this uploader (limit "
+                                     f"{settings.max_partial_uploads}): finish them, or retry after they expire")
+        if held + size > max_partial_bytes:
+            raise HTTPException(429, f"partial uploads of this uploader would hold {held + size} B (limit "
+                                     f"{max_partial_bytes} B): finish them, or retry after they expire")
 
     upload_errors = {**ERRORS, 413: {"model": Detail, "description": "file larger than the server accepts"}}
 
@@ -272,6 +293,8 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
                         200: {"model": StoredFile, "description": "already stored (nothing changed)"},
                         202: {"model": UploadState, "description": "bytes appended; send the rest from `offset`"},
                         409: {"model": UploadState, "description": "`offset` is not where the upload stands"},
+                        429: {"model": Detail, "description": "the uploader holds too many or too large partial "
+                                                              "uploads; retry later"},
                         422: {"model": Detail, "description": "invalid parameters, not a complete MCAP file, "
                                                               "or hash mismatch"}})
     async def upload(request: Request, sha256: Sha256, size: Annotated[int, Query(ge=1, le=2**62)],
@@ -286,6 +309,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         if row is not None:
             return JSONResponse(stored_reply(row, truck, "already stored"), status_code=200)
         part = store.partial(sha256, truck or "admin")
+        await run_in_threadpool(check_partial_quota, part, truck or "admin", size)
         lock = upload_locks.setdefault(part, asyncio.Lock())
         if lock.locked():  # the same upload is still arriving on another connection
             held = part.stat().st_size if part.exists() else 0

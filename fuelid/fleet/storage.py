@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,8 +45,25 @@ class BlobStore:
 
     def partial(self, sha256: str, uploader: str) -> Path:
         """The partial upload of `sha256` by `uploader` (hashed: uploaders never share or name a path)."""
-        key = hashlib.sha256(uploader.encode()).hexdigest()[:16]
-        return self.incoming / f"{sha256}-{key}.part"
+        return self.incoming / f"{sha256}-{_uploader_key(uploader)}.part"
+
+    def partials(self, uploader: str) -> list[Path]:
+        """Every partial upload `uploader` holds."""
+        return list(self.incoming.glob(f"*-{_uploader_key(uploader)}.part"))
+
+    def expire_partials(self, max_age_s: float, keep: set[Path] = frozenset()) -> int:
+        """Delete the partial uploads not written to for `max_age_s` [s] (but those in `keep`, being received);
+        return how many went. Their age is the file's mtime, so it survives a restart of the server."""
+        expired = 0
+        oldest = time.time() - max_age_s
+        for p in self.incoming.glob("*.part"):
+            try:
+                if p not in keep and p.stat().st_mtime < oldest:
+                    p.unlink()
+                    expired += 1
+            except FileNotFoundError:  # finished or expired by another request meanwhile
+                pass
+        return expired
 
     def commit(self, src: Path, sha256: str) -> Path:
         """Move the complete file `src` (on the same file system) to its blob path, durably."""
@@ -76,6 +94,10 @@ class BlobStore:
                 p.unlink(missing_ok=True)
                 removed += 1
         return removed
+
+
+def _uploader_key(uploader: str) -> str:
+    return hashlib.sha256(uploader.encode()).hexdigest()[:16]
 
 
 @dataclass

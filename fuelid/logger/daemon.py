@@ -39,11 +39,13 @@ from fuelid.logger.durable import fsync_path
 from fuelid.logger.flowmeter import Calibration, SerialFlowMeter
 from fuelid.logger.mcap_log import MAGIC, recover
 from fuelid.logger.recorder import Recorder, open_writer
+from fuelid.logger.relabel import relabel
 from fuelid.logger.upload import UploadQueue
 
 log = logging.getLogger("fuelid.log")
 
 PART = ".part"  # suffix of a file being written; a file without it was closed cleanly
+RECOVERING = ".recovering"  # suffix of a recovered copy being written; left over only by a crash meanwhile
 # The MCAP SDK reports a failed write (disk full, I/O error) as RuntimeError, the fsync after it as OSError.
 STORAGE_ERRORS = (OSError, RuntimeError)
 TICK_S = 0.2  # main-loop period [s]: wall-time chunk flushes and rotation checks run this often
@@ -97,6 +99,7 @@ class LogFiles:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.faults = faults or Faults()
         self.on_file_closed: list[Callable[[Path], None]] = []
+        self.postponed: dict[Path, int] = {}  # orphans whose recovery the disk stopped -> their size [bytes]
 
     def _closed(self, final: Path) -> None:
         for callback in self.on_file_closed:
@@ -124,25 +127,43 @@ class LogFiles:
         self._closed(final)
         return final
 
-    def recover_orphans(self) -> list[str]:
-        """Make every `.part` file a valid closed file (what a crash or a full disk left); one line each."""
+    def recover_orphans(self, writing: Path | None = None, free_bytes: float = math.inf) -> list[str]:
+        """Make every `.part` file but `writing` a valid closed file (what a crash or a full disk left); one line
+        each. A recovery the disk stops (full, I/O error) leaves the `.part` as it was, is a "recovery" fault
+        until it succeeds, and is tried again once `free_bytes` would hold a copy of it; a file that is not
+        recoverable is kept as `.bad` and not tried again."""
+        for debris in self.dir.glob("*.mcap" + RECOVERING):  # a copy a crash cut short; its .part is still here
+            debris.unlink(missing_ok=True)
         done = []
         for part in sorted(self.dir.glob("*.mcap" + PART)):
+            if part == writing or self.postponed.get(part, 0) > free_bytes:
+                continue
             final = part.with_name(part.name[: -len(PART)])
-            if part.stat().st_size <= len(MAGIC):  # cut before anything was written
+            size = part.stat().st_size
+            if size <= len(MAGIC):  # cut before anything was written
                 part.unlink()
                 done.append(f"removed empty {part.name}")
                 continue
-            tmp = final.with_name(final.name + ".recovering")
+            tmp = final.with_name(final.name + RECOVERING)
             try:
                 stats = recover(part, tmp)
+                os.replace(tmp, final)
+                part.unlink()
+                fsync_path(self.dir)
+            except OSError as exc:  # the disk, not the file: keep it as it is, try again when there is room
+                tmp.unlink(missing_ok=True)
+                self.postponed[part] = size
+                self.faults.occur("recovery", f"{part.name}: {exc}; kept, tried again when there is room")
+                done.append(f"recovery of {part.name} postponed: {exc}")
+                continue
             except Exception as exc:  # not recoverable: keep the bytes, stop retrying it
+                tmp.unlink(missing_ok=True)
                 part.rename(part.with_name(part.name + ".bad"))
+                self.postponed.pop(part, None)
                 done.append(f"{part.name} unreadable ({exc}), kept as .bad")
                 continue
-            os.replace(tmp, final)
-            part.unlink()
-            fsync_path(self.dir)
+            if self.postponed.pop(part, None) is not None and not self.postponed:
+                self.faults.clear("recovery", "every postponed file recovered")
             lost = "" if stats.complete else f", {stats.bytes_lost} trailing bytes lost"
             done.append(f"recovered {final.name}: {sum(stats.messages.values())} messages{lost}")
             self._closed(final)
@@ -214,6 +235,7 @@ class LogSink(can.Listener):
         self.dropped = 0
         self.record_errors = 0
         self.closed_files = 0
+        self.unlabelled: set[str] = set()  # files closed before the VIN was seen, naming the configured truck
 
     # --- the notifier's and the meter's threads
 
@@ -292,6 +314,8 @@ class LogSink(can.Listener):
             self.faults.occur("storage", f"closing {part.name}: {exc}")
             return
         self.closed_files += 1
+        if self.recorder.vin is None:
+            self.unlabelled.add(str(final.resolve()))
         log.info("closed %s", final)
 
     def _abandon(self, exc: Exception) -> None:
@@ -461,13 +485,16 @@ class Daemon:
         self.live = estimator
         self.uploads = None
         if config.upload_server:
-            self.uploads = UploadQueue(config.output_dir, config.upload_server, config.upload_token(), None,
-                                       delete_after_upload=config.delete_after_upload)
+            config.upload_token()  # no token at all: refuse to start (FuelidError); later it is re-read per upload
+            self.uploads = UploadQueue(config.output_dir, config.upload_server, config.upload_token, None,
+                                       delete_after_upload=config.delete_after_upload, prepare=self._name_truck,
+                                       start=False)
             self.files.on_file_closed.append(self.uploads.enqueue)
         self.sink = LogSink(config, self.files, self.faults, self.live)
         self.bus: BusLink | None = None
         self.flow: FlowInput | None = None
         self._stop = threading.Event()
+        self._vin_known = False  # for the upload queue: the files closed before the VIN were queued again
         self._started = time.time()
         self._rate = (time.monotonic(), 0)  # (when, frames) of the last status, for frames/s
 
@@ -477,6 +504,8 @@ class Daemon:
     def run(self) -> None:
         for line in self.files.recover_orphans():
             log.info("%s", line)
+        if self.uploads:
+            self.uploads.start()
         if self.live:
             self.live.prepare()  # compile or load the estimator's loop before frames arrive
         self.sink.open()
@@ -492,6 +521,7 @@ class Daemon:
                 if now >= next_status:
                     self._check_disk()
                     self._check_serial()
+                    self._check_identity()
                     self.write_status()
                     next_status = now + STATUS_S
                 self._stop.wait(TICK_S)
@@ -517,19 +547,48 @@ class Daemon:
 
     def _check_disk(self) -> None:
         """Stop writing cleanly while free space is short; recover what a failed write left and resume once
-        there is twice as much again."""
+        there is twice as much again. An orphan whose recovery the disk stopped is tried again once there is
+        room for its copy beside that margin."""
         try:
-            free_mb = shutil.disk_usage(self.files.dir).free / 1e6
+            free = shutil.disk_usage(self.files.dir).free
         except OSError:
             return
+        free_mb = free / 1e6
         if self.sink.part is not None and free_mb < self.config.min_free_mb:
             self.faults.occur("storage", f"{free_mb:.1f} MB free in {self.files.dir}: stopped writing")
             self.sink.stop_writing()
         elif self.sink.part is None and free_mb >= 2 * self.config.min_free_mb:
-            for line in self.files.recover_orphans():
-                log.info("%s", line)
+            self._recover_orphans(free)
             if self.sink.open():
                 self.faults.clear("storage", f"{free_mb:.1f} MB free, writing again")
+        elif self.files.postponed:
+            self._recover_orphans(free)
+
+    def _recover_orphans(self, free: int) -> None:
+        room = free - 2 * self.config.min_free_mb * 1e6
+        for line in self.files.recover_orphans(writing=self.sink.part, free_bytes=room):
+            log.info("%s", line)
+
+    def _check_identity(self) -> None:
+        """Once the VIN is first seen, the files closed before it (refused by the VIN's token) go again."""
+        if self.uploads and self.sink.unlabelled and self.sink.recorder.vin and not self._vin_known:
+            self._vin_known = True
+            self.uploads.retry(self.sink.unlabelled)
+
+    def _name_truck(self, path: str) -> None:
+        """Run by the upload queue just before it sends `path`: a file of this session closed before the VIN
+        was seen gets the VIN as its truck (relabelled), once the VIN is known."""
+        vin = self.sink.recorder.vin if self.sink.recorder else None
+        if not vin or path not in self.sink.unlabelled:
+            return
+        try:
+            relabel(path, {"truck": vin})  # an OSError (disk full) propagates: the queue tries again later
+            log.info("relabelled %s with the truck's VIN %s", Path(path).name, vin)
+        except OSError:
+            raise
+        except Exception as exc:  # a damaged file: sent as it is, for the server to judge
+            self.faults.occur("relabel", f"{Path(path).name}: {type(exc).__name__}: {exc}")
+        self.sink.unlabelled.discard(path)
 
     def _check_serial(self) -> None:
         if self.flow is None:

@@ -6,10 +6,14 @@ truncated ones (power cut before `close()`) by a sequential scan that stops at t
 """
 from __future__ import annotations
 
+import errno
 import io
 import itertools
+import logging
 import mmap
+import re
 import struct
+import threading
 import time
 import zlib
 from collections import Counter
@@ -80,6 +84,40 @@ def raw_record(msg) -> dict:
     }
 
 
+class _SinkErrors(logging.Filter):
+    """The Foxglove SDK does not raise a failed message write (disk full, I/O error) to the caller: it logs a
+    warning per message, thousands a second on a full disk. This filter takes those warnings off the log and
+    keeps the first for the thread that wrote (the SDK writes in the caller's thread, compression included),
+    whose McapLogWriter.write raises it."""
+
+    PREFIX = "error logging message"
+
+    def __init__(self):
+        super().__init__()
+        self.failed = threading.local()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        if not message.startswith(self.PREFIX):
+            return True
+        if getattr(self.failed, "message", None) is None:
+            self.failed.message = message
+        return False
+
+    def take(self) -> OSError | None:
+        """The write failure this thread caused since the last call, as an OSError with its errno."""
+        message = getattr(self.failed, "message", None)
+        if message is None:
+            return None
+        self.failed.message = None
+        code = re.search(r"code: (\d+)", message)
+        return OSError(int(code.group(1)) if code else errno.EIO, f"MCAP write failed: {message[len(self.PREFIX) + 2:]}")
+
+
+_SINK_ERRORS = _SinkErrors()
+logging.getLogger("foxglove.log_sink_set").addFilter(_SINK_ERRORS)
+
+
 def _metadata_strings(metadata: dict) -> dict[str, str]:
     # MCAP metadata is str -> str; anything else (lists of sources, numbers) is stored as JSON.
     return {k: v if isinstance(v, str) else orjson.dumps(v).decode() for k, v in metadata.items()}
@@ -148,8 +186,12 @@ class McapLogWriter:
         return topic in self._channels
 
     def write(self, topic: str, log_time_ns: int, record: dict) -> None:
-        """Write one message; `log_time_ns` is the receive time [ns]."""
+        """Write one message; `log_time_ns` is the receive time [ns]. A failed write raises OSError (errno
+        ENOSPC for a full disk), and so does every write after it: the file is broken from there on."""
         self._channels[topic].log(orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY), log_time=log_time_ns)
+        failure = _SINK_ERRORS.take()
+        if failure is not None:
+            raise failure
         if self._log_due_ns is None:
             self._log_due_ns = log_time_ns + self._flush_ns
         elif log_time_ns >= self._log_due_ns:

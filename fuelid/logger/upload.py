@@ -25,6 +25,7 @@ import urllib.parse
 import urllib.request
 from email.message import Message
 from pathlib import Path
+from typing import Callable
 
 from fuelid.errors import FuelidError
 from fuelid.logger.durable import write_atomic
@@ -34,6 +35,8 @@ log = logging.getLogger("fuelid.upload")
 API = "/api/v1"
 CHUNK_BYTES = 8 << 20  # bytes per PUT: a cut costs at most this much resending, and memory stays bounded
 JOURNAL = "upload-queue.json"
+JOURNAL_RETRY_S = 1.0  # a journal write that failed is tried again this often [s]
+CURED_BY_A_NEW_TOKEN = (401, 403)  # refusals tried again when the token changes (unknown token, wrong role/truck)
 
 
 class UploadError(FuelidError):
@@ -184,17 +187,31 @@ class UploadQueue:
     The queue is a journal `spool_dir/upload-queue.json` (pending paths, and those the server refused for
     good with its reason) rewritten atomically on every change, so a restart or power cut loses nothing: the
     next UploadQueue on the same spool_dir carries on, and the server's offset makes a cut upload resume.
+    A journal that cannot be written (disk full) is retried every JOURNAL_RETRY_S while uploads go on
+    (`journal_error` in the status); a damaged one found at start is set aside and the queue rebuilt from
+    the `*.mcap` files in spool_dir, so the logger always starts.
     Unreachable server, timeouts and 5xx → wait and retry with exponential backoff (`initial_backoff_s` up to
-    `max_backoff_s` [s]); a refusal (401/403/413/422 ...) moves the file to `rejected` and goes on with the
-    next. With `delete_after_upload` a file is deleted only after the server confirmed its sha256 and size.
+    `max_backoff_s` [s]); a refusal of the file (403/413/422 ...) moves it to `rejected` and goes on with the
+    next. A refusal that a change can cure is tried again after the change: a 401 (unknown token) holds the
+    whole queue until `token` (a string, or a function re-read every `token_check_s` [s], e.g. of the token
+    file) gives another token, and then files refused with 401/403 are queued again; `retry(paths)` queues
+    refused files again on the caller's word (e.g. relabelled with the VIN). `prepare(path)`, when given, runs
+    in the upload thread just before each attempt (relabelling happens there, never under an upload).
+    With `delete_after_upload` a file is deleted only after the server confirmed its sha256 and size.
     """
 
-    def __init__(self, spool_dir: str | Path, server_url: str, token: str, truck: str | None, *,
+    def __init__(self, spool_dir: str | Path, server_url: str, token: str | Callable[[], str], truck: str | None, *,
                  delete_after_upload: bool = False, initial_backoff_s: float = 1.0, max_backoff_s: float = 300.0,
-                 timeout_s: float = 60.0, chunk_bytes: int = CHUNK_BYTES, start: bool = True):
+                 timeout_s: float = 60.0, chunk_bytes: int = CHUNK_BYTES, token_check_s: float = 5.0,
+                 prepare: Callable[[str], None] | None = None, start: bool = True):
         self.spool_dir = Path(spool_dir)
         self.spool_dir.mkdir(parents=True, exist_ok=True)
-        self.server_url, self.token, self.truck = server_url, token, truck
+        self.server_url, self.truck = server_url, truck
+        self._token_source = token if callable(token) else (lambda: token)
+        self.token_check_s, self.prepare = token_check_s, prepare
+        self._token: str | None = None  # the token of the last attempt
+        self._refused_token: str | None = None  # the token the server answered 401 to
+        self._again: set[str] = set()  # files to queue again even if the attempt in flight is refused
         self.delete_after_upload = delete_after_upload
         self.timeout_s, self.chunk_bytes = timeout_s, chunk_bytes
         self._backoff = Backoff(initial_backoff_s, max_backoff_s)
@@ -202,25 +219,69 @@ class UploadQueue:
         self._lock = threading.Lock()
         self._wake = threading.Event()
         self._stop = threading.Event()
-        self.pending, self.rejected = self._load()
         self.uploaded = 0
         self.last_error: str | None = None
+        self.journal_error: str | None = None  # why the journal on disk is behind the queue, None when it is not
+        self.journal_set_aside: str | None = None  # where a damaged journal found at start was moved
+        self.pending, self.rejected = self._load()
         self._thread = threading.Thread(target=self._run, name="fuelid-upload", daemon=True)
         if start:
-            self._thread.start()
+            self.start()
+
+    def start(self) -> None:
+        self._thread.start()
 
     def _load(self) -> tuple[list[str], list[dict]]:
         try:
-            state = json.loads(self._journal.read_text())
-            return list(state.get("pending", [])), list(state.get("rejected", []))
+            state = json.loads(self._journal.read_bytes())
+            pending, rejected = state.get("pending", []), state.get("rejected", [])
+            if not (all(isinstance(p, str) for p in pending) and all(isinstance(r, dict) for r in rejected)):
+                raise ValueError("pending must be paths, rejected must be records")
+            return list(pending) + self._closed_since_journal(set(pending) | {r.get("path") for r in rejected}), \
+                list(rejected)
         except FileNotFoundError:
             return [], []
-        except (ValueError, AttributeError) as exc:
-            raise FuelidError(f"unreadable upload journal {self._journal}: {exc}") from exc
+        except (OSError, ValueError, AttributeError, TypeError) as exc:
+            return self._rebuild(exc), []
+
+    def _closed_since_journal(self, listed: set[str]) -> list[str]:
+        """Files in spool_dir written after the journal's last write and not in it: closed while the journal
+        could not be written (every change rewrites it, so normally there are none)."""
+        since = self._journal.stat().st_mtime
+        later = [str(p.resolve()) for p in sorted(self.spool_dir.glob("*.mcap")) if p.stat().st_mtime > since]
+        return [p for p in later if p not in listed]
+
+    def _rebuild(self, exc: Exception) -> list[str]:
+        """Set a damaged journal aside and queue every closed file in the folder again: logging comes first, and
+        a file the server already holds costs one request ("already stored"); refusals are forgotten (tried again)."""
+        aside = self._journal.with_name(f"{JOURNAL}.damaged-{time.time():.0f}")
+        try:
+            os.replace(self._journal, aside)
+        except OSError as move_exc:  # unreadable and immovable: the next write replaces it
+            aside = Path(f"{self._journal} (not moved: {move_exc.strerror})")
+        self.journal_set_aside = str(aside)
+        pending = [str(p.resolve()) for p in sorted(self.spool_dir.glob("*.mcap"))]
+        log.error("upload: damaged journal %s (%s) set aside as %s; queued the %d files in %s again",
+                  self._journal, exc, aside.name, len(pending), self.spool_dir)
+        self.pending, self.rejected = pending, []
+        self._save()
+        return pending
 
     def _save(self) -> None:
+        """Write the journal; on failure (disk full, I/O error) keep going and try again from the upload thread."""
         state = {"version": 1, "truck": self.truck, "pending": self.pending, "rejected": self.rejected}
-        write_atomic(self._journal, json.dumps(state, indent=1).encode())
+        try:
+            write_atomic(self._journal, json.dumps(state, indent=1).encode())
+        except OSError as exc:
+            if self.journal_error is None:
+                log.error("upload: cannot write the journal %s: %s (retrying; the queue goes on in memory)",
+                          self._journal, exc)
+            self.journal_error = f"cannot write {self._journal.name}: {exc}"
+            self._wake.set()
+            return
+        if self.journal_error is not None:
+            log.info("upload: journal %s written again", self._journal)
+            self.journal_error = None
 
     def enqueue(self, path: str | Path) -> None:
         """Queue a closed file (an absolute path is kept); queuing a path twice uploads it once."""
@@ -235,46 +296,106 @@ class UploadQueue:
         """Counts for a status file: queued, uploaded since start, refused, and the last error."""
         with self._lock:
             return {"queued": len(self.pending), "uploaded": self.uploaded, "rejected": len(self.rejected),
-                    "last_error": self.last_error}
+                    "last_error": self.last_error, "journal_error": self.journal_error,
+                    "journal_set_aside": self.journal_set_aside}
 
-    def _done(self, path: str, rejected_reason: str | None = None) -> None:
+    def retry(self, paths) -> None:
+        """Queue refused files again (the cause of their refusal changed); one being uploaded now is queued
+        again even if this attempt is refused."""
+        paths = {str(Path(p).resolve()) for p in paths}
+        with self._lock:
+            self._again |= paths & set(self.pending)
+            self._requeue(lambda r: r["path"] in paths)
+        self._wake.set()
+
+    def _requeue(self, which: Callable[[dict], bool]) -> None:
+        # Called with the lock held.
+        back = [r for r in self.rejected if which(r)]
+        if back:
+            self.rejected = [r for r in self.rejected if not which(r)]
+            self.pending += [r["path"] for r in back if r["path"] not in self.pending]
+            log.info("upload: %d refused files queued again", len(back))
+            self._save()
+
+    def _done(self, path: str, refusal: Rejected | str | None = None) -> None:
         with self._lock:
             self.pending.remove(path)
-            if rejected_reason is not None:
-                self.rejected.append({"path": path, "error": rejected_reason, "at_unix_s": time.time()})
+            if path in self._again:  # its refusal's cause changed during the attempt
+                self._again.discard(path)
+                if refusal is not None:
+                    self.pending.append(path)
+                    refusal = None
+            if refusal is not None:
+                self.rejected.append({"path": path, "error": str(refusal), "at_unix_s": time.time(),
+                                      "status": getattr(refusal, "status", None)})
             self._save()
+
+    def _current_token(self) -> str | None:
+        """The token to use now, or None while there is none or only the one the server refused."""
+        try:
+            token = self._token_source()
+        except FuelidError as exc:  # the token file is missing or empty: wait for it
+            self.last_error = str(exc)
+            return None
+        if token == self._refused_token:
+            return None
+        if self._token is not None and token != self._token:
+            log.info("upload: the token changed; files it refused are queued again")
+            with self._lock:
+                self._requeue(lambda r: r.get("status") in CURED_BY_A_NEW_TOKEN)
+        self._token, self._refused_token = token, None
+        return token
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            with self._lock:
-                path = self.pending[0] if self.pending else None
-            if path is None:
-                self._wake.wait()
-                self._wake.clear()
-                continue
-            if not os.path.exists(path):
-                log.warning("upload: %s vanished before upload; dropped from the queue", path)
-                self._done(path, "file missing")
-                continue
             try:
-                reply = upload_file(path, self.server_url, self.token, truck=self.truck,
-                                    chunk_bytes=self.chunk_bytes, timeout_s=self.timeout_s, cancel=self._stop)
-            except Rejected as exc:
-                log.error("upload: server refused %s: %s", path, exc)
-                self.last_error = str(exc)
-                self._done(path, str(exc))
-                continue
-            except (Unavailable, OSError) as exc:
-                self.last_error = str(exc)
+                self._step()
+            except Exception as exc:  # nothing may end the thread while files wait: say it, wait, go on
+                log.exception("upload: unexpected error")
+                self.last_error = f"{type(exc).__name__}: {exc}"
                 self._stop.wait(self._backoff.next())
-                continue
-            self._backoff.reset()
-            self.last_error = None
-            if self.delete_after_upload:  # upload_file returned only on a confirmation matching the file
-                os.remove(path)
-            self.uploaded += 1
-            log.info("upload: %s %s (%s)", path, reply["status"], reply["sha256"][:12])
-            self._done(path)
+
+    def _step(self) -> None:
+        """Upload the first queued file (one attempt), or wait for one; retry a journal write that failed."""
+        with self._lock:
+            if self.journal_error is not None:
+                self._save()
+            path = self.pending[0] if self.pending else None
+        token = self._current_token()
+        if path is None or token is None:  # nothing to send, or no usable token: look again later
+            self._wake.wait(JOURNAL_RETRY_S if self.journal_error is not None else self.token_check_s)
+            self._wake.clear()
+            return
+        if not os.path.exists(path):
+            log.warning("upload: %s vanished before upload; dropped from the queue", path)
+            self._done(path, "file missing")
+            return
+        try:
+            if self.prepare is not None:
+                self.prepare(path)
+            reply = upload_file(path, self.server_url, token, truck=self.truck,
+                                chunk_bytes=self.chunk_bytes, timeout_s=self.timeout_s, cancel=self._stop)
+        except Rejected as exc:
+            self.last_error = str(exc)
+            if exc.status == 401:  # the token, not the file: hold the queue until there is another one
+                self._refused_token = token
+                self.last_error += "; waiting for a new token"
+                log.error("upload: server refused the token: %s; waiting for a new token", exc)
+                return
+            log.error("upload: server refused %s: %s", path, exc)
+            self._done(path, exc)
+            return
+        except (Unavailable, OSError) as exc:
+            self.last_error = str(exc)
+            self._stop.wait(self._backoff.next())
+            return
+        self._backoff.reset()
+        self.last_error = None
+        if self.delete_after_upload:  # upload_file returned only on a confirmation matching the file
+            os.remove(path)
+        self.uploaded += 1
+        log.info("upload: %s %s (%s)", path, reply["status"], reply["sha256"][:12])
+        self._done(path)
 
     def stop(self, timeout_s: float = 10.0) -> None:
         """Stop after the chunk in flight; what is still queued stays in the journal for the next start."""

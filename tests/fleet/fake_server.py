@@ -55,9 +55,15 @@ def main():
     p.add_argument("--database-url")
     p.add_argument("--max-upload-mb", type=float, default=64)
     p.add_argument("--refit-after", type=float)
+    p.add_argument("--max-partial-uploads", type=int, default=8)
+    p.add_argument("--max-partial-mb", type=float)
+    p.add_argument("--partial-expiry-h", type=float, default=168.0)
     a = p.parse_args()
     settings = Settings(data_dir=Path(a.data_dir), database_url=a.database_url,
-                        max_upload_bytes=int(a.max_upload_mb * MiB), refit_after_s=a.refit_after)
+                        max_upload_bytes=int(a.max_upload_mb * MiB), refit_after_s=a.refit_after,
+                        max_partial_uploads=a.max_partial_uploads,
+                        max_partial_bytes=int(a.max_partial_mb * MiB) if a.max_partial_mb else None,
+                        partial_expiry_s=a.partial_expiry_h * 3600.0)
     uvicorn.run(create_app(settings, runner_factory=FakeRunner), host="127.0.0.1", port=a.port, log_level="warning")
 
 

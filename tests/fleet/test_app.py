@@ -9,7 +9,7 @@ import sqlalchemy as sa
 
 from fuelid.fleet import db
 from fuelid.cli import main as fuelid
-from fuelid.logger.upload import Rejected, request, request_json, upload_file
+from fuelid.logger.upload import Rejected, UploadError, request, request_json, upload_file
 from tests.fleet.conftest import Server, make_mcap
 
 
@@ -241,3 +241,54 @@ def test_serve_refuses_an_unreachable_database_in_one_line(tmp_path, capsys):
                    "postgresql+psycopg://nobody@127.0.0.1:1/fuelid"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("fuelid serve: error: cannot start: ") and err.count("\n") == 1
+
+
+def test_a_refusal_never_names_another_truck(sqlite_server, tmp_path):
+    """A truck asking for a file another truck stored learns only that it is not its own."""
+    s = sqlite_server
+    path = make_mcap(tmp_path / "t2.mcap", "SECRETTRUCK2")
+    stored = upload_file(path, s.url, s.token("truck", "SECRETTRUCK2"))
+    t1 = s.token("truck", "T1")
+    put = f"{s.url}/api/v1/uploads/{stored['sha256']}?size={path.stat().st_size}&offset=0"
+    for attempt in (lambda: upload_file(path, s.url, t1), lambda: request("PUT", put, t1, data=path.read_bytes())):
+        with pytest.raises(Rejected) as err:
+            attempt()
+        assert err.value.status == 403 and "another truck" in str(err.value)
+        assert "SECRETTRUCK2" not in str(err.value) + json.dumps(err.value.body)
+
+
+def test_partial_uploads_are_bounded_per_uploader_and_expire(tmp_path):
+    s = Server(tmp_path / "data", max_partial_uploads=2, max_partial_mb=1, partial_expiry_h=1).start()
+    try:
+        t1, t2 = s.token("truck", "T1"), s.token("truck", "T2")
+        files = {name: make_mcap(tmp_path / f"{name}.mcap", truck, seed=k)
+                 for k, (name, truck) in enumerate([("a", "T1"), ("b", "T1"), ("c", "T1"), ("d", "T2")])}
+
+        def start(name, token, size=None):
+            """Send a file's first 100 bytes (made-up hashes would do as well); the HTTP status."""
+            data = files[name].read_bytes()
+            sha = __import__("hashlib").sha256(data).hexdigest()
+            try:
+                return request("PUT", f"{s.url}/api/v1/uploads/{sha}?size={size or len(data)}&offset=0", token,
+                               data=data[:100])[0]
+            except UploadError as exc:  # 429 is Unavailable: the uploader retries later
+                assert "partial uploads" in str(exc)
+                return exc.status
+
+        assert [start("a", t1), start("b", t1), start("c", t1)] == [202, 202, 429]  # two at most per truck
+        assert start("d", t2) == 202  # another truck's own quota
+        upload_file(files["a"], s.url, t1)  # finishing one makes room
+        assert start("c", t1) == 202
+        s.stop()  # the partial uploads and their quota survive a restart...
+        s.start()
+        assert start("b", t2, size=2**20) == 429  # ...and bytes count: 100 B held + 1 MiB declared > 1 MiB
+        held = sorted(p.stat().st_size for p in (s.data_dir / "incoming").glob("*.part"))
+        assert held == [100, 100, 100]
+        s.stop()
+        for p in (s.data_dir / "incoming").glob("*.part"):  # untouched for 2 h: expired (limit 1 h)
+            os.utime(p, (time.time() - 7200, time.time() - 7200))
+        s.start()
+        assert list((s.data_dir / "incoming").glob("*.part")) == []
+        assert start("b", t1) == 202
+    finally:
+        s.stop()

@@ -3,6 +3,7 @@ import errno
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -196,6 +197,95 @@ def test_low_free_space_closes_the_file_cleanly(tmp_path, drive, monkeypatch):
     _wait(lambda: run.daemon.sink.part is not None, timeout=5)
     run.stop()
     assert len(run.raw()) == 100
+
+
+def _orphan(directory, msgs, name="fuelid-20260101T000000.000Z.mcap.part"):
+    """A `.part` file as a power cut leaves it (here closed, which recovery treats the same)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    writer = open_writer(directory / name, truck="t")
+    writer.add_channel("/can/raw", RAW_SCHEMA)
+    for m in msgs:
+        writer.write("/can/raw", int(m.timestamp * 1e9), raw_record(m))
+    writer.close()
+    return directory / name
+
+
+def test_disk_full_during_recovery_keeps_the_orphan_and_retries(tmp_path, drive, monkeypatch, caplog):
+    _, msgs = drive
+    orphan = _orphan(tmp_path / "logs", msgs[:100])
+    real = daemon_mod.recover
+    disk = {"full": True}
+
+    def recover(src, dst):
+        if disk["full"]:  # the disk fills up while the recovered copy is written
+            dst.write_bytes(b"\x89MCAP0\r\n" + bytes(1000))
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(src, dst)
+
+    monkeypatch.setattr(daemon_mod, "recover", recover)
+    caplog.set_level(logging.INFO, logger="fuelid.log")
+    closed = []
+    run = Running(tmp_path, "recover-full", on_file_closed=[closed.append])
+    time.sleep(2.5)  # a few retries while the disk stays full
+    logs = run.config.output_dir
+    assert orphan.exists() and not list(logs.glob("*.bad")) and not list(logs.glob("*.recovering"))
+    assert run.status()["faults_active"]["recovery"].startswith(orphan.name)
+    disk["full"] = False  # space is back
+    final = orphan.with_name(orphan.name[: -len(".part")])
+    _wait(lambda: final.exists(), timeout=5)
+    run.stop()
+    assert closed[0] == final and not orphan.exists()
+    assert [r["id"] for _, _, r in read_messages(final, "/can/raw")] == [m.arbitration_id for m in msgs[:100]]
+    status = run.status()
+    assert "recovery" not in status["faults_active"] and status["faults"]["recovery"] >= 2
+    assert len([r for r in caplog.records if r.levelno == logging.WARNING and "recovery" in r.getMessage()]) == 1
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """An 8 MB tmpfs: a disk that really fills up (root only; skips where mounting is not allowed)."""
+    mnt = tmp_path / "tiny"
+    mnt.mkdir()
+    if os.geteuid() != 0:
+        pytest.skip("mounting a tmpfs needs root")
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if done.returncode:
+        pytest.skip(f"cannot mount a tmpfs: {done.stderr.strip()}")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def test_a_real_full_disk_costs_one_warning_and_no_file(tmp_path, tiny_disk, caplog):
+    """On a disk that fills up: the orphan whose recovered copy does not fit stays `.part`; the file being
+    written when a write fails (ENOSPC) is abandoned with one warning; once space returns both are recovered."""
+    rng = np.random.default_rng(1)
+    frames = [can.Message(timestamp=1_700_000_000 + k * 1e-3, arbitration_id=0x0CF00400, data=rng.bytes(8))
+              for k in range(60_000)]
+    logs = tiny_disk / "logs"
+    orphan = _orphan(logs, frames[:30_000])
+    assert orphan.stat().st_size > 1_000_000
+    filler = tiny_disk / "filler"
+    filler.write_bytes(bytes(int(shutil.disk_usage(tiny_disk).free - 500_000)))  # 0.5 MB left
+    caplog.set_level(logging.INFO)
+    run = Running(tiny_disk, "tiny", min_free_mb=0.01)
+    assert orphan.exists() and not list(logs.glob("*.bad")) and not list(logs.glob("*.recovering"))
+    writing = run.daemon.sink.part
+    for m in frames:
+        run.tx.send(can.Message(arbitration_id=m.arbitration_id, data=m.data))
+    _wait(lambda: run.daemon.sink.part is None and run.daemon.sink.dropped > 0, timeout=30)
+    filler.unlink()  # space is back
+    _wait(lambda: run.daemon.sink.part is not None and not run.daemon.files.postponed
+          and not writing.exists(), timeout=10)
+    run.stop()
+    assert not list(logs.glob("*.part")) and not list(logs.glob("*.bad")) and not list(logs.glob("*.recovering"))
+    final = orphan.with_name(orphan.name[: -len(".part")])
+    assert sum(1 for _ in read_messages(final, "/can/raw")) == 30_000
+    assert sum(1 for _ in read_messages(writing.with_name(writing.name[: -len(".part")]), "/can/raw")) > 1000
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert not [w for w in warnings if "error logging message" in w]  # the SDK's per-message warnings
+    assert len([w for w in warnings if w.startswith("storage")]) == 1
+    status = run.status()
+    assert status["faults"]["storage"] >= 1 and status["faults"]["recovery"] >= 1
 
 
 def test_malformed_traffic_keeps_logging(tmp_path, monkeypatch):

@@ -293,6 +293,43 @@ def test_data_reaches_disk_within_a_second_of_wall_time(tmp_path):
     assert len(list(read_messages(path))) == 7
 
 
+_FILL_UP = """
+import json, logging, resource, signal, sys
+from fuelid.logger.mcap_log import RAW_SCHEMA, McapLogWriter
+logged = []
+handler = logging.Handler()
+handler.emit = lambda record: logged.append(record.getMessage())
+logging.getLogger().addHandler(handler)
+w = McapLogWriter(sys.argv[1], metadata={"truck": "T"}, fsync=False, chunk_size=4096)
+w.add_channel("/can/raw", RAW_SCHEMA)
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (100_000, resource.RLIM_INFINITY))  # no file grows past 100 kB
+written, error = 0, None
+for k in range(20_000):  # 1 us of log time apart: chunks written when full, within a write
+    try:
+        w.write("/can/raw", 10**18 + k * 10**3, {"t": k, "data": "%016x" % (k * 7919)})
+        written += 1
+    except Exception as exc:
+        error = error or [type(exc).__name__, getattr(exc, "errno", None)]
+print(json.dumps({"written": written, "error": error, "logged": logged}))
+"""
+
+
+def test_a_failed_write_raises_at_once_and_logs_nothing(tmp_path):
+    """The Foxglove SDK reports a failed message write only as a log warning, per message; the writer
+    raises it (OSError with the errno) from the first write that failed, and the log stays quiet."""
+    import errno
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _FILL_UP, str(tmp_path / "full.mcap")], capture_output=True,
+                         text=True, timeout=120)
+    result = json.loads(out.stdout)
+    assert result["error"] == ["OSError", errno.EFBIG], result["error"]
+    assert 100 < result["written"] < 20_000  # the chunks that fitted were written, none after the failure
+    assert result["logged"] == []
+
+
 def test_raw_record_matches_schema():
     frame = can.Message(timestamp=12.5, arbitration_id=0x18FEF100, data=b"\x01\xff", is_extended_id=True, channel=0)
     record = raw_record(frame)
