@@ -164,7 +164,8 @@ class LogFiles:
                 continue
             if self.postponed.pop(part, None) is not None and not self.postponed:
                 self.faults.clear("recovery", "every postponed file recovered")
-            lost = "" if stats.complete else f", {stats.bytes_lost} trailing bytes lost"
+            lost = "" if stats.complete else (f", {stats.bytes_lost} bytes lost"
+                                              + (f" ({len(stats.damaged)} damaged chunks skipped)" if stats.damaged else ""))
             done.append(f"recovered {final.name}: {sum(stats.messages.values())} messages{lost}")
             self._closed(final)
         return done
