@@ -60,6 +60,16 @@ def test_identify_says_in_one_plain_line_what_the_estimators_warnings_mean(trip,
     assert details and all(line.startswith("  ") for line in details)
     assert any("pole-zero cancellation" in line for line in details)
 
+    # diagnose's text: times in minutes since the start as in the report, whole candidate names, plurals
+    result = run_json(capsys, "diagnose", model, trip / "trip.mcap")
+    assert main(["diagnose", str(model), str(trip / "trip.mcap")]) == 0
+    text = capsys.readouterr().out
+    for s in result["where_it_fails"]["worst_segments"][:3]:
+        assert f"  {s['t_start_min']:.2f}–{s['t_end_min']:.2f} min: RMS {s['rmse']:.2f} L/h" in text
+    assert f"({result['test']['candidates_tested']} candidates tested" in text
+    shown = [c["effect"] for c in result["candidates"] if c.get("testable")][:8]
+    assert all(f"  {name} " in text for name in shown)
+
 
 def test_bad_input_is_one_line_on_stderr(trip, capsys):
     assert main(["diagnose", str(trip / "missing.json"), str(trip / "trip.mcap")]) == 1

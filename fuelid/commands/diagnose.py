@@ -25,6 +25,11 @@ def add_arguments(p):
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
 
 
+def plural(n: int, noun: str) -> str:
+    """'1 candidate', '2 candidates'."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def format_report(result: dict, top: int = 8) -> str:
     """The short human-readable report."""
     c = result["compare"]
@@ -37,16 +42,20 @@ def format_report(result: dict, top: int = 8) -> str:
         f"RMS {c['cycle_fuel_error_percent']['rms']:.2f} %",
         "residual whiteness (99 %): " + ("pass" if w["autocorr_pass"] else "FAIL") + "; input cross-correlation: "
         + ", ".join(f"{k} {'pass' if v else 'FAIL'}" for k, v in w["crosscorr_pass"].items()),
-        "worst stretches:",
+        "worst stretches (minutes since the start of the data):",
     ]
     for s in result["where_it_fails"]["worst_segments"][:3]:
-        lines.append(f"  {s['t_start_s']:.0f}-{s['t_end_s']:.0f} s: RMS {s['rmse']:.2f} {unit}, bias {s['bias']:+.2f}, "
-                     f"{s['speed_rpm']:.0f} rpm — {', '.join(s['context'])}")
-    lines.append(f"candidate effects ({result['test']['candidates_tested']} tested, Holm α = {result['test']['alpha']:g}):")
-    lines.append(f"  {'effect':34s} {'LM':>9s} {'p':>9s} {'explains':>9s} {'sig':>4s} {'RMS drop':>9s}")
-    for r in [r for r in result["candidates"] if r.get("testable")][:top]:
+        differs = f" — {', '.join(s['context'])}" if s["context"] else ""
+        lines.append(f"  {s['t_start_min']:.2f}–{s['t_end_min']:.2f} min: RMS {s['rmse']:.2f} {unit}, "
+                     f"bias {s['bias']:+.2f} {unit}, {s['speed_rpm']:.0f} rpm{differs}")
+    tested = result["test"]["candidates_tested"]
+    lines.append(f"candidate effects ({plural(tested, 'candidate')} tested, Holm α = {result['test']['alpha']:g}):")
+    shown = [r for r in result["candidates"] if r.get("testable")][:top]
+    width = max([len("effect"), *(len(r["effect"]) for r in shown)])
+    lines.append(f"  {'effect':{width}s} {'LM':>9s} {'p':>9s} {'explains':>9s} {'sig':>4s} {'RMS drop':>9s}")
+    for r in shown:
         drop = "" if r["rmse_drop_percent"] is None else f"{r['rmse_drop_percent']:.0f} %"
-        lines.append(f"  {r['effect'][:34]:34s} {r['statistic']:9.1f} {r['p_value']:9.1e} "
+        lines.append(f"  {r['effect']:{width}s} {r['statistic']:9.1f} {r['p_value']:9.1e} "
                      f"{r['estimated_drop_percent']:7.1f} % {'yes' if r['significant'] else 'no':>4s} {drop:>9s}")
     lines.append(result["verdict"])
     return "\n".join(lines)

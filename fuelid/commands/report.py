@@ -73,7 +73,7 @@ def run(args) -> int:
     else:
         diagnosis = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify)
         verdict = diagnosis.verdict
-    out = write_report(args.output, model, ds, diagnosis=diagnosis,
+    out = write_report(args.output, model, ds, diagnosis=diagnosis, label=Path(model_paths[0]).name,
                        after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],
                        title=args.title, truck=truck_name(data_paths), files=data_paths,
                        max_points=args.max_points)

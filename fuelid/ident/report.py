@@ -317,7 +317,7 @@ def worst_table(worst: list[dict], ds) -> str:
              f"{s['rmse']:.2f}", f"{s['bias']:+.2f}", f"{s['speed_rpm']:.0f}", f"{s['torque']:.0f}",
              _esc(", ".join(s["context"]))] for i, s in enumerate(worst, 1)]
     return _table(["#", "time since start [min]", f"RMS error [{unit}]", f"bias [{unit}]", "speed [rpm]",
-                   f"torque [{t_unit}]", "what was happening"], rows)
+                   f"torque [{t_unit}]", "what differs there from the rest of the trip"], rows)
 
 
 def metrics_table(curves: list[Curve], unit: str) -> str:
@@ -373,13 +373,15 @@ font-size:.9em} .grid{display:grid;grid-template-columns:1fr 1fr;gap:10px} .grid
 """
 
 
-def render_report(model, ds, diagnosis: dict | None = None, after=(), *, title: str | None = None,
-                  truck: str | None = None, files=(), max_points: int = MAX_POINTS, top: int = 12) -> str:
+def render_report(model, ds, diagnosis: dict | None = None, after=(), *, label: str | None = None,
+                  title: str | None = None, truck: str | None = None, files=(), max_points: int = MAX_POINTS,
+                  top: int = 12) -> str:
     """The report of `model` (ident.polymodel.PolyModel) on dataset ds as one HTML page (module docstring).
 
     diagnosis: ident.diagnosis.diagnose(model, ds) when already computed (else it is computed here; its model run
     is reused), or a saved `fuelid diagnose --json` result (the model is run again); after:
-    (label, PolyModel) pairs of models refitted with effects added, compared on the same data; truck, files:
+    (label, PolyModel) pairs of models refitted with effects added, compared on the same data; label: the
+    model's own (e.g. its file name; default "before" beside AFTER models, else "model"); truck, files:
     for the header; max_points: the decimation budget per time-series trace; top: candidates shown unfolded.
     Raises ValueError (from the diagnosis) when no valid segment is long enough; FuelidError on unit mismatch.
     """
@@ -391,7 +393,7 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, title: 
     else:  # a saved `fuelid diagnose --json`: the model is run again
         run = tested_run(model, ds)
     unit = ds.output_unit
-    curves = [Curve("before" if after else "model", COLOURS[0], model, run, diagnosis["compare"])]
+    curves = [Curve(label or ("before" if after else "model"), COLOURS[0], model, run, diagnosis["compare"])]
     for i, (label, m) in enumerate(after, 1):
         run = tested_run(m, ds)
         curves.append(Curve(label, COLOURS[i % len(COLOURS)], m, run, metrics(run, ds)))

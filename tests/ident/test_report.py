@@ -10,6 +10,8 @@ import pytest
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import report as rp
+from fuelid.ident.diagnosis import failures
+from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.modeldata import apply_effects
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
@@ -121,16 +123,37 @@ def test_compare_worst_and_sentence_match_the_metrics(case):
     c = diagnosis["compare"]
     assert rows["fit, simulation [%]"] == [f"{m['fit_percent']['simulation']:.1f}" for m in (c, a)]
     assert rows["RMS error, simulation [L/h]"] == [f"{c['rmse']['simulation']:.3f}", f"{a['rmse']['simulation']:.3f}"]
-    cyc = [m["cycle_fuel_error_percent"]["rms"] for m in (c, a)]
+    cyc = [m["cycle_fuel_error_percent"]["mean"] for m in (c, a)]  # one drive cycle: its signed error
     sentence = f"RMS error fell from {c['rmse']['simulation']:.2f} to {a['rmse']['simulation']:.2f} L/h; cycle fuel " \
-               f"error from {cyc[0]:.2f} % to {cyc[1]:.2f} %"
+               f"error from {cyc[0]:+.2f} % to {cyc[1]:+.2f} %"
     assert sentence in page and a["rmse"]["simulation"] < 0.8 * c["rmse"]["simulation"]
 
     worst = next(t for t in tables if t[0][:2] == ["#", "time since start [min]"])
     for row, s in zip(worst[1:], diagnosis["where_it_fails"]["worst_segments"]):
         assert row[1] == f"{(s['t_start_s'] - ds.t[0]) / 60:.2f}–{(s['t_end_s'] - ds.t[0]) / 60:.2f}"
+        assert row[1] == f"{s['t_start_min']:.2f}–{s['t_end_min']:.2f}"  # the CLI prints these
         assert row[2] == f"{s['rmse']:.2f}" and row[6] == ", ".join(s["context"])
     assert "DPF active regeneration" in worst[1][6]
+
+
+def test_the_model_is_labelled_as_the_caller_names_it(case):
+    ds, model, diagnosis, after, _ = case
+    page = rp.render_report(model, ds, diagnosis, after=[("after.json", after)], label="before.json")
+    metrics = next(t for t in Tables(page).tables if t[0][1:] == ["■ before.json", "■ after.json"])
+    assert len(metrics) > 1
+
+
+def test_worst_stretches_are_labelled_only_with_what_differs_from_the_trip(case, monkeypatch):
+    """The hidden DPF regeneration runs in part of the trip: it labels the worst stretches. A condition on for the
+    whole trip labels none."""
+    ds, model, diagnosis, after, _ = case
+    worst = diagnosis["where_it_fails"]["worst_segments"]
+    assert "DPF active regeneration" in worst[0]["context"]
+    flags = {**failures.context_flags(ds), "always on": np.ones(len(ds), bool)}
+    monkeypatch.setattr(failures, "context_flags", lambda ds: flags)
+    again = failures.worst_segments(ds, run_gradients(run_model(model, ds)))
+    assert [s["t_start_s"] for s in again] == [s["t_start_s"] for s in worst]
+    assert all("always on" not in s["context"] and "DPF active regeneration" in s["context"] for s in again[:1])
 
 
 def test_figures_carry_the_diagnosis_numbers_and_units(case):

@@ -26,8 +26,10 @@ def context_flags(ds) -> dict[str, np.ndarray]:
 
 
 def worst_segments(ds, run: Run, window_s: float = 30.0, n: int = 5, share: float = 0.2) -> list[dict]:
-    """The n non-overlapping windows of window_s [s] with the largest RMS simulation error, each with its bias,
-    mean speed and torque, and the contexts that cover at least `share` of it."""
+    """The n non-overlapping windows of window_s [s] with the largest RMS simulation error, each with its start
+    and end (log time [s] and minutes since the first sample), bias, mean speed and torque, and the contexts
+    that set it apart from the trip: a context is named when it covers at least `share` more of the window than
+    of the trip's valid samples (a fan running all trip says nothing about where the model fails)."""
     err = run.ysim - run.y
     ok = np.isfinite(err)
     w = max(int(round(window_s / ds.Ts)), 1)
@@ -36,6 +38,7 @@ def worst_segments(ds, run: Run, window_s: float = 30.0, n: int = 5, share: floa
     ms = np.convolve(np.where(ok, err**2, 0.0), kernel, "same") / np.maximum(cnt, 1)
     ms[cnt < 0.8 * w] = -1.0
     flags = context_flags(ds)
+    trip_share = {name: f[ok].mean() if ok.any() else 0.0 for name, f in flags.items()}
     out = []
     for _ in range(n):
         c = int(np.argmax(ms))
@@ -43,12 +46,14 @@ def worst_segments(ds, run: Run, window_s: float = 30.0, n: int = 5, share: floa
             break
         sl = slice(max(c - w // 2, 0), c + w - w // 2)
         m = ok[sl]
-        ctx = [name for name, f in flags.items() if f[sl][m].mean() >= share]
+        ctx = [name for name, f in flags.items() if f[sl][m].mean() - trip_share[name] >= share]
+        t_start, t_end = float(ds.t[sl.start]), float(ds.t[min(sl.stop, len(ds.t)) - 1])
         out.append({
-            "t_start_s": float(ds.t[sl.start]), "t_end_s": float(ds.t[min(sl.stop, len(ds.t)) - 1]),
+            "t_start_s": t_start, "t_end_s": t_end,
+            "t_start_min": (t_start - float(ds.t[0])) / 60.0, "t_end_min": (t_end - float(ds.t[0])) / 60.0,
             "rmse": float(np.sqrt(ms[c])), "bias": float(np.mean(err[sl][m])),
             "speed_rpm": float(np.mean(ds.u[sl, 0][m])), "torque": float(np.mean(ds.u[sl, 1][m])),
-            "context": ctx or ["steady driving"],
+            "context": ctx,
         })
         ms[max(c - w, 0): c + w] = -1.0
     return out
