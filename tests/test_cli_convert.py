@@ -164,3 +164,19 @@ def test_relative_time_recordings_follow_each_other_with_a_warning(tmp_path, cap
     assert code == 0 and len(summary["warnings"]) == 1 and "b.log" in summary["warnings"][0]
     times = [t for _, t, _ in read_messages(out, ["/can/raw"])]
     assert times == sorted(times) and len(times) == 400
+
+
+def test_a_recording_without_j1939_traffic_is_an_error_unless_raw_frames_are_asked_for(tmp_path, capsys):
+    """An 11-bit OBD-II log decodes to nothing fuelid can use: a one-line error and no output, or with --raw-only
+    an MCAP holding the frames in /can/raw."""
+    log = tmp_path / "obd.log"
+    log.write_text("".join(f"({1700000000 + i * 0.01:.6f}) can0 7E8#0441{i % 256:02X}0C1A000000\n"
+                           for i in range(50)))
+    out = tmp_path / "obd.mcap"
+    assert main(["convert", str(log), "-o", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "no J1939/FMS message fuelid decodes in 50 frames (50 with 11-bit" in err
+    assert not out.exists()
+    assert main(["convert", str(log), "-o", str(out), "--raw-only", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["frames"] == 50 and summary["messages"] == {} and out.exists()

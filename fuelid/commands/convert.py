@@ -21,6 +21,9 @@ def add_arguments(p):
     p.add_argument("--keep-damaged", action="store_true",
                    help="keep the output when an input is damaged (its frames up to the damage); without it a "
                         "damaged input is an error and no output is left")
+    p.add_argument("--raw-only", action="store_true",
+                   help="keep the output when no J1939 message is decoded (its frames in /can/raw only, e.g. an "
+                        "11-bit OBD log); without it that is an error and no output is left")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
@@ -56,7 +59,8 @@ def run(args) -> int:
         writer.close()
 
     damaged = [s for s in sources if s.status == "damaged"]
-    kept = args.keep_damaged or not damaged
+    no_j1939 = not recorder.stats.decoded
+    kept = (args.keep_damaged or not damaged) and (args.raw_only or not no_j1939)
     if not kept:  # nothing silently wrong: frames of a damaged input are not left behind as a good log
         output.unlink()
     summary = conversion_summary(recorder, sources, output, warnings, kept)
@@ -64,10 +68,15 @@ def run(args) -> int:
         print_json(summary)
     else:
         print(format_summary(summary))
-    if not kept:
+    if damaged and not args.keep_damaged:
         s = damaged[0]
         raise FuelidError(f"{s.path} is damaged at {s.position or 'an unknown place'} ({s.error}); no output "
                           "written: --keep-damaged keeps the frames that could be read")
+    if no_j1939 and not args.raw_only:
+        stats = recorder.stats
+        raise FuelidError(f"no J1939/FMS message fuelid decodes in {stats.frames} frames ({stats.standard_frames} with 11-bit "
+                          "identifiers, as OBD-II and other non-J1939 buses use): not a truck's FMS/J1939 recording; "
+                          "no output written: --raw-only keeps the frames in /can/raw")
     return 0
 
 
@@ -106,7 +115,7 @@ def format_summary(s: dict) -> str:
     if s["output"]:
         lines = [f"wrote {s['output']} ({s['output_bytes'] / 1e6:.2f} MB), truck {s['truck']}"]
     else:
-        lines = ["wrote nothing: an input is damaged"]
+        lines = ["wrote nothing (see the error below)"]
     for i in s["inputs"]:
         outcome = i["status"] if i["status"] == "complete" else f"{i['status']} at {i['position']} ({i['error']})"
         lines.append(f"  read {i['path']} [{i['format']}]: {outcome}, {i['frames']} frames, "
