@@ -24,6 +24,7 @@ COMMANDS = [
     "compare",
     "diagnose",
     "report",
+    "export",
     "online",
     "serve",
     "token",
