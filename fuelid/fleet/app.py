@@ -9,7 +9,7 @@ import asyncio
 import hashlib
 import logging
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Callable, Literal
 
@@ -21,7 +21,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
-from fuelid.fleet import auth, db
+from fuelid.fleet import auth, console, db
 from fuelid.fleet.refits import RefitManager, dask_runner_factory
 from fuelid.fleet.storage import HEX64, BlobStore, UploadRefused, inspect_mcap
 from fuelid import __version__
@@ -44,6 +44,7 @@ class Settings:
     workers: int | None = None
     refit_after_s: float | None = 600.0
     refit_window_s: float = 24 * 3600.0
+    console_settings: console.ConsoleSettings = field(default_factory=console.ConsoleSettings)  # reference points, drift threshold
 
 
 # --- response models (the OpenAPI description, checked by the schemathesis tests) ---
@@ -194,6 +195,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         return check
 
     admin, reader, uploader = role("admin"), role("admin", "engineer"), role("admin", "truck")
+    console.mount(app, engine, store, settings.console_settings, reader)  # the engineer's page at / and its API
 
     def known_truck(truck: str) -> None:
         if not db.truck_exists(engine, truck):

@@ -123,9 +123,11 @@ def drift(current: SteadyFuel, reference: SteadyFuel, threshold_percent: float =
     return Drift(d, sigma, alert)
 
 
-def versus_median(value: float, others: list[float]) -> float | None:
-    """100 (value / median(others) − 1) [%]: the truck against the fleet; None without a positive median."""
-    if not others:
-        return None
-    median = float(np.median(others))
-    return 100.0 * (value / median - 1.0) if median > 0 else None
+def fleet_median(values: list[float]) -> float | None:
+    """The median of the trucks' S [unit], None for no trucks."""
+    return float(np.median(values)) if values else None
+
+
+def versus_median(value: float, median: float | None) -> float | None:
+    """100 (value / median − 1) [%]: a truck against the fleet; None without a positive median."""
+    return 100.0 * (value / median - 1.0) if median is not None and median > 0 else None

@@ -3,7 +3,7 @@ against the Monte-Carlo spread of the parameters, drift of a known size flagged 
 import numpy as np
 import pytest
 
-from fuelid.fleet.drift import DEFAULT_POINTS, SteadyFuel, drift, parse_points, steady_fuel, versus_median
+from fuelid.fleet.drift import DEFAULT_POINTS, SteadyFuel, drift, fleet_median, parse_points, steady_fuel, versus_median
 from fuelid.ident.polymodel import PolyModel, from_theta, simulate
 
 POINTS = parse_points("1000x600Nm,1400x1800Nm")
@@ -61,4 +61,5 @@ def test_points_and_units():
             parse_points(bad)
     with pytest.raises(ValueError, match="rpm and %"):
         steady_fuel(engine_model(), parse_points("1000x50%"))
-    assert versus_median(11.0, [10.0, 9.0, 11.0]) == pytest.approx(10.0) and versus_median(1.0, []) is None
+    assert versus_median(11.0, fleet_median([10.0, 9.0, 11.0])) == pytest.approx(10.0)
+    assert fleet_median([]) is None and versus_median(1.0, None) is None
