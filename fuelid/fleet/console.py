@@ -240,7 +240,8 @@ def fleet_summary(engine: sa.Engine, store: BlobStore, points, threshold: float)
     out = []
     for t in trucks:
         ends_t = versions.get(t["truck"], [])
-        row = {"truck": t["truck"], "files": t["files"] or 0, "data_hours": (t["recorded_ns"] or 0) / 3.6e12,
+        hours = float(t["recorded_ns"] or 0) / 3.6e12  # float: PostgreSQL sums bigints as numeric (Decimal)
+        row = {"truck": t["truck"], "files": t["files"] or 0, "data_hours": hours,
                "last_upload_unix_s": t["last_upload"], "start_ns": t["start_ns"], "end_ns": t["end_ns"],
                "versions": t["versions"] or 0, "latest_version": None, "latest_created_unix_s": None,
                "fit_percent": None, "cycle_fuel_error_percent": None, "unit": None, "top_effect": None,

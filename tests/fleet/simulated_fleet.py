@@ -7,6 +7,7 @@ grows by exactly that factor. Version v of a drifting truck has the factor 1 + d
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 
@@ -64,7 +65,7 @@ def add_truck(engine: sa.Engine, truck: str, hours: float = 10.0, files: int = 2
         db.insert_ignore(conn, db.trucks, truck=truck, created_unix_s=time.time())
         for k in range(files):
             start = t0 + int(k * hours / files * 3.6e12)
-            db.insert_ignore(conn, db.files, sha256=f"{abs(hash((truck, k))):064x}"[-64:], truck=truck,
+            db.insert_ignore(conn, db.files, sha256=hashlib.sha256(f"{truck}-{k}".encode()).hexdigest(), truck=truck,
                              size_bytes=1_000_000, start_ns=start, end_ns=start + int(hours / files * 3.6e12),
                              messages=100_000, uploaded_unix_s=time.time())
 
