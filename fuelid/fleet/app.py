@@ -195,7 +195,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         return check
 
     admin, reader, uploader = role("admin"), role("admin", "engineer"), role("admin", "truck")
-    console.mount(app, engine, store, settings.console_settings, reader)  # the engineer's page at / and its API
+    console.mount(app, engine, store, settings.console_settings, reader, ERRORS)  # the engineer's page at / and its API
 
     def known_truck(truck: str) -> None:
         if not db.truck_exists(engine, truck):

@@ -13,13 +13,12 @@ import math
 import secrets
 import time
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Callable
 
 import sqlalchemy as sa
 from fastapi import APIRouter, Depends, FastAPI, HTTPException, Path as PathParam, Query
-from fastapi.responses import FileResponse, HTMLResponse
+from fastapi.responses import FileResponse, HTMLResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
@@ -145,23 +144,42 @@ class ReportLink(BaseModel):
 
 # --- drift of stored model versions ---
 
-@lru_cache(maxsize=8192)
-def _parsed(path: str) -> PolyModel | str:
-    """The model at a content-addressed path, or why it cannot be read (a one-line reason)."""
-    try:
-        return load_model(path)
-    except FuelidError as exc:
-        return str(exc).split(": ", 1)[-1]
+class ModelCache:
+    """Parsed model.json files and their steady fuel at given points, by sha256 (content-addressed: never
+    stale). Bounded: emptied when full, so a long-running server's memory stays flat."""
 
+    def __init__(self, store: BlobStore, max_models: int = 4096, max_steady: int = 65536):
+        self.store, self.max_models, self.max_steady = store, max_models, max_steady
+        self._models: dict[str, PolyModel | str] = {}
+        self._steady: dict[tuple, SteadyFuel | str] = {}
 
-def _steady(store: BlobStore, row: dict, points) -> SteadyFuel | str:
-    model = _parsed(str(store.path(row["model_sha256"])))
-    if isinstance(model, str):
-        return model
-    try:
-        return steady_fuel(model, points)
-    except ValueError as exc:
-        return str(exc)
+    def model(self, sha256: str) -> PolyModel | str:
+        """The model, or why it cannot be read (one line)."""
+        if sha256 not in self._models:
+            if len(self._models) >= self.max_models:
+                self._models.clear()
+            try:
+                self._models[sha256] = load_model(self.store.path(sha256))
+            except FuelidError as exc:
+                self._models[sha256] = str(exc).split(": ", 1)[-1]
+        return self._models[sha256]
+
+    def steady(self, sha256: str, points: tuple[ReferencePoint, ...]) -> SteadyFuel | str:
+        """fleet.drift.steady_fuel of the model at `points`, or why there is none."""
+        key = (sha256, points)
+        if key not in self._steady:
+            if len(self._steady) >= self.max_steady:
+                self._steady.clear()
+            model = self.model(sha256)
+            try:
+                self._steady[key] = model if isinstance(model, str) else steady_fuel(model, points)
+            except ValueError as exc:
+                self._steady[key] = str(exc)
+        return self._steady[key]
+
+    def effects(self, sha256: str) -> list[str]:
+        model = self.model(sha256)
+        return [] if isinstance(model, str) else list(model.effects)
 
 
 def _drift_fields(current: SteadyFuel | str, first: SteadyFuel | str | None, threshold: float) -> dict:
@@ -191,11 +209,6 @@ def _metrics(m: dict) -> dict:
             "unit": m.get("unit") if isinstance(m.get("unit"), str) else None}
 
 
-def _effects(store: BlobStore, row: dict) -> list[str]:
-    model = _parsed(str(store.path(row["model_sha256"])))
-    return [] if isinstance(model, str) else list(model.effects)
-
-
 def _alerts(truck: str, latest: dict, fields: dict, new_effect: bool) -> list[Alert]:
     alerts = []
     if fields.get("drift_alert"):
@@ -211,7 +224,7 @@ def _alerts(truck: str, latest: dict, fields: dict, new_effect: bool) -> list[Al
     return alerts
 
 
-def fleet_summary(engine: sa.Engine, store: BlobStore, points, threshold: float) -> tuple[list[dict], float | None]:
+def fleet_summary(engine: sa.Engine, cache: ModelCache, points, threshold: float) -> tuple[list[dict], float | None]:
     """Per truck: files, data hours, last upload, latest version with metrics, effects, drift and alerts; and the
     fleet median of the latest steady-state fuel."""
     f, m = db.files, db.models
@@ -224,39 +237,39 @@ def fleet_summary(engine: sa.Engine, store: BlobStore, points, threshold: float)
     # the first version naming each effect: the latest version's effect is new when that is the latest version
     named = sa.select(m.c.truck, m.c.top_effect, sa.func.min(m.c.version).label("since")).where(
         m.c.top_effect.is_not(None)).group_by(m.c.truck, m.c.top_effect)
-    ends = sa.select(m).join(span, (span.c.truck == m.c.truck) & ((m.c.version == span.c.first)
-                                                                   | (m.c.version == span.c.latest)))
+    firsts = sa.select(m.c.truck, m.c.model_sha256).join(
+        span, (span.c.truck == m.c.truck) & (m.c.version == span.c.first))
+    latests = sa.select(m.c.truck, m.c.version, m.c.created_unix_s, m.c.model_sha256, m.c.metrics, m.c.top_effect
+                        ).join(span, (span.c.truck == m.c.truck) & (m.c.version == span.c.latest))
     q = (sa.select(db.trucks.c.truck, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns,
                    files.c.end_ns, span.c.versions)
          .select_from(db.trucks.outerjoin(files, files.c.truck == db.trucks.c.truck)
                       .outerjoin(span, span.c.truck == db.trucks.c.truck))
          .order_by(db.trucks.c.truck))
     with engine.connect() as conn:
-        trucks = [dict(r) for r in conn.execute(q).mappings()]
-        versions: dict[str, list[dict]] = {}
-        for r in conn.execute(ends.order_by(m.c.truck, m.c.version)).mappings():
-            versions.setdefault(r["truck"], []).append(dict(r))
+        trucks = conn.execute(q).mappings().all()
+        first_sha = dict(conn.execute(firsts).tuples().all())
+        latest_of = {r["truck"]: r for r in conn.execute(latests).mappings()}
         since = {(r.truck, r.top_effect): r.since for r in conn.execute(named)}
     out = []
     for t in trucks:
-        ends_t = versions.get(t["truck"], [])
+        latest = latest_of.get(t["truck"])
         hours = float(t["recorded_ns"] or 0) / 3.6e12  # float: PostgreSQL sums bigints as numeric (Decimal)
         row = {"truck": t["truck"], "files": t["files"] or 0, "data_hours": hours,
                "last_upload_unix_s": t["last_upload"], "start_ns": t["start_ns"], "end_ns": t["end_ns"],
                "versions": t["versions"] or 0, "latest_version": None, "latest_created_unix_s": None,
                "fit_percent": None, "cycle_fuel_error_percent": None, "unit": None, "top_effect": None,
                "effects": [], "vs_fleet_percent": None, "alerts": [], "note": "no model yet"}
-        if ends_t:
-            first, latest = ends_t[0], ends_t[-1]
-            current = _steady(store, latest, points)
-            reference = _steady(store, first, points) if first is not latest else None
+        if latest is not None:
+            current = cache.steady(latest["model_sha256"], points)
+            reference = cache.steady(first_sha[t["truck"]], points) if t["versions"] > 1 else None
             fields = _drift_fields(current, reference, threshold)
             new = latest["top_effect"] is not None and since.get((t["truck"], latest["top_effect"])) == latest["version"]
             metrics = _metrics(latest["metrics"] or {})
             row.update(fields, latest_version=latest["version"], latest_created_unix_s=latest["created_unix_s"],
                        fit_percent=metrics["fit_percent"], cycle_fuel_error_percent=metrics["cycle_fuel_error_percent"],
                        unit=metrics["unit"] or (current.unit if isinstance(current, SteadyFuel) else None),
-                       top_effect=latest["top_effect"], effects=_effects(store, latest),
+                       top_effect=latest["top_effect"], effects=cache.effects(latest["model_sha256"]),
                        alerts=_alerts(t["truck"], latest, fields, new))
         out.append(row)
     median = fleet_median([r["steady_fuel"] for r in out if r.get("steady_fuel") is not None])
@@ -266,16 +279,16 @@ def fleet_summary(engine: sa.Engine, store: BlobStore, points, threshold: float)
     return out, median
 
 
-def truck_history(engine: sa.Engine, store: BlobStore, truck: str, points, threshold: float) -> dict:
+def truck_history(engine: sa.Engine, cache: ModelCache, truck: str, points, threshold: float) -> dict:
     rows = db.list_models(engine, truck)
-    first = _steady(store, rows[0], points) if rows else None
+    first = cache.steady(rows[0]["model_sha256"], points) if rows else None
     versions = []
     for i, r in enumerate(rows):
-        current = first if i == 0 else _steady(store, r, points)
+        current = first if i == 0 else cache.steady(r["model_sha256"], points)
         fields = _drift_fields(current, None if i == 0 else first, threshold)
         versions.append({**fields, **_metrics(r["metrics"] or {}), "version": r["version"],
                          "created_unix_s": r["created_unix_s"], "job_id": r["job_id"], "top_effect": r["top_effect"],
-                         "effects": _effects(store, r), "duration_s": r["duration_s"],
+                         "effects": cache.effects(r["model_sha256"]), "duration_s": r["duration_s"],
                          "has_report": r["report_sha256"] is not None})
     return {"truck": truck, "points": [str(p) for p in points], "threshold_percent": threshold, "versions": versions,
             "files": db.list_files(engine, truck), "jobs": db.list_jobs(engine, truck=truck, limit=20)}
@@ -289,12 +302,14 @@ Threshold = Annotated[float | None, Query(gt=0, le=1000, description="drift aler
                                                                       "server's)")]
 
 
-def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reader: Callable) -> APIRouter:
-    """The console's API under /api/v1 (engineer or admin tokens: `reader`) and the report links."""
+def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reader: Callable,
+           errors: dict) -> APIRouter:
+    """The console's API under /api/v1 (engineer or admin tokens: `reader`) and the report links; `errors` the
+    app's documented error replies (400, 401, 403, 422 with their one-line body model)."""
     api = APIRouter()
+    cache = ModelCache(store)
     links: dict[str, tuple[str, float]] = {}  # ticket -> (report sha256, expiry [Unix s])
-    errors = {401: {"description": "missing or unknown token"}, 403: {"description": "role not allowed"},
-              422: {"description": "malformed reference points or threshold"}}
+    not_found = {404: {"model": errors[422]["model"], "description": "no such truck, version, report or link"}}
 
     def chosen(points: str | None, threshold: float | None):
         try:
@@ -303,25 +318,42 @@ def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reade
         except ValueError as exc:
             raise HTTPException(422, str(exc)) from None
 
+    summaries: dict[tuple, FleetSummary] = {}  # (registry fingerprint, points, threshold) -> summary
+
+    def summary(points: str | None, threshold: float | None) -> FleetSummary:
+        """The fleet summary, computed again only when the registry changed: rows are only ever inserted, so
+        the counts and newest ids of trucks, files and models tell whether anything did."""
+        pts, thr = chosen(points, threshold)
+        with engine.connect() as conn:
+            fingerprint = tuple(conn.execute(sa.select(
+                sa.select(sa.func.count()).select_from(db.trucks).scalar_subquery(),
+                sa.select(sa.func.count()).select_from(db.files).scalar_subquery(),
+                sa.select(sa.func.max(db.files.c.uploaded_unix_s)).scalar_subquery(),
+                sa.select(sa.func.max(db.models.c.id)).scalar_subquery())).one())
+        key = (fingerprint, pts, thr)
+        if key not in summaries:
+            rows, median = fleet_summary(engine, cache, pts, thr)
+            if len(summaries) >= 16:
+                summaries.clear()
+            summaries[key] = FleetSummary(points=[str(p) for p in pts], threshold_percent=thr,
+                                          fleet_median_steady_fuel=median, trucks=rows)
+        return summaries[key]
+
     @api.get("/api/v1/fleet", response_model=FleetSummary, responses=errors, tags=["console"])
     def fleet(points: Points = None, threshold: Threshold = None, _=Depends(reader)):
         """Every truck with data hours, last upload, latest version's fit and cycle error, effects, steady-state
         fuel at the reference points, drift since its first model (± standard error), against the fleet median,
         and alerts."""
-        pts, thr = chosen(points, threshold)
-        rows, median = fleet_summary(engine, store, pts, thr)
-        return {"points": [str(p) for p in pts], "threshold_percent": thr, "fleet_median_steady_fuel": median,
-                "trucks": rows}
+        return Response(summary(points, threshold).model_dump_json(), media_type="application/json")
 
     @api.get("/api/v1/alerts", response_model=list[Alert], responses=errors, tags=["console"])
     def alerts(points: Points = None, threshold: Threshold = None, _=Depends(reader)):
         """Trucks whose steady-state fuel drifted beyond the threshold and 2σ, or whose diagnosis names a new
         effect."""
-        pts, thr = chosen(points, threshold)
-        return [a for r in fleet_summary(engine, store, pts, thr)[0] for a in r["alerts"]]
+        return [a for t in summary(points, threshold).trucks for a in t.alerts]
 
     @api.get("/api/v1/trucks/{truck}/history", response_model=TruckHistory,
-             responses={**errors, 404: {"description": "no such truck"}}, tags=["console"])
+             responses={**errors, **not_found}, tags=["console"])
     def history(truck: Annotated[str, PathParam(pattern=auth.TRUCK_PATTERN)], points: Points = None,
                 threshold: Threshold = None, _=Depends(reader)):
         """Model versions over time (metrics, effects, drift with uncertainty), files with their time ranges,
@@ -329,10 +361,10 @@ def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reade
         if not db.truck_exists(engine, truck):
             raise HTTPException(404, f"no truck {truck}")
         pts, thr = chosen(points, threshold)
-        return truck_history(engine, store, truck, pts, thr)
+        return truck_history(engine, cache, truck, pts, thr)
 
     @api.post("/api/v1/trucks/{truck}/models/{version}/report-link", response_model=ReportLink,
-              responses={**errors, 404: {"description": "no such version or no report"}}, tags=["console"])
+              responses={**errors, **not_found}, tags=["console"])
     def report_link(truck: Annotated[str, PathParam(pattern=auth.TRUCK_PATTERN)],
                     version: Annotated[int, PathParam(ge=1, le=2**31 - 1)], _=Depends(reader)):
         """A link to the version's report.html that works without a token for a short while (a browser tab
@@ -348,7 +380,7 @@ def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reade
         return {"url": f"/reports/{ticket}", "expires_unix_s": now + REPORT_LINK_S}
 
     @api.get("/reports/{ticket}", response_class=HTMLResponse, tags=["console"],
-             responses={404: {"description": "unknown or expired link"}})
+             responses={**not_found, 422: errors[422]})
     def report(ticket: Annotated[str, PathParam(pattern=r"^[A-Za-z0-9_-]{32}$")]):
         """The report of a link from report-link, sandboxed."""
         sha, expires = links.get(ticket, ("", 0.0))
@@ -361,9 +393,10 @@ def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reade
     return api
 
 
-def mount(app: FastAPI, engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reader: Callable) -> None:
+def mount(app: FastAPI, engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reader: Callable,
+          errors: dict) -> None:
     """Add the console's API, its page at `/` and its files at /static, with their security headers."""
-    app.include_router(router(engine, store, settings, reader))
+    app.include_router(router(engine, store, settings, reader, errors))
 
     @app.get("/", include_in_schema=False)
     def page():

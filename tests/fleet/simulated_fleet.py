@@ -32,9 +32,9 @@ def engine_model(factor: float = 1.0, effects=()) -> PolyModel:
     return m
 
 
-def add_version(engine: sa.Engine, store: BlobStore, truck: str, model: PolyModel, *, top_effect=None,
-                fit=92.0, created_unix_s: float | None = None) -> int:
-    """Store model.json, a diagnosis and a small report in the blob store and register the next version."""
+def store_version(store: BlobStore, truck: str, model: PolyModel, top_effect=None) -> dict:
+    """model.json, a diagnosis and a small report (an inline script writes the truck's name into it) in the blob
+    store: the sha256 columns of a models row."""
     sha = {}
     for name, text in [("model", json.dumps(to_dict(model))),
                        ("diagnosis", json.dumps({"truck": truck, "top_effect": top_effect})),
@@ -45,17 +45,11 @@ def add_version(engine: sa.Engine, store: BlobStore, truck: str, model: PolyMode
         tmp.write_text(text, encoding="utf-8")
         sha[name] = store.put_file(tmp)
         tmp.unlink()
-    version = db.add_model(engine, truck=truck, job_id=None, model_sha256=sha["model"],
-                           diagnosis_sha256=sha["diagnosis"], report_sha256=sha["report"],
-                           metrics={"fit_percent": {"simulation": fit, "prediction": 99.0},
-                                    "rmse": {"simulation": 0.8, "prediction": 0.2},
-                                    "cycle_fuel_error_percent": {"mean": 0.3, "rms": 1.1}, "unit": "L/h"},
-                           n_samples=12000, duration_s=3600.0, top_effect=top_effect)
-    if created_unix_s is not None:
-        with engine.begin() as conn:
-            conn.execute(db.models.update().where((db.models.c.truck == truck) & (db.models.c.version == version))
-                         .values(created_unix_s=created_unix_s))
-    return version
+    return {"model_sha256": sha["model"], "diagnosis_sha256": sha["diagnosis"], "report_sha256": sha["report"]}
+
+
+METRICS = {"fit_percent": {"simulation": 92.0, "prediction": 99.0}, "rmse": {"simulation": 0.8, "prediction": 0.2},
+           "cycle_fuel_error_percent": {"mean": 0.3, "rms": 1.1}, "unit": "L/h"}
 
 
 def add_truck(engine: sa.Engine, truck: str, hours: float = 10.0, files: int = 2) -> None:
@@ -71,18 +65,29 @@ def add_truck(engine: sa.Engine, truck: str, hours: float = 10.0, files: int = 2
 
 
 def simulated_fleet(engine: sa.Engine, store: BlobStore, trucks: int = 6, versions: int = 3,
-                    drifting: dict[str, float] | None = None, new_effect: str | None = None) -> list[str]:
+                    drifting: dict[str, float] | None = None, new_effect: str | None = None,
+                    distinct_middle: bool = True) -> list[str]:
     """`trucks` trucks FLEET-000… (plus the names in `drifting`: truck → final relative drift, e.g. 0.08), each
-    with `versions` model versions; trucks not drifting stay within ±0.2 %. `new_effect` names a truck whose
-    latest diagnosis names fan_on for the first time. Returns the truck names."""
+    with `versions` model versions a day apart; trucks not drifting stay within ±0.2 %. `new_effect` names a
+    truck whose latest diagnosis names fan_on for the first time. distinct_middle False gives the versions
+    between the first and the latest the first one's files (the fleet view reads only those two; a benchmark's
+    setup then writes far fewer files). Returns the truck names."""
     rng = np.random.default_rng(7)
     drifting = drifting or {}
     names = [f"FLEET-{i:03d}" for i in range(trucks)] + list(drifting)
+    now = time.time()
     for name in names:
         add_truck(engine, name)
         base = 1.0 + 0.03 * rng.standard_normal()  # trucks differ; each compares with its own first model
+        rows = []
         for v in range(versions):
             change = drifting.get(name, 0.002 * rng.standard_normal()) * (v / max(versions - 1, 1))
             effect = "fan_on" if name == new_effect and v == versions - 1 else None
-            add_version(engine, store, name, engine_model(base * (1.0 + change)), top_effect=effect)
+            if distinct_middle or v in (0, versions - 1):
+                files = store_version(store, name, engine_model(base * (1.0 + change)), effect)
+            rows.append({"truck": name, "version": v + 1, "job_id": None,
+                         "created_unix_s": now - 86400.0 * (versions - 1 - v), **files, "metrics": METRICS,
+                         "n_samples": 12000, "duration_s": 3600.0, "top_effect": effect})
+        with engine.begin() as conn:
+            conn.execute(db.models.insert(), rows)
     return names

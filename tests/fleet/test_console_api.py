@@ -6,10 +6,10 @@ import statistics
 import pytest
 from fastapi.testclient import TestClient
 
-from fuelid.fleet import auth
+from fuelid.fleet import auth, db
 from fuelid.fleet.app import Settings, create_app
 from tests.fleet.fake_server import FakeRunner
-from tests.fleet.simulated_fleet import simulated_fleet
+from tests.fleet.simulated_fleet import engine_model, simulated_fleet, store_version
 
 # The engine's DC gains [L/h per rpm, per N·m] and the default points' mean deviations from idle: steady fuel
 # above idle K = G1 · 600 rpm + G2 · 1200 N·m for an efficiency factor of 1 (tests.fleet.simulated_fleet).
@@ -61,6 +61,17 @@ def test_reference_points_and_threshold_per_request(fleet):
     assert pct["steady_fuel"] is None and "need rpm and %" in pct["note"]
     bad = client.get("/api/v1/fleet", params={"points": "1200rpm"})
     assert bad.status_code == 422 and "RPMxTORQUE" in bad.json()["detail"]
+
+
+def test_a_new_version_shows_at_once(fleet):
+    client, engine = fleet
+    store = client.app.state.store
+    before = client.get("/api/v1/fleet").json()
+    assert client.get("/api/v1/fleet").json() == before  # unchanged registry: the same summary
+    db.add_model(engine, truck="FLEET-000", job_id=None, metrics={}, **store_version(store, "FLEET-000",
+                                                                                     engine_model(1.3)))
+    worn = next(t for t in client.get("/api/v1/fleet").json()["trucks"] if t["truck"] == "FLEET-000")
+    assert worn["latest_version"] == 4 and worn["drift_percent"] > 20 and worn["drift_alert"]
 
 
 def test_alerts_and_history(fleet):

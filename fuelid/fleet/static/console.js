@@ -65,8 +65,12 @@ function query() {
 
 // --- fleet view ---
 
-function compare(a, b) {
-  const x = a[state.sortKey], y = b[state.sortKey];
+function sortValue(t) {
+  const v = t[state.sortKey];
+  return state.sortKey === "drift_percent" && v !== null ? Math.abs(v) : v;  // the worst drift either way
+}
+
+function compare([x, a], [y, b]) {
   if (x === y) return a.truck < b.truck ? -1 : 1;
   if (x === null || x === undefined) return 1;  // unknowns last in both directions
   if (y === null || y === undefined) return -1;
@@ -78,22 +82,14 @@ function renderFleet() {
   const fleet = state.fleet;
   const body = $("fleet").tBodies[0];
   body.replaceChildren();
-  const rows = fleet.trucks.slice();
-  if (state.sortKey === "drift_percent") {
-    rows.sort((a, b) => { const t = { ...a, drift_percent: a.drift_percent === null ? null : Math.abs(a.drift_percent) };
-      const u = { ...b, drift_percent: b.drift_percent === null ? null : Math.abs(b.drift_percent) };
-      return compare(t, u); });
-  } else {
-    rows.sort(compare);
-  }
+  const rows = fleet.trucks.map((t) => [sortValue(t), t]).sort(compare).map(([, t]) => t);
   const fragment = document.createDocumentFragment();
   for (const t of rows) {
     const tr = el("tr", null, t.alerts.length ? "alert" : "");
     tr.dataset.truck = t.truck;
     const name = el("td");
-    const link = el("button", t.truck, "link truck");
+    const link = el("button", t.truck, "link truck");  // opened by the table's click handler
     link.type = "button";
-    link.addEventListener("click", () => openTruck(t.truck));
     name.append(link);
     tr.append(name, el("td", num(t.data_hours, 1)), el("td", when(t.last_upload_unix_s)),
       el("td", t.latest_version ?? "–"), el("td", num(t.fit_percent, 1)), el("td", num(t.cycle_fuel_error_percent, 2)),
@@ -264,5 +260,9 @@ document.addEventListener("DOMContentLoaded", () => {
     loadFleet().catch((e) => status(e.message, true));
   });
   $("refit").addEventListener("click", refit);
+  $("fleet").tBodies[0].addEventListener("click", (event) => {
+    const button = event.target.closest("button.truck");
+    if (button) openTruck(button.closest("tr").dataset.truck);
+  });
   if (sessionStorage.getItem(TOKEN_KEY)) start();
 });
