@@ -81,7 +81,7 @@ def test_console_finds_the_drifting_truck(console_server, tmp_path):
         assert page.evaluate("localStorage.length") == 0 and context.cookies() == []
 
         # truck view, its report, a refit with the job followed to its end
-        first.locator("button.truck").click()
+        first.locator("a.truck").click()
         versions = page.locator("#versions tbody tr")
         versions.nth(2).wait_for()
         assert page.locator("#truck-name").text_content() == "DRIFT-1"

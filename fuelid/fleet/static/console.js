@@ -88,8 +88,8 @@ function renderFleet() {
     const tr = el("tr", null, t.alerts.length ? "alert" : "");
     tr.dataset.truck = t.truck;
     const name = el("td");
-    const link = el("button", t.truck, "link truck");  // opened by the table's click handler
-    link.type = "button";
+    const link = el("a", t.truck, "truck");  // opened by the table's click handler; a plain link lays out cheaper
+    link.href = "#";                        // than a button, which matters at 1,000 rows
     name.append(link);
     tr.append(name, el("td", num(t.data_hours, 1)), el("td", when(t.last_upload_unix_s)),
       el("td", t.latest_version ?? "–"), el("td", num(t.fit_percent, 1)), el("td", num(t.cycle_fuel_error_percent, 2)),
@@ -261,8 +261,11 @@ document.addEventListener("DOMContentLoaded", () => {
   });
   $("refit").addEventListener("click", refit);
   $("fleet").tBodies[0].addEventListener("click", (event) => {
-    const button = event.target.closest("button.truck");
-    if (button) openTruck(button.closest("tr").dataset.truck);
+    const link = event.target.closest("a.truck");
+    if (link) {
+      event.preventDefault();
+      openTruck(link.closest("tr").dataset.truck);
+    }
   });
   if (sessionStorage.getItem(TOKEN_KEY)) start();
 });
