@@ -82,7 +82,7 @@ def main() -> None:
                 shown = page.evaluate(f"""async () => {{
                     const t0 = performance.now();
                     document.querySelector("#signin-form button[type=submit]").click();
-                    while (document.querySelectorAll("#fleet tbody tr").length < {n})
+                    while (document.querySelectorAll("#fleet-rows .row").length < {n})
                         await new Promise((r) => requestAnimationFrame(r));
                     await new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r)));
                     return performance.now() - t0; }}""") / 1e3
@@ -91,7 +91,7 @@ def main() -> None:
                     document.getElementById("sort-drift").click();
                     await new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r)));
                     return performance.now() - t0; }""") / 1e3
-                first = page.locator("#fleet tbody tr").first.get_attribute("data-truck")
+                first = page.locator("#fleet-rows .row").first.get_attribute("data-truck")
                 browser.close()
             print(f"page: sign-in click to {n} rows drawn and painted {shown * 1e3:.0f} ms ({shown:.2f}× the 1 s "
                   f"limit); re-sort by drift (ascending) {resort * 1e3:.0f} ms, top truck then {first}")

@@ -56,14 +56,14 @@ def test_console_finds_the_drifting_truck(console_server, tmp_path):
         page.goto(s.url + "/")
         page.fill("#token", token)
         page.click("#signin-form button[type=submit]")
-        rows = page.locator("#fleet tbody tr")
+        rows = page.locator("#fleet-rows .row")
         rows.nth(9).wait_for()
         assert rows.count() == 10
 
         # sorted by |drift| by default: the drifting truck is first and flagged
         first = rows.first
         assert first.get_attribute("data-truck") == "DRIFT-1" and "alert" in first.get_attribute("class")
-        drift_text = first.locator("td").nth(8).text_content()
+        drift_text = first.locator("[role=cell]").nth(8).text_content()
         assert drift_text.startswith("+7.") or drift_text.startswith("+6.")  # 8 % of the fuel above idle
         assert page.locator("#alerts li").count() == 1 and "DRIFT-1" in page.locator("#alerts").text_content()
         page.click("#sort-drift")  # ascending, then back
@@ -73,7 +73,7 @@ def test_console_finds_the_drifting_truck(console_server, tmp_path):
 
         # the hostile name is text, never markup
         assert page.locator("#fleet img").count() == 0
-        assert page.locator("#fleet tbody tr", has_text=HOSTILE).count() == 1
+        assert page.locator("#fleet-rows .row", has_text=HOSTILE).count() == 1
         page.screenshot(path=tmp_path / "fleet.png", full_page=True)
 
         # the token: session storage only, never in the URL, no cookies, nothing in local storage

@@ -78,32 +78,39 @@ function compare([x, a], [y, b]) {
   return state.sortAsc ? order : -order;
 }
 
+function cell(text, className) {
+  const c = el("span", text, className);
+  c.setAttribute("role", "cell");
+  return c;
+}
+
 function renderFleet() {
   const fleet = state.fleet;
-  const body = $("fleet").tBodies[0];
+  const body = $("fleet-rows");
   body.replaceChildren();
   const rows = fleet.trucks.map((t) => [sortValue(t), t]).sort(compare).map(([, t]) => t);
   const fragment = document.createDocumentFragment();
   for (const t of rows) {
-    const tr = el("tr", null, t.alerts.length ? "alert" : "");
+    const tr = el("div", null, t.alerts.length ? "row alert" : "row");  // a grid row: off-screen rows are
+    tr.setAttribute("role", "row");                                      // neither laid out nor painted
     tr.dataset.truck = t.truck;
-    const name = el("td");
+    const name = cell();
     const link = el("a", t.truck, "truck");  // opened by the table's click handler; a plain link lays out cheaper
     link.href = "#";                        // than a button, which matters at 1,000 rows
     name.append(link);
-    tr.append(name, el("td", num(t.data_hours, 1)), el("td", when(t.last_upload_unix_s)),
-      el("td", t.latest_version ?? "–"), el("td", num(t.fit_percent, 1)), el("td", num(t.cycle_fuel_error_percent, 2)),
-      el("td", [t.top_effect ? `missing: ${t.top_effect}` : "", ...t.effects].filter(Boolean).join(", ") || "–", "text"),
-      el("td", t.steady_fuel === null ? "–" : `${plusMinus(t.steady_fuel, t.steady_fuel_std, 2)} ${t.unit || ""}`),
-      el("td", plusMinus(t.drift_percent, t.drift_std_percent, 1, true)), el("td", signed(t.vs_fleet_percent, 1)));
-    const alerts = el("td", null, "text");
+    tr.append(name, cell(num(t.data_hours, 1)), cell(when(t.last_upload_unix_s)),
+      cell(t.latest_version ?? "–"), cell(num(t.fit_percent, 1)), cell(num(t.cycle_fuel_error_percent, 2)),
+      cell([t.top_effect ? `missing: ${t.top_effect}` : "", ...t.effects].filter(Boolean).join(", ") || "–", "text"),
+      cell(t.steady_fuel === null ? "–" : `${plusMinus(t.steady_fuel, t.steady_fuel_std, 2)} ${t.unit || ""}`),
+      cell(plusMinus(t.drift_percent, t.drift_std_percent, 1, true)), cell(signed(t.vs_fleet_percent, 1)));
+    const alerts = cell(null, "text");
     for (const a of t.alerts) alerts.append(el("span", a.kind, "badge"));
     if (t.note && t.steady_fuel === null) alerts.append(el("span", t.note, "hint"));
     tr.append(alerts);
     fragment.append(tr);
   }
   body.append(fragment);
-  for (const b of document.querySelectorAll("#fleet th button")) {
+  for (const b of document.querySelectorAll("#fleet .head button")) {
     b.classList.toggle("sorted", b.dataset.key === state.sortKey);
     b.classList.toggle("asc", b.dataset.key === state.sortKey && state.sortAsc);
   }
@@ -246,7 +253,7 @@ document.addEventListener("DOMContentLoaded", () => {
     state.threshold = $("threshold").value.trim();
     loadFleet().catch((e) => status(e.message, true));
   });
-  for (const b of document.querySelectorAll("#fleet th button")) {
+  for (const b of document.querySelectorAll("#fleet .head button")) {
     b.addEventListener("click", () => {
       state.sortAsc = state.sortKey === b.dataset.key ? !state.sortAsc : b.dataset.key === "truck";
       state.sortKey = b.dataset.key;
@@ -260,11 +267,11 @@ document.addEventListener("DOMContentLoaded", () => {
     loadFleet().catch((e) => status(e.message, true));
   });
   $("refit").addEventListener("click", refit);
-  $("fleet").tBodies[0].addEventListener("click", (event) => {
+  $("fleet-rows").addEventListener("click", (event) => {
     const link = event.target.closest("a.truck");
     if (link) {
       event.preventDefault();
-      openTruck(link.closest("tr").dataset.truck);
+      openTruck(link.closest(".row").dataset.truck);
     }
   });
   if (sessionStorage.getItem(TOKEN_KEY)) start();
