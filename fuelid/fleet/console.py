@@ -18,7 +18,7 @@ from typing import Annotated, Callable
 
 import sqlalchemy as sa
 from fastapi import APIRouter, Depends, FastAPI, HTTPException, Path as PathParam, Query
-from fastapi.responses import FileResponse, HTMLResponse, Response
+from fastapi.responses import FileResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
 
@@ -379,8 +379,9 @@ def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reade
         links[ticket] = (model["report_sha256"], now + REPORT_LINK_S)
         return {"url": f"/reports/{ticket}", "expires_unix_s": now + REPORT_LINK_S}
 
-    @api.get("/reports/{ticket}", response_class=HTMLResponse, tags=["console"],
-             responses={**not_found, 422: errors[422]})
+    @api.get("/reports/{ticket}", tags=["console"],
+             responses={200: {"content": {"text/html": {}}, "description": "the report"}, **not_found,
+                        422: errors[422]})
     def report(ticket: Annotated[str, PathParam(pattern=r"^[A-Za-z0-9_-]{32}$")]):
         """The report of a link from report-link, sandboxed."""
         sha, expires = links.get(ticket, ("", 0.0))
