@@ -34,7 +34,7 @@ STATIC = Path(__file__).with_name("static")
 CONSOLE_CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; "
                "base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
 # The report inlines plotly.js and its data: inline scripts, no network, and a sandbox with an opaque origin.
-REPORT_CSP = ("default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; "
+REPORT_CSP = ("default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
               "img-src data: blob:; font-src data:; base-uri 'none'; form-action 'none'; "
               "sandbox allow-scripts allow-downloads allow-popups")
 REPORT_LINK_S = 120.0
