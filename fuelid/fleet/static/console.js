@@ -47,8 +47,9 @@ async function api(method, path) {
   const response = await fetch(path, { method, headers: { Authorization: `Bearer ${token}` }, cache: "no-store" });
   let body = null;
   try { body = await response.json(); } catch (e) { body = null; }
-  if (response.status === 401) {
-    signOut("the token was refused (missing, unknown or revoked)");
+  if (response.status === 401 || response.status === 403) {  // unknown, revoked, or a truck's token
+    signOut(response.status === 401 ? "the token was refused (missing, unknown or revoked)"
+      : "this token may not read the fleet: sign in with an engineer or admin token");
     throw new Error("signed out");
   }
   if (!response.ok) throw new Error((body && body.detail) || `${method} ${path}: HTTP ${response.status}`);
