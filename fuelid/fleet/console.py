@@ -146,12 +146,25 @@ class ReportLink(BaseModel):
 
 class ModelCache:
     """Parsed model.json files and their steady fuel at given points, by sha256 (content-addressed: never
-    stale). Bounded: emptied when full, so a long-running server's memory stays flat."""
+    stale), and model versions' metrics by row id (a models row is never changed). Bounded: each table is
+    emptied when full, so a long-running server's memory stays flat."""
 
     def __init__(self, store: BlobStore, max_models: int = 4096, max_steady: int = 65536):
         self.store, self.max_models, self.max_steady = store, max_models, max_steady
         self._models: dict[str, PolyModel | str] = {}
-        self._steady: dict[tuple, SteadyFuel | str] = {}
+        self._steady: dict[tuple, dict[str, SteadyFuel | str]] = {}  # points -> sha256 -> steady fuel
+        self._metrics: dict[int, dict] = {}
+
+    def metrics(self, conn, ids: list[int]) -> dict[int, dict]:
+        """_metrics of the models rows `ids` (read from the database only for rows not seen before)."""
+        missing = [i for i in ids if i not in self._metrics]
+        if len(self._metrics) + len(missing) > self.max_steady:
+            self._metrics.clear()
+            missing = ids
+        for k in range(0, len(missing), 500):  # bounded IN lists
+            q = sa.select(db.models.c.id, db.models.c.metrics).where(db.models.c.id.in_(missing[k:k + 500]))
+            self._metrics.update((i, _metrics(m or {})) for i, m in conn.execute(q))
+        return {i: self._metrics[i] for i in ids}
 
     def model(self, sha256: str) -> PolyModel | str:
         """The model, or why it cannot be read (one line)."""
@@ -164,18 +177,24 @@ class ModelCache:
                 self._models[sha256] = str(exc).split(": ", 1)[-1]
         return self._models[sha256]
 
-    def steady(self, sha256: str, points: tuple[ReferencePoint, ...]) -> SteadyFuel | str:
-        """fleet.drift.steady_fuel of the model at `points`, or why there is none."""
-        key = (sha256, points)
-        if key not in self._steady:
-            if len(self._steady) >= self.max_steady:
-                self._steady.clear()
-            model = self.model(sha256)
-            try:
-                self._steady[key] = model if isinstance(model, str) else steady_fuel(model, points)
-            except ValueError as exc:
-                self._steady[key] = str(exc)
-        return self._steady[key]
+    def steady_at(self, points: tuple[ReferencePoint, ...]) -> Callable[[str], SteadyFuel | str]:
+        """A function of a model's sha256 giving fleet.drift.steady_fuel at `points`, or why there is none."""
+        if points not in self._steady and len(self._steady) >= 16:
+            self._steady.clear()
+        table = self._steady.setdefault(points, {})
+
+        def steady(sha256: str) -> SteadyFuel | str:
+            if sha256 not in table:
+                if len(table) >= self.max_steady:
+                    table.clear()
+                model = self.model(sha256)
+                try:
+                    table[sha256] = model if isinstance(model, str) else steady_fuel(model, points)
+                except ValueError as exc:
+                    table[sha256] = str(exc)
+            return table[sha256]
+
+        return steady
 
     def effects(self, sha256: str) -> list[str]:
         model = self.model(sha256)
@@ -239,7 +258,7 @@ def fleet_summary(engine: sa.Engine, cache: ModelCache, points, threshold: float
         m.c.top_effect.is_not(None)).group_by(m.c.truck, m.c.top_effect)
     firsts = sa.select(m.c.truck, m.c.model_sha256).join(
         span, (span.c.truck == m.c.truck) & (m.c.version == span.c.first))
-    latests = sa.select(m.c.truck, m.c.version, m.c.created_unix_s, m.c.model_sha256, m.c.metrics, m.c.top_effect
+    latests = sa.select(m.c.truck, m.c.id, m.c.version, m.c.created_unix_s, m.c.model_sha256, m.c.top_effect
                         ).join(span, (span.c.truck == m.c.truck) & (m.c.version == span.c.latest))
     q = (sa.select(db.trucks.c.truck, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns,
                    files.c.end_ns, span.c.versions)
@@ -251,6 +270,8 @@ def fleet_summary(engine: sa.Engine, cache: ModelCache, points, threshold: float
         first_sha = dict(conn.execute(firsts).tuples().all())
         latest_of = {r["truck"]: r for r in conn.execute(latests).mappings()}
         since = {(r.truck, r.top_effect): r.since for r in conn.execute(named)}
+        metrics_of = cache.metrics(conn, [r["id"] for r in latest_of.values()])
+    steady = cache.steady_at(points)
     out = []
     for t in trucks:
         latest = latest_of.get(t["truck"])
@@ -261,11 +282,11 @@ def fleet_summary(engine: sa.Engine, cache: ModelCache, points, threshold: float
                "fit_percent": None, "cycle_fuel_error_percent": None, "unit": None, "top_effect": None,
                "effects": [], "vs_fleet_percent": None, "alerts": [], "note": "no model yet"}
         if latest is not None:
-            current = cache.steady(latest["model_sha256"], points)
-            reference = cache.steady(first_sha[t["truck"]], points) if t["versions"] > 1 else None
+            current = steady(latest["model_sha256"])
+            reference = steady(first_sha[t["truck"]]) if t["versions"] > 1 else None
             fields = _drift_fields(current, reference, threshold)
             new = latest["top_effect"] is not None and since.get((t["truck"], latest["top_effect"])) == latest["version"]
-            metrics = _metrics(latest["metrics"] or {})
+            metrics = metrics_of[latest["id"]]
             row.update(fields, latest_version=latest["version"], latest_created_unix_s=latest["created_unix_s"],
                        fit_percent=metrics["fit_percent"], cycle_fuel_error_percent=metrics["cycle_fuel_error_percent"],
                        unit=metrics["unit"] or (current.unit if isinstance(current, SteadyFuel) else None),
@@ -281,10 +302,11 @@ def fleet_summary(engine: sa.Engine, cache: ModelCache, points, threshold: float
 
 def truck_history(engine: sa.Engine, cache: ModelCache, truck: str, points, threshold: float) -> dict:
     rows = db.list_models(engine, truck)
-    first = cache.steady(rows[0]["model_sha256"], points) if rows else None
+    steady = cache.steady_at(points)
+    first = steady(rows[0]["model_sha256"]) if rows else None
     versions = []
     for i, r in enumerate(rows):
-        current = first if i == 0 else cache.steady(r["model_sha256"], points)
+        current = first if i == 0 else steady(r["model_sha256"])
         fields = _drift_fields(current, None if i == 0 else first, threshold)
         versions.append({**fields, **_metrics(r["metrics"] or {}), "version": r["version"],
                          "created_unix_s": r["created_unix_s"], "job_id": r["job_id"], "top_effect": r["top_effect"],
