@@ -25,6 +25,8 @@ COMMANDS = {
     "compare": "compare model files with measurements (fit, whiteness, cycle fuel error) and static baselines",
     "diagnose": "diagnose a model on recordings: where it fails and which physical effect is missing (ranked, tested)",
     "report": "write the diagnosis of a model (and the models refitted with effects) as one offline HTML report",
+    "export": "export a model.json for MATLAB: a script rebuilding it as an idpoly (--to matlab) or a .mat file "
+              "(--to mat)",
     "online": "run the online BJ estimator (recursive prediction error or Kalman) over MCAP recordings",
     "serve": "run the fleet server: truck uploads, per-truck model registry, identification jobs on Dask",
     "token": "create, list or revoke fleet API tokens (--data-dir/--database-url offline, else via --server)",

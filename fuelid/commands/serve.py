@@ -28,6 +28,12 @@ def add_arguments(p):
                    help="identify a truck again S seconds after its last new file (default 600)")
     p.add_argument("--refit-window-h", type=float, default=24.0, metavar="H",
                    help="a refit uses the truck's newest H hours of recorded data (default 24)")
+    p.add_argument("--reference-points", default="1000x600Nm,1200x1200Nm,1400x1800Nm", metavar="POINTS",
+                   help="the console's default operating points for fuel-efficiency drift: RPMxTORQUE with Nm or "
+                        "%% (the models' torque unit), comma separated (default 1000x600Nm,1200x1200Nm,1400x1800Nm)")
+    p.add_argument("--drift-threshold", type=float, default=5.0, metavar="PCT",
+                   help="flag a truck whose steady-state fuel moved more than PCT %% (and 2σ) since its first model "
+                        "(default 5)")
     p.add_argument("--no-auto-refit", action="store_true", help="identify only when asked (refit)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
 
@@ -37,16 +43,23 @@ def run(args) -> int:
     import uvicorn
 
     from fuelid.fleet.app import MiB, Settings, create_app
+    from fuelid.fleet.console import ConsoleSettings
+    from fuelid.fleet.drift import parse_points
 
     if min(args.max_upload_mb, args.refit_window_h, args.max_partial_uploads, args.partial_expiry_h,
-           args.max_partial_mb or 1) <= 0:
-        raise FuelidError("--max-upload-mb, --refit-window-h and the partial-upload limits must be positive")
+           args.max_partial_mb or 1, args.drift_threshold) <= 0:
+        raise FuelidError("--max-upload-mb, --refit-window-h, the partial-upload limits and --drift-threshold must "
+                          "be positive")
+    try:
+        console = ConsoleSettings(parse_points(args.reference_points), args.drift_threshold)
+    except ValueError as exc:
+        raise FuelidError(f"--reference-points: {exc}") from None
     settings = Settings(data_dir=Path(args.data_dir), database_url=args.database_url,
                         max_upload_bytes=int(args.max_upload_mb * MiB), scheduler=args.scheduler,
                         workers=args.workers, refit_after_s=None if args.no_auto_refit else args.refit_after,
                         refit_window_s=args.refit_window_h * 3600.0, max_partial_uploads=args.max_partial_uploads,
                         max_partial_bytes=int(args.max_partial_mb * MiB) if args.max_partial_mb else None,
-                        partial_expiry_s=args.partial_expiry_h * 3600.0)
+                        partial_expiry_s=args.partial_expiry_h * 3600.0, console_settings=console)
     try:
         app = create_app(settings)
     except Exception as exc:  # unreachable database, bad URL, unwritable data dir

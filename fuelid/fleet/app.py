@@ -9,7 +9,7 @@ import asyncio
 import hashlib
 import logging
 from contextlib import asynccontextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Callable, Literal
 
@@ -22,7 +22,7 @@ from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
 from fuelid.errors import InputError
-from fuelid.fleet import auth, db
+from fuelid.fleet import auth, console, db
 from fuelid.fleet.refits import RefitManager, dask_runner_factory
 from fuelid.fleet.storage import HEX64, BlobStore, UploadRefused, inspect_mcap
 from fuelid import __version__
@@ -51,6 +51,7 @@ class Settings:
     max_partial_uploads: int = 8
     max_partial_bytes: int | None = None
     partial_expiry_s: float = 7 * 24 * 3600.0
+    console_settings: console.ConsoleSettings = field(default_factory=console.ConsoleSettings)  # reference points, drift threshold
 
 
 # --- response models (the OpenAPI description, checked by the schemathesis tests) ---
@@ -204,6 +205,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         return check
 
     admin, reader, uploader = role("admin"), role("admin", "engineer"), role("admin", "truck")
+    console.mount(app, engine, store, settings.console_settings, reader, ERRORS)  # the engineer's page at / and its API
 
     def known_truck(truck: str) -> None:
         if not db.truck_exists(engine, truck):

@@ -1,0 +1,438 @@
+"""The fleet engineer's console: the API behind the page (fleet summary with drift, truck history, alerts,
+report links) and the page itself (static files in fuelid/fleet/static, served at `/`).
+
+Drift (fleet.drift) needs each model version's model.json; they are content-addressed, so each is parsed once
+and kept by its sha256 (a model file never changes under its hash). The page's files carry a content security
+policy allowing scripts, styles and requests from the server's own origin only, no inline script. A report
+(plotly inline, written by ident.report) is opened through a short-lived link (`POST .../report-link`), never
+with the token in a URL, and served sandboxed (an opaque origin: its scripts cannot read the console's storage).
+"""
+from __future__ import annotations
+
+import math
+import secrets
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Callable
+
+import sqlalchemy as sa
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, Path as PathParam, Query
+from fastapi.responses import FileResponse, Response
+from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel, Field
+
+from fuelid.fleet import auth, db
+from fuelid.fleet.drift import DEFAULT_POINTS, Drift, ReferencePoint, SteadyFuel, drift, fleet_median, \
+    parse_points, steady_fuel, versus_median
+from fuelid.fleet.storage import BlobStore
+from fuelid.errors import FuelidError
+from fuelid.ident.modelfile import load_model
+from fuelid.ident.polymodel import PolyModel
+
+STATIC = Path(__file__).with_name("static")
+CONSOLE_CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; "
+               "base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+# The report inlines plotly.js and its data: inline scripts, no network, and a sandbox with an opaque origin.
+REPORT_CSP = ("default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
+              "img-src data: blob:; font-src data:; base-uri 'none'; form-action 'none'; "
+              "sandbox allow-scripts allow-downloads allow-popups")
+REPORT_LINK_S = 120.0
+
+
+@dataclass(frozen=True)
+class ConsoleSettings:
+    """The fleet-wide default reference points and the drift threshold [%] (fleet.drift)."""
+
+    points: tuple[ReferencePoint, ...] = DEFAULT_POINTS
+    threshold_percent: float = 5.0
+
+
+# --- response models ---
+
+class DriftInfo(BaseModel):
+    steady_fuel: float | None = Field(None, description="mean steady-state fuel over the reference points [unit]")
+    steady_fuel_std: float | None = Field(None, description="its standard error from the covariance [unit]")
+    per_point: list[float] | None = Field(None, description="steady-state fuel at each reference point [unit]")
+    drift_percent: float | None = Field(None, description="100 (S / S of the first version − 1) [%]")
+    drift_std_percent: float | None = Field(None, description="standard error of drift_percent [%]")
+    drift_alert: bool = False
+    note: str | None = Field(None, description="why steady fuel or drift is missing")
+
+
+class Alert(BaseModel):
+    truck: str
+    kind: str = Field(description="drift | new effect")
+    version: int
+    message: str
+    drift_percent: float | None = None
+    drift_std_percent: float | None = None
+
+
+class TruckSummary(DriftInfo):
+    truck: str
+    files: int
+    data_hours: float = Field(description="recorded time of the truck's files [h]")
+    last_upload_unix_s: float | None
+    start_ns: int | None
+    end_ns: int | None
+    versions: int
+    latest_version: int | None
+    latest_created_unix_s: float | None
+    fit_percent: float | None = Field(description="latest version's simulation fit [%]")
+    cycle_fuel_error_percent: float | None = Field(description="latest version's RMS cycle fuel error [%]")
+    unit: str | None = Field(description="fuel unit of the model (L/h or kg/h)")
+    top_effect: str | None = Field(description="the missing effect the latest diagnosis named")
+    effects: list[str] = Field(description="effects the latest model includes")
+    vs_fleet_percent: float | None = Field(description="100 (S / fleet median S − 1) [%]")
+    alerts: list[Alert]
+
+
+class FleetSummary(BaseModel):
+    points: list[str] = Field(description="reference points used, RPMxTORQUE<Nm|%>")
+    threshold_percent: float
+    fleet_median_steady_fuel: float | None
+    trucks: list[TruckSummary]
+
+
+class VersionInfo(DriftInfo):
+    version: int
+    created_unix_s: float
+    job_id: int | None
+    fit_percent: float | None
+    rmse: float | None
+    cycle_fuel_error_percent: float | None
+    unit: str | None
+    top_effect: str | None
+    effects: list[str]
+    duration_s: float | None
+    has_report: bool
+
+
+class FileSpan(BaseModel):
+    sha256: str
+    size_bytes: int
+    start_ns: int | None
+    end_ns: int | None
+    messages: int
+    uploaded_unix_s: float
+
+
+class JobBrief(BaseModel):
+    id: int
+    reason: str
+    status: str
+    created_unix_s: float
+    finished_unix_s: float | None
+    error: str | None
+    model_version: int | None
+
+
+class TruckHistory(BaseModel):
+    truck: str
+    points: list[str]
+    threshold_percent: float
+    versions: list[VersionInfo]
+    files: list[FileSpan]
+    jobs: list[JobBrief]
+
+
+class ReportLink(BaseModel):
+    url: str = Field(description="same-origin path of the report, valid without a token until expires_unix_s")
+    expires_unix_s: float
+
+
+# --- drift of stored model versions ---
+
+class ModelCache:
+    """Parsed model.json files and their steady fuel at given points, by sha256 (content-addressed: never
+    stale), and model versions' metrics by row id (a models row is never changed). Bounded: each table is
+    emptied when full, so a long-running server's memory stays flat."""
+
+    def __init__(self, store: BlobStore, max_models: int = 4096, max_steady: int = 65536):
+        self.store, self.max_models, self.max_steady = store, max_models, max_steady
+        self._models: dict[str, PolyModel | str] = {}
+        self._steady: dict[tuple, dict[str, SteadyFuel | str]] = {}  # points -> sha256 -> steady fuel
+        self._metrics: dict[int, dict] = {}
+
+    def metrics(self, conn, ids: list[int]) -> dict[int, dict]:
+        """_metrics of the models rows `ids` (read from the database only for rows not seen before)."""
+        missing = [i for i in ids if i not in self._metrics]
+        if len(self._metrics) + len(missing) > self.max_steady:
+            self._metrics.clear()
+            missing = ids
+        for k in range(0, len(missing), 500):  # bounded IN lists
+            q = sa.select(db.models.c.id, db.models.c.metrics).where(db.models.c.id.in_(missing[k:k + 500]))
+            self._metrics.update((i, _metrics(m or {})) for i, m in conn.execute(q))
+        return {i: self._metrics[i] for i in ids}
+
+    def model(self, sha256: str) -> PolyModel | str:
+        """The model, or why it cannot be read (one line)."""
+        if sha256 not in self._models:
+            if len(self._models) >= self.max_models:
+                self._models.clear()
+            try:
+                self._models[sha256] = load_model(self.store.path(sha256))
+            except FuelidError as exc:
+                self._models[sha256] = str(exc).split(": ", 1)[-1]
+        return self._models[sha256]
+
+    def steady_at(self, points: tuple[ReferencePoint, ...]) -> Callable[[str], SteadyFuel | str]:
+        """A function of a model's sha256 giving fleet.drift.steady_fuel at `points`, or why there is none."""
+        if points not in self._steady and len(self._steady) >= 16:
+            self._steady.clear()
+        table = self._steady.setdefault(points, {})
+
+        def steady(sha256: str) -> SteadyFuel | str:
+            if sha256 not in table:
+                if len(table) >= self.max_steady:
+                    table.clear()
+                model = self.model(sha256)
+                try:
+                    table[sha256] = model if isinstance(model, str) else steady_fuel(model, points)
+                except ValueError as exc:
+                    table[sha256] = str(exc)
+            return table[sha256]
+
+        return steady
+
+    def effects(self, sha256: str) -> list[str]:
+        model = self.model(sha256)
+        return [] if isinstance(model, str) else list(model.effects)
+
+
+def _drift_fields(current: SteadyFuel | str, first: SteadyFuel | str | None, threshold: float) -> dict:
+    if isinstance(current, str):
+        return {"note": current}
+    out = {"steady_fuel": current.mean, "steady_fuel_std": current.std_error, "per_point": list(current.per_point)}
+    if first is None or isinstance(first, str):
+        return {**out, "note": None if first is None else f"first version: {first}"}
+    try:
+        d: Drift = drift(current, first, threshold)
+    except ValueError as exc:
+        return {**out, "note": str(exc)}
+    return {**out, "drift_percent": d.percent, "drift_std_percent": d.std_error_percent, "drift_alert": d.alert}
+
+
+def _number(x) -> float | None:
+    return float(x) if isinstance(x, (int, float)) and math.isfinite(x) else None
+
+
+def _metrics(m: dict) -> dict:
+    """fit [%], RMSE [unit], RMS cycle fuel error [%] and unit of a version's metrics (jobs.identify_truck)."""
+    def pick(v, key):
+        return _number(v.get(key)) if isinstance(v, dict) else _number(v)
+
+    return {"fit_percent": pick(m.get("fit_percent"), "simulation"), "rmse": pick(m.get("rmse"), "simulation"),
+            "cycle_fuel_error_percent": pick(m.get("cycle_fuel_error_percent"), "rms"),
+            "unit": m.get("unit") if isinstance(m.get("unit"), str) else None}
+
+
+def _alerts(truck: str, latest: dict, fields: dict, new_effect: bool) -> list[Alert]:
+    alerts = []
+    if fields.get("drift_alert"):
+        sd = fields["drift_std_percent"]
+        alerts.append(Alert(truck=truck, kind="drift", version=latest["version"],
+                            drift_percent=fields["drift_percent"], drift_std_percent=sd,
+                            message=f"steady-state fuel {fields['drift_percent']:+.1f} %"
+                                    + (f" ± {sd:.1f} %" if sd is not None else " (uncertainty unknown)")
+                                    + " since the first model"))
+    if new_effect:
+        alerts.append(Alert(truck=truck, kind="new effect", version=latest["version"],
+                            message=f"the diagnosis names a new effect: {latest['top_effect']}"))
+    return alerts
+
+
+def fleet_summary(engine: sa.Engine, cache: ModelCache, points, threshold: float) -> tuple[list[dict], float | None]:
+    """Per truck: files, data hours, last upload, latest version with metrics, effects, drift and alerts; and the
+    fleet median of the latest steady-state fuel."""
+    f, m = db.files, db.models
+    files = sa.select(f.c.truck, sa.func.count().label("files"),
+                      sa.func.coalesce(sa.func.sum(f.c.end_ns - f.c.start_ns), 0).label("recorded_ns"),
+                      sa.func.max(f.c.uploaded_unix_s).label("last_upload"), sa.func.min(f.c.start_ns).label("start_ns"),
+                      sa.func.max(f.c.end_ns).label("end_ns")).group_by(f.c.truck).subquery()
+    span = sa.select(m.c.truck, sa.func.min(m.c.version).label("first"), sa.func.max(m.c.version).label("latest"),
+                     sa.func.count().label("versions")).group_by(m.c.truck).subquery()
+    # the first version naming each effect: the latest version's effect is new when that is the latest version
+    named = sa.select(m.c.truck, m.c.top_effect, sa.func.min(m.c.version).label("since")).where(
+        m.c.top_effect.is_not(None)).group_by(m.c.truck, m.c.top_effect)
+    firsts = sa.select(m.c.truck, m.c.model_sha256).join(
+        span, (span.c.truck == m.c.truck) & (m.c.version == span.c.first))
+    latests = sa.select(m.c.truck, m.c.id, m.c.version, m.c.created_unix_s, m.c.model_sha256, m.c.top_effect
+                        ).join(span, (span.c.truck == m.c.truck) & (m.c.version == span.c.latest))
+    q = (sa.select(db.trucks.c.truck, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns,
+                   files.c.end_ns, span.c.versions)
+         .select_from(db.trucks.outerjoin(files, files.c.truck == db.trucks.c.truck)
+                      .outerjoin(span, span.c.truck == db.trucks.c.truck))
+         .order_by(db.trucks.c.truck))
+    with engine.connect() as conn:
+        trucks = conn.execute(q).mappings().all()
+        first_sha = dict(conn.execute(firsts).tuples().all())
+        latest_of = {r["truck"]: r for r in conn.execute(latests).mappings()}
+        since = {(r.truck, r.top_effect): r.since for r in conn.execute(named)}
+        metrics_of = cache.metrics(conn, [r["id"] for r in latest_of.values()])
+    steady = cache.steady_at(points)
+    out = []
+    for t in trucks:
+        latest = latest_of.get(t["truck"])
+        hours = float(t["recorded_ns"] or 0) / 3.6e12  # float: PostgreSQL sums bigints as numeric (Decimal)
+        row = {"truck": t["truck"], "files": t["files"] or 0, "data_hours": hours,
+               "last_upload_unix_s": t["last_upload"], "start_ns": t["start_ns"], "end_ns": t["end_ns"],
+               "versions": t["versions"] or 0, "latest_version": None, "latest_created_unix_s": None,
+               "fit_percent": None, "cycle_fuel_error_percent": None, "unit": None, "top_effect": None,
+               "effects": [], "vs_fleet_percent": None, "alerts": [], "note": "no model yet"}
+        if latest is not None:
+            current = steady(latest["model_sha256"])
+            reference = steady(first_sha[t["truck"]]) if t["versions"] > 1 else None
+            fields = _drift_fields(current, reference, threshold)
+            new = latest["top_effect"] is not None and since.get((t["truck"], latest["top_effect"])) == latest["version"]
+            metrics = metrics_of[latest["id"]]
+            row.update(fields, latest_version=latest["version"], latest_created_unix_s=latest["created_unix_s"],
+                       fit_percent=metrics["fit_percent"], cycle_fuel_error_percent=metrics["cycle_fuel_error_percent"],
+                       unit=metrics["unit"] or (current.unit if isinstance(current, SteadyFuel) else None),
+                       top_effect=latest["top_effect"], effects=cache.effects(latest["model_sha256"]),
+                       alerts=_alerts(t["truck"], latest, fields, new))
+        out.append(row)
+    median = fleet_median([r["steady_fuel"] for r in out if r.get("steady_fuel") is not None])
+    for r in out:
+        if r.get("steady_fuel") is not None:
+            r["vs_fleet_percent"] = versus_median(r["steady_fuel"], median)
+    return out, median
+
+
+def truck_history(engine: sa.Engine, cache: ModelCache, truck: str, points, threshold: float) -> dict:
+    rows = db.list_models(engine, truck)
+    steady = cache.steady_at(points)
+    first = steady(rows[0]["model_sha256"]) if rows else None
+    versions = []
+    for i, r in enumerate(rows):
+        current = first if i == 0 else steady(r["model_sha256"])
+        fields = _drift_fields(current, None if i == 0 else first, threshold)
+        versions.append({**fields, **_metrics(r["metrics"] or {}), "version": r["version"],
+                         "created_unix_s": r["created_unix_s"], "job_id": r["job_id"], "top_effect": r["top_effect"],
+                         "effects": cache.effects(r["model_sha256"]), "duration_s": r["duration_s"],
+                         "has_report": r["report_sha256"] is not None})
+    return {"truck": truck, "points": [str(p) for p in points], "threshold_percent": threshold, "versions": versions,
+            "files": db.list_files(engine, truck), "jobs": db.list_jobs(engine, truck=truck, limit=20)}
+
+
+# --- the router and the page ---
+
+Points = Annotated[str | None, Query(max_length=400, description="reference points RPMxTORQUE<Nm|%>, comma "
+                                                                   "separated (default: the server's)")]
+Threshold = Annotated[float | None, Query(gt=0, le=1000, description="drift alert threshold [%] (default: the "
+                                                                      "server's)")]
+
+
+def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reader: Callable,
+           errors: dict) -> APIRouter:
+    """The console's API under /api/v1 (engineer or admin tokens: `reader`) and the report links; `errors` the
+    app's documented error replies (400, 401, 403, 422 with their one-line body model)."""
+    api = APIRouter()
+    cache = ModelCache(store)
+    links: dict[str, tuple[str, float]] = {}  # ticket -> (report sha256, expiry [Unix s])
+    not_found = {404: {"model": errors[422]["model"], "description": "no such truck, version, report or link"}}
+
+    def chosen(points: str | None, threshold: float | None):
+        try:
+            return (parse_points(points) if points else settings.points,
+                    threshold if threshold is not None else settings.threshold_percent)
+        except ValueError as exc:
+            raise HTTPException(422, str(exc)) from None
+
+    summaries: dict[tuple, FleetSummary] = {}  # (registry fingerprint, points, threshold) -> summary
+
+    def summary(points: str | None, threshold: float | None) -> FleetSummary:
+        """The fleet summary, computed again only when the registry changed: rows are only ever inserted, so
+        the counts and newest ids of trucks, files and models tell whether anything did."""
+        pts, thr = chosen(points, threshold)
+        with engine.connect() as conn:
+            fingerprint = tuple(conn.execute(sa.select(
+                sa.select(sa.func.count()).select_from(db.trucks).scalar_subquery(),
+                sa.select(sa.func.count()).select_from(db.files).scalar_subquery(),
+                sa.select(sa.func.max(db.files.c.uploaded_unix_s)).scalar_subquery(),
+                sa.select(sa.func.max(db.models.c.id)).scalar_subquery())).one())
+        key = (fingerprint, pts, thr)
+        if key not in summaries:
+            rows, median = fleet_summary(engine, cache, pts, thr)
+            if len(summaries) >= 16:
+                summaries.clear()
+            summaries[key] = FleetSummary(points=[str(p) for p in pts], threshold_percent=thr,
+                                          fleet_median_steady_fuel=median, trucks=rows)
+        return summaries[key]
+
+    @api.get("/api/v1/fleet", response_model=FleetSummary, responses=errors, tags=["console"])
+    def fleet(points: Points = None, threshold: Threshold = None, _=Depends(reader)):
+        """Every truck with data hours, last upload, latest version's fit and cycle error, effects, steady-state
+        fuel at the reference points, drift since its first model (± standard error), against the fleet median,
+        and alerts."""
+        return Response(summary(points, threshold).model_dump_json(), media_type="application/json")
+
+    @api.get("/api/v1/alerts", response_model=list[Alert], responses=errors, tags=["console"])
+    def alerts(points: Points = None, threshold: Threshold = None, _=Depends(reader)):
+        """Trucks whose steady-state fuel drifted beyond the threshold and 2σ, or whose diagnosis names a new
+        effect."""
+        return [a for t in summary(points, threshold).trucks for a in t.alerts]
+
+    @api.get("/api/v1/trucks/{truck}/history", response_model=TruckHistory,
+             responses={**errors, **not_found}, tags=["console"])
+    def history(truck: Annotated[str, PathParam(pattern=auth.TRUCK_PATTERN)], points: Points = None,
+                threshold: Threshold = None, _=Depends(reader)):
+        """Model versions over time (metrics, effects, drift with uncertainty), files with their time ranges,
+        recent jobs."""
+        if not db.truck_exists(engine, truck):
+            raise HTTPException(404, f"no truck {truck}")
+        pts, thr = chosen(points, threshold)
+        return truck_history(engine, cache, truck, pts, thr)
+
+    @api.post("/api/v1/trucks/{truck}/models/{version}/report-link", response_model=ReportLink,
+              responses={**errors, **not_found}, tags=["console"])
+    def report_link(truck: Annotated[str, PathParam(pattern=auth.TRUCK_PATTERN)],
+                    version: Annotated[int, PathParam(ge=1, le=2**31 - 1)], _=Depends(reader)):
+        """A link to the version's report.html that works without a token for a short while (a browser tab
+        cannot send the Authorization header)."""
+        model = db.get_model(engine, truck, version)
+        if model is None or model["report_sha256"] is None:
+            raise HTTPException(404, f"truck {truck} has no report for version {version}")
+        now = time.time()
+        for k in [k for k, (_, exp) in links.items() if exp < now]:
+            del links[k]
+        ticket = secrets.token_urlsafe(24)
+        links[ticket] = (model["report_sha256"], now + REPORT_LINK_S)
+        return {"url": f"/reports/{ticket}", "expires_unix_s": now + REPORT_LINK_S}
+
+    @api.get("/reports/{ticket}", tags=["console"],
+             responses={200: {"content": {"text/html": {}}, "description": "the report"}, **not_found,
+                        422: errors[422]})
+    def report(ticket: Annotated[str, PathParam(pattern=r"^[A-Za-z0-9_-]{32}$")]):
+        """The report of a link from report-link, sandboxed."""
+        sha, expires = links.get(ticket, ("", 0.0))
+        if expires < time.time():
+            raise HTTPException(404, "unknown or expired report link")
+        return FileResponse(store.path(sha), media_type="text/html",
+                            headers={"Content-Security-Policy": REPORT_CSP, "Cache-Control": "no-store",
+                                     "Referrer-Policy": "no-referrer", "X-Content-Type-Options": "nosniff"})
+
+    return api
+
+
+def mount(app: FastAPI, engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reader: Callable,
+          errors: dict) -> None:
+    """Add the console's API, its page at `/` and its files at /static, with their security headers."""
+    app.include_router(router(engine, store, settings, reader, errors))
+
+    @app.get("/", include_in_schema=False)
+    def page():
+        return FileResponse(STATIC / "index.html", media_type="text/html")
+
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    @app.middleware("http")
+    async def console_headers(request, call_next):
+        response = await call_next(request)
+        if request.url.path == "/" or request.url.path.startswith("/static/"):
+            response.headers["Content-Security-Policy"] = CONSOLE_CSP
+            response.headers["X-Content-Type-Options"] = "nosniff"
+            response.headers["Referrer-Policy"] = "no-referrer"
+            response.headers["Cache-Control"] = "no-cache"
+        return response

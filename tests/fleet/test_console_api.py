@@ -1,0 +1,114 @@
+"""The console's API in-process (FastAPI TestClient, stand-in job runner): fleet summary with drift of a known
+size against each truck's first model and the fleet median, alerts, truck history, report links, the page's
+security headers, and roles."""
+import statistics
+
+import pytest
+from fastapi.testclient import TestClient
+
+from fuelid.fleet import auth, db
+from fuelid.fleet.app import Settings, create_app
+from tests.fleet.fake_server import FakeRunner
+from tests.fleet.simulated_fleet import engine_model, simulated_fleet, store_version
+
+# The engine's DC gains [L/h per rpm, per N·m] and the default points' mean deviations from idle: steady fuel
+# above idle K = G1 · 600 rpm + G2 · 1200 N·m for an efficiency factor of 1 (tests.fleet.simulated_fleet).
+G1, G2 = 0.006 / 0.5, 0.018 / 0.7
+K = G1 * 600 + G2 * 1200
+
+
+@pytest.fixture
+def fleet(tmp_path):
+    app = create_app(Settings(data_dir=tmp_path / "data", refit_after_s=None), runner_factory=FakeRunner)
+    engine, store = app.state.engine, app.state.store
+    simulated_fleet(engine, store, trucks=5, versions=3, drifting={"DRIFT-1": 0.08}, new_effect="FLEET-002")
+    with TestClient(app) as client:
+        client.headers["Authorization"] = "Bearer " + auth.create_token(engine, "engineer")["token"]
+        yield client, engine
+
+
+def test_fleet_summary_finds_the_drifting_truck(fleet):
+    client, _ = fleet
+    r = client.get("/api/v1/fleet")
+    assert r.status_code == 200
+    body = r.json()
+    assert body["points"] == ["1000x600Nm", "1200x1200Nm", "1400x1800Nm"] and body["threshold_percent"] == 5.0
+    trucks = {t["truck"]: t for t in body["trucks"]}
+    d = trucks["DRIFT-1"]
+    base = (client.get("/api/v1/trucks/DRIFT-1/history").json()["versions"][0]["steady_fuel"] - 2.0) / K
+    assert d["steady_fuel"] - 2.0 == pytest.approx(1.08 * base * K, rel=1e-9)  # +8 % above idle, as built
+    assert d["drift_percent"] == pytest.approx(100 * 0.08 * base * K / (2.0 + base * K), rel=1e-6)
+    assert d["drift_std_percent"] < 0.5 and d["drift_alert"]
+    assert [a["kind"] for a in d["alerts"]] == ["drift"]
+    assert d["data_hours"] == pytest.approx(10.0) and d["versions"] == 3 and d["latest_version"] == 3
+    assert d["fit_percent"] == 92.0 and d["cycle_fuel_error_percent"] == 1.1 and d["unit"] == "L/h"
+    for name in ["FLEET-000", "FLEET-001", "FLEET-003", "FLEET-004"]:
+        assert abs(trucks[name]["drift_percent"]) < 0.5 and trucks[name]["alerts"] == []
+    assert [a["kind"] for a in trucks["FLEET-002"]["alerts"]] == ["new effect"]
+    assert trucks["FLEET-002"]["top_effect"] == "fan_on"
+    assert body["fleet_median_steady_fuel"] == pytest.approx(statistics.median(t["steady_fuel"] for t in body["trucks"]))
+    assert d["vs_fleet_percent"] == pytest.approx(100 * (d["steady_fuel"] / body["fleet_median_steady_fuel"] - 1))
+
+
+def test_reference_points_and_threshold_per_request(fleet):
+    client, _ = fleet
+    low = client.get("/api/v1/fleet", params={"points": "800x200Nm", "threshold": 20}).json()
+    d = next(t for t in low["trucks"] if t["truck"] == "DRIFT-1")
+    assert low["points"] == ["800x200Nm"] and d["per_point"] == [d["steady_fuel"]] and not d["drift_alert"]
+    first = 2.0 + (d["steady_fuel"] - 2.0) / 1.08  # the first version's fuel at the one point
+    assert d["drift_percent"] == pytest.approx(100 * (d["steady_fuel"] / first - 1), rel=1e-6)
+    pct = client.get("/api/v1/fleet", params={"points": "1200x50%"}).json()["trucks"][0]
+    assert pct["steady_fuel"] is None and "need rpm and %" in pct["note"]
+    bad = client.get("/api/v1/fleet", params={"points": "1200rpm"})
+    assert bad.status_code == 422 and "RPMxTORQUE" in bad.json()["detail"]
+
+
+def test_a_new_version_shows_at_once(fleet):
+    client, engine = fleet
+    store = client.app.state.store
+    before = client.get("/api/v1/fleet").json()
+    assert client.get("/api/v1/fleet").json() == before  # unchanged registry: the same summary
+    db.add_model(engine, truck="FLEET-000", job_id=None, metrics={}, **store_version(store, "FLEET-000",
+                                                                                     engine_model(1.3)))
+    worn = next(t for t in client.get("/api/v1/fleet").json()["trucks"] if t["truck"] == "FLEET-000")
+    assert worn["latest_version"] == 4 and worn["drift_percent"] > 20 and worn["drift_alert"]
+
+
+def test_alerts_and_history(fleet):
+    client, _ = fleet
+    alerts = client.get("/api/v1/alerts").json()
+    assert sorted((a["truck"], a["kind"]) for a in alerts) == [("DRIFT-1", "drift"), ("FLEET-002", "new effect")]
+    h = client.get("/api/v1/trucks/DRIFT-1/history").json()
+    assert [v["version"] for v in h["versions"]] == [1, 2, 3]
+    assert h["versions"][0]["drift_percent"] is None and h["versions"][1]["drift_percent"] == pytest.approx(
+        h["versions"][2]["drift_percent"] / 2, rel=0.02)  # half the drift at the middle version
+    assert all(v["has_report"] for v in h["versions"]) and len(h["files"]) == 2
+    assert client.get("/api/v1/trucks/NOPE/history").status_code == 404
+
+
+def test_report_link_works_without_a_token_for_a_while(fleet):
+    client, _ = fleet
+    link = client.post("/api/v1/trucks/DRIFT-1/models/2/report-link").json()
+    assert link["url"].startswith("/reports/")
+    r = client.get(link["url"], headers={"Authorization": ""})
+    assert r.status_code == 200 and "DRIFT-1" in r.text
+    assert "sandbox allow-scripts" in r.headers["content-security-policy"]
+    assert client.get("/reports/" + "x" * 32).status_code == 404
+    assert client.post("/api/v1/trucks/DRIFT-1/models/9/report-link").status_code == 404
+
+
+def test_page_and_roles(fleet):
+    client, engine = fleet
+    page = client.get("/", headers={"Authorization": ""})
+    assert page.status_code == 200 and '<script src="/static/console.js"' in page.text
+    csp = page.headers["content-security-policy"]
+    assert "script-src 'self'" in csp and "unsafe-inline" not in csp and "default-src 'none'" in csp
+    js = client.get("/static/console.js", headers={"Authorization": ""})
+    assert js.status_code == 200 and "innerHTML" not in js.text and "localStorage" not in js.text
+    assert client.get("/api/v1/fleet", headers={"Authorization": ""}).status_code == 401
+    truck = auth.create_token(engine, "truck", "DRIFT-1")["token"]
+    assert client.get("/api/v1/alerts", headers={"Authorization": f"Bearer {truck}"}).status_code == 403
+    paths = client.get("/openapi.json").json()["paths"]
+    for p in ["/api/v1/fleet", "/api/v1/alerts", "/api/v1/trucks/{truck}/history",
+              "/api/v1/trucks/{truck}/models/{version}/report-link", "/reports/{ticket}"]:
+        assert p in paths

@@ -1,0 +1,65 @@
+"""fleet.drift: steady-state fuel at reference points against the simulated steady state, its standard error
+against the Monte-Carlo spread of the parameters, drift of a known size flagged and noise not flagged."""
+import numpy as np
+import pytest
+
+from fuelid.fleet.drift import DEFAULT_POINTS, SteadyFuel, drift, fleet_median, parse_points, steady_fuel, versus_median
+from fuelid.ident.polymodel import PolyModel, from_theta, simulate
+
+POINTS = parse_points("1000x600Nm,1400x1800Nm")
+
+
+def engine_model(gain=1.0, cov_scale=1e-12, na=0):
+    """Fuel [L/h] from speed [rpm] and torque [N·m] about idle (600 rpm, 0 N·m, 2 L/h); B scaled by gain."""
+    A = [1.0, -0.2][: na + 1]
+    m = PolyModel(A=A, B=[[0, gain * 0.004, gain * 0.002], [gain * 0.01, gain * 0.004]], F=[[1, -0.5], [1, -0.3]],
+                  C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1, 0), input_units=("rpm", "Nm"), output_unit="L/h",
+                  u0=(600.0, 0.0), y0=2.0)
+    n = m.structure.n_params
+    m.covariance = cov_scale * (np.eye(n) + 0.3 * np.ones((n, n)))
+    return m
+
+
+@pytest.mark.parametrize("na", [0, 1])
+def test_steady_fuel_is_the_settled_simulation(na):
+    m = engine_model(na=na)
+    sf = steady_fuel(m, POINTS)
+    for p, value in zip(POINTS, sf.per_point):
+        y = simulate(m, np.tile([p.speed_rpm, p.torque], (400, 1)))
+        assert value == pytest.approx(y[-1], rel=1e-12)
+    assert sf.mean == pytest.approx(np.mean(sf.per_point)) and sf.unit == "L/h"
+
+
+@pytest.mark.parametrize("na", [0, 1])
+def test_standard_error_matches_monte_carlo(na):
+    m = engine_model(cov_scale=1e-8, na=na)
+    rng = np.random.default_rng(0)
+    draws = rng.multivariate_normal(m.theta, m.covariance, size=4000)
+    means = [steady_fuel(from_theta(t, m.structure, m.Ts, u0=m.u0, y0=m.y0, input_units=m.input_units),
+                         POINTS).mean for t in draws]
+    assert steady_fuel(m, POINTS).std_error == pytest.approx(np.std(means), rel=0.08)
+
+
+def test_known_drift_is_flagged_and_noise_is_not():
+    first, worn = steady_fuel(engine_model(), POINTS), steady_fuel(engine_model(gain=1.08), POINTS)
+    d = drift(worn, first)
+    # the +8 % is on the gains only; y0 (idle fuel) stays, so S grows by 8 % of its part above idle
+    assert d.percent == pytest.approx(8.0 * (first.mean - 2.0) / first.mean, rel=1e-9)
+    assert d.alert and d.std_error_percent < 0.1
+    noisy = steady_fuel(engine_model(gain=1.08, cov_scale=1e-6), POINTS)
+    assert noisy.mean == worn.mean and not drift(noisy, steady_fuel(engine_model(cov_scale=1e-6), POINTS)).alert
+    assert not drift(steady_fuel(engine_model(gain=1.02), POINTS), first).alert  # under the 5 % threshold
+    unknown = SteadyFuel(worn.per_point, worn.mean, None, "L/h")
+    assert drift(unknown, first).alert and drift(unknown, first).std_error_percent is None
+
+
+def test_points_and_units():
+    assert [str(p) for p in DEFAULT_POINTS] == ["1000x600Nm", "1200x1200Nm", "1400x1800Nm"]
+    assert parse_points(" 900 x 50% ,1200x75%")[1].torque_unit == "%"
+    for bad in ["1000x600", "1000x600Nm,1200x50%", "x600Nm", "1000x600Nm;1200x1Nm"]:
+        with pytest.raises(ValueError):
+            parse_points(bad)
+    with pytest.raises(ValueError, match="rpm and %"):
+        steady_fuel(engine_model(), parse_points("1000x50%"))
+    assert versus_median(11.0, fleet_median([10.0, 9.0, 11.0])) == pytest.approx(10.0)
+    assert fleet_median([]) is None and versus_median(1.0, None) is None
