@@ -40,6 +40,7 @@ LAZY_IMPORTS = {
     "serial": "pyserial opens ports only: parsing and replaying meter captures do not need it",
     "scipy": "scipy.signal, scipy.io: kept off the in-cab estimator's path, loaded by the features using them",
     "fuelid.fleet.app": "FastAPI (optional extra [fleet]): `fuelid serve` only",
+    "fuelid.fleet.console": "FastAPI (optional extra [fleet]): `fuelid serve` only",
     "fuelid.fleet.auth": "SQLAlchemy (optional extra [fleet]): `fuelid token` offline only",
     "fuelid.fleet.db": "SQLAlchemy (optional extra [fleet]): `fuelid token` offline only",
     "fuelid.fleet.jobs": "Dask and the identification stack (numba, SciPy): on the workers, not the server",

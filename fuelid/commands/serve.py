@@ -2,6 +2,7 @@
 from pathlib import Path
 
 from fuelid.errors import FuelidError
+from fuelid.fleet.drift import parse_points
 
 
 def add_arguments(p):
@@ -44,7 +45,6 @@ def run(args) -> int:
 
     from fuelid.fleet.app import MiB, Settings, create_app
     from fuelid.fleet.console import ConsoleSettings
-    from fuelid.fleet.drift import parse_points
 
     if min(args.max_upload_mb, args.refit_window_h, args.max_partial_uploads, args.partial_expiry_h,
            args.max_partial_mb or 1, args.drift_threshold) <= 0:
