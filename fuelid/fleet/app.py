@@ -255,6 +255,8 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         return {**row, "status": status, "offset": row["size_bytes"], "stored": True}
 
     def check_size(size: int) -> None:
+        if size == 0:
+            raise HTTPException(422, "an empty file (0 bytes) is not an MCAP recording: nothing to store")
         if size > settings.max_upload_bytes:
             raise HTTPException(413, f"file of {size} B exceeds the server's limit of "
                                      f"{settings.max_upload_bytes} B")
@@ -274,7 +276,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     upload_errors = {**ERRORS, 413: {"model": Detail, "description": "file larger than the server accepts"}}
 
     @app.get("/api/v1/uploads/{sha256}", response_model=UploadState, responses=upload_errors, tags=["uploads"])
-    def upload_state(sha256: Sha256, size: Annotated[int, Query(ge=1, le=2**62)],
+    def upload_state(sha256: Sha256, size: Annotated[int, Query(ge=0, le=2**62)],
                      truck: Annotated[str | None, Query(pattern=auth.TRUCK_PATTERN)] = None,
                      who=Depends(uploader)):
         """How much of a file the server holds: `offset` bytes of a partial upload, or `stored`."""
@@ -299,7 +301,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
                                                               "uploads; retry later"},
                         422: {"model": Detail, "description": "invalid parameters, not a complete MCAP file, "
                                                               "or hash mismatch"}})
-    async def upload(request: Request, sha256: Sha256, size: Annotated[int, Query(ge=1, le=2**62)],
+    async def upload(request: Request, sha256: Sha256, size: Annotated[int, Query(ge=0, le=2**62)],
                      offset: Annotated[int, Query(ge=0, le=2**62)] = 0,
                      truck: Annotated[str | None, Query(pattern=auth.TRUCK_PATTERN)] = None,
                      who=Depends(uploader)):

@@ -53,7 +53,7 @@ from scipy.io import loadmat, savemat
 from fuelid.errors import FuelidError
 from fuelid.logger.decode import Decoder, signal_units
 from fuelid.logger.j1939 import DEFAULT_SOURCE_PREFERENCE, preferred_source
-from fuelid.logger.mcap_log import read_messages
+from fuelid.logger.mcap_log import MAGIC, read_messages
 from fuelid.progress import progress
 
 SPEED = "EEC1.EngSpeed"
@@ -210,6 +210,22 @@ def _collect(records) -> dict[str, dict]:
     return sig
 
 
+def _cut_files(sources) -> str:
+    """'; PATH is truncated: N s readable' for each MCAP source cut before its footer (the reason a signal may be
+    missing), else ''."""
+    paths = [Path(s) for s in ([sources] if isinstance(sources, (str, Path)) else sources) if isinstance(s, (str, Path))]
+    notes = []
+    for p in paths:
+        with open(p, "rb") as f:
+            f.seek(max(p.stat().st_size - len(MAGIC), 0))
+            if f.read() == MAGIC:
+                continue
+        times = [t for _, t, _ in read_messages(p, damaged=[])]
+        readable = (max(times) - min(times)) / 1e9 if times else 0.0
+        notes.append(f"{p} is truncated (cut before its end): {readable:.0f} s readable")
+    return "; " + "; ".join(notes) + " (`fuelid recover` rewrites what is left)" if notes else ""
+
+
 def _choose(sig: dict, preference: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict]:
     """Per signal the samples of one source address (preferred, else the one with most samples), time-sorted."""
     chosen, used = {}, {}
@@ -298,12 +314,13 @@ def build_dataset(
     fuel_name, fuel_unit = FUEL_SIGNALS[fuel]
     for name, what in [(SPEED, "engine speed"), (TORQUE_PCT, "engine torque")]:
         if name not in chosen:
-            raise FuelidError(f"no {what} ({name}) in the data")
+            raise FuelidError(f"no {what} ({name}) in the data" + _cut_files(sources))
     if fuel_name not in chosen:
         raise FuelidError(
-            f"no fuel flow ({fuel_name}) in the data" + ("" if fuel == "flowmeter" and FUEL_SIGNALS["lfe1"][0] in chosen
-            else ": a gas truck's engine may not send its fuel rate (LFE1); convert its recording with the flow "
-                 "meter's capture beside it, `fuelid convert LOG --flowmeter CAPTURE.flow`"))
+            f"no fuel flow ({fuel_name}) in the data" + (_cut_files(sources) or (
+                "" if fuel == "flowmeter" and FUEL_SIGNALS["lfe1"][0] in chosen
+                else ": a gas truck's engine may not send its fuel rate (LFE1); convert its recording with the flow "
+                     "meter's capture beside it, `fuelid convert LOG --flowmeter CAPTURE.flow`")))
 
     ts_ns = int(round(Ts * 1e9))
     t0 = min(int(ts[0]) for ts, _ in chosen.values()) // ts_ns * ts_ns  # bins start at multiples of Ts

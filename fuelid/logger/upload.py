@@ -53,7 +53,8 @@ class Unavailable(UploadError):
 
 
 class Rejected(UploadError):
-    """The server refused this request for good (401, 403, 413, 422, ...): retrying will not help."""
+    """The server refused this request for good (401, 403, 413, 422, ...), or the file cannot be sent at all (an
+    empty file; status None): retrying will not help."""
 
 
 def _error(status: int | None, url: str, detail: str, body: dict | None = None) -> UploadError:
@@ -116,6 +117,8 @@ def upload_file(path: str | Path, server_url: str, token: str, *, truck: str | N
     `truck` (optional) asks the server to check the file is that truck's; `cancel` stops between chunks."""
     path = Path(path)
     size = path.stat().st_size
+    if size == 0:
+        raise Rejected(f"{path}: an empty file (0 bytes) is not an MCAP recording; nothing to upload")
     digest = sha256 or file_sha256(path)
     base = f"{server_url.rstrip('/')}{API}/uploads/{digest}"
     query = {"size": size, **({"truck": truck} if truck else {})}

@@ -292,3 +292,16 @@ def test_partial_uploads_are_bounded_per_uploader_and_expire(tmp_path):
         assert start("b", t1) == 202
     finally:
         s.stop()
+
+
+def test_an_empty_file_is_refused_in_words(sqlite_server, tmp_path, capsys):
+    """By the client before it sends anything, and by the server when asked: one line, no validation jargon."""
+    s = sqlite_server
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    assert fuelid(["upload", str(empty), "--server", s.url, "--token", s.token("admin")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.endswith("empty.mcap: an empty file (0 bytes) is not an MCAP recording; nothing to upload")
+    with pytest.raises(Rejected) as refused:
+        request("GET", f"{s.url}/api/v1/uploads/{'a' * 64}?size=0", s.token("admin"))
+    assert refused.value.status == 422 and "an empty file (0 bytes) is not an MCAP recording" in str(refused.value)

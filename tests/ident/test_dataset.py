@@ -257,3 +257,13 @@ def test_a_damaged_chunk_is_an_error_unless_skipping_is_asked_for(tmp_path):
         ds = build_dataset(path, skip_damaged=True, max_gap_s=0.5)
     assert any(f"damaged chunk at bytes {span}" in note for note in ds.notes)
     assert len(ds.segments()) == 2  # the lost second of data is a gap, not made-up samples
+
+
+def test_a_cut_file_with_too_little_left_says_it_is_truncated(tmp_path):
+    """A file cut before its first chunk ended holds no engine speed: the error says the file is truncated and how
+    much of it is readable, not only that a signal is missing."""
+    path = tmp_path / "cut.mcap"
+    _write_mcap(path, trip(60.0))
+    path.write_bytes(path.read_bytes()[:300])
+    with pytest.raises(FuelidError, match=r"no engine speed .*cut.mcap is truncated \(cut before its end\): 0 s readable"):
+        build_dataset(path)
