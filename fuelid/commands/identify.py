@@ -7,6 +7,7 @@ from pathlib import Path
 
 from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
+from fuelid.ident.diagnosis import confirmed_effects
 from fuelid.ident.identify import identify_model
 from fuelid.ident.modelfile import save_model
 from fuelid.ident.orders import search_dataset_orders
@@ -46,11 +47,9 @@ def estimator_summary(info: dict) -> str | None:
 
 
 def significant_effects(path: str) -> list[str]:
-    """The effects a saved `fuelid diagnose --json` result names as missing, strongest first, as `--effect` takes
-    them (a fuel delay with the shift found: fuel_delay=0.36)."""
+    """The effects a saved `fuelid diagnose --json` result confirmed as missing (ident.diagnosis.confirmed_effects)."""
     try:
-        candidates = json.loads(Path(path).read_text())["candidates"]
-        return [c.get("spec", c["effect"]) for c in candidates if c["significant"]]
+        return confirmed_effects(json.loads(Path(path).read_text())["candidates"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise FuelidError(f"--effects-from {path}: not a `fuelid diagnose --json` result ({exc})") from exc
 

@@ -30,7 +30,8 @@ def run(args) -> int:
         print_json(jobs)
     else:
         for j in jobs:
-            outcome = {"done": f"model version {j['model_version']}", "failed": j["error"]}.get(j["status"], "")
+            outcome = {"done": f"model version {j['model_version']}", "failed": j["error"],
+                       "unchanged": f"(no new data since model version {j['model_version']})"}.get(j["status"], "")
             print(f"job {j['id']} {j['truck']}: {j['status']} {outcome}".rstrip())
     unfinished = [j for j in jobs if j["status"] in ("queued", "running")]
     if args.wait > 0 and unfinished:

@@ -29,6 +29,7 @@ from fuelid import __version__
 
 log = logging.getLogger("fuelid.fleet")
 MiB = 1 << 20
+FILE_NAME_PATTERN = r"^[^/\\\x00-\x1f]+$"  # a name, not a path: no folder separators, no control characters
 
 
 @dataclass
@@ -101,6 +102,8 @@ class FileInfo(BaseModel):
     end_ns: int | None = Field(description="last message log time [ns since the epoch]")
     messages: int
     uploaded_unix_s: float
+    name: str | None = Field(None, description="the file's name on the uploader (null for files uploaded before "
+                                               "names were kept)")
 
 
 class StoredFile(FileInfo):
@@ -304,6 +307,8 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     async def upload(request: Request, sha256: Sha256, size: Annotated[int, Query(ge=0, le=2**62)],
                      offset: Annotated[int, Query(ge=0, le=2**62)] = 0,
                      truck: Annotated[str | None, Query(pattern=auth.TRUCK_PATTERN)] = None,
+                     name: Annotated[str | None, Query(max_length=255, pattern=FILE_NAME_PATTERN,
+                                                       description="the file's own name (no folder)")] = None,
                      who=Depends(uploader)):
         """Append the body at byte `offset` of the file `sha256` of `size` bytes. When the last byte arrives
         the file is checked (sha256, complete MCAP, its truck) and stored: 201; or refused with nothing kept."""
@@ -331,7 +336,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
             if held < size:
                 return _state(202, sha256, size, held, truck, "partial")
             try:
-                row = await run_in_threadpool(_store_upload, engine, store, part, sha256, truck)
+                row = await run_in_threadpool(_store_upload, engine, store, part, sha256, truck, name)
             except UploadRefused as exc:
                 raise HTTPException(exc.status, str(exc)) from None
             finally:
@@ -427,7 +432,7 @@ async def _receive(request: Request, part: Path, room: int) -> int:
         return f.tell()
 
 
-def _store_upload(engine, store: BlobStore, part: Path, sha256: str, truck: str | None) -> dict:
+def _store_upload(engine, store: BlobStore, part: Path, sha256: str, truck: str | None, name: str | None) -> dict:
     """Check the complete partial upload and store it; on any refusal the partial file is deleted."""
     try:
         h = hashlib.sha256()
@@ -450,5 +455,5 @@ def _store_upload(engine, store: BlobStore, part: Path, sha256: str, truck: str 
         part.unlink(missing_ok=True)
         raise
     db.add_file(engine, sha256=sha256, truck=info.truck, size_bytes=size, start_ns=info.start_ns,
-                end_ns=info.end_ns, messages=info.messages)
+                end_ns=info.end_ns, messages=info.messages, name=name)
     return db.get_file(engine, sha256)

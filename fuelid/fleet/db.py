@@ -48,6 +48,7 @@ files = sa.Table(
     sa.Column("end_ns", sa.BigInteger),
     sa.Column("messages", sa.BigInteger, nullable=False),
     sa.Column("uploaded_unix_s", sa.Float, nullable=False),
+    sa.Column("name", sa.String(255)),  # the file's name on the uploader (v2); null for files uploaded before
 )
 
 jobs = sa.Table(
@@ -87,8 +88,15 @@ def _v1(conn) -> None:
     metadata.create_all(conn, tables=V1_TABLES)
 
 
+def _v2(conn) -> None:
+    """files.name: the uploaded file's own name, for reports and people (the blob store names files by their
+    sha256). A database made by _v1 from today's tables has it already."""
+    if "name" not in {c["name"] for c in sa.inspect(conn).get_columns("files")}:
+        conn.execute(sa.text("ALTER TABLE files ADD COLUMN name VARCHAR(255)"))
+
+
 # Append new migrations (functions of a connection) here; never edit one that has shipped.
-MIGRATIONS = [_v1]
+MIGRATIONS = [_v1, _v2]
 
 
 def database_url(data_dir: str | Path | None, url: str | None) -> str:
@@ -157,13 +165,14 @@ def insert_ignore(conn, table: sa.Table, **values) -> bool:
 
 
 def add_file(engine: sa.Engine, *, sha256: str, truck: str, size_bytes: int, start_ns: int | None,
-             end_ns: int | None, messages: int) -> bool:
-    """Register a stored file (and its truck); False when the hash was already registered."""
+             end_ns: int | None, messages: int, name: str | None = None) -> bool:
+    """Register a stored file (and its truck) with the name it had on the uploader; False when the hash was
+    already registered."""
     now = time.time()
     with engine.begin() as conn:
         insert_ignore(conn, trucks, truck=truck, created_unix_s=now)
         return insert_ignore(conn, files, sha256=sha256, truck=truck, size_bytes=size_bytes, start_ns=start_ns,
-                             end_ns=end_ns, messages=messages, uploaded_unix_s=now)
+                             end_ns=end_ns, messages=messages, uploaded_unix_s=now, name=name)
 
 
 def get_file(engine: sa.Engine, sha256: str) -> dict | None:

@@ -31,7 +31,7 @@ from threadpoolctl import threadpool_limits
 
 from fuelid.errors import FuelidError
 from fuelid.ident.dataset import build_dataset
-from fuelid.ident.diagnosis import diagnose
+from fuelid.ident.diagnosis import confirmed_effects, diagnose
 from fuelid.ident.identify import identify_model
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parse_orders
@@ -51,30 +51,34 @@ def _write_json(path: Path, obj) -> None:
     os.replace(tmp, path)
 
 
-def _report(out: Path, model, diagnosis, ds, truck: str, files: list[str]) -> tuple[str | None, str | None]:
+def _report(out: Path, model, diagnosis, ds, truck: str, files: list[str], after=()) -> tuple[str | None, str | None]:
     """(report.html path, None) by ident.report.write_report, or (None, why) when the report fails: the model
-    and diagnosis are the job's product, the report only shows them."""
+    and diagnosis are the job's product, the report only shows them. after: (label, model) refitted with effects."""
     path = out / "report.html"
     try:
-        write_report(path, model, ds, diagnosis=diagnosis, truck=truck, files=files)
+        write_report(path, model, ds, diagnosis=diagnosis, after=after, truck=truck, files=files)
     except Exception as exc:  # noqa: BLE001 - a broken report must not lose the model
         return None, f"report.html not written: {_one_line(exc)}"
     return str(path), None
 
 
 def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: str = "paper",
-                   previous_model: str | None = None) -> dict:
-    """Identify and diagnose one truck's fuel model from its MCAP files; write out_dir/model.json,
-    out_dir/diagnosis.json and out_dir/report.html.
+                   previous_model: str | None = None, names: list[str] | None = None) -> dict:
+    """Identify and diagnose one truck's fuel model from its MCAP files, and identify it again with the effects
+    the diagnosis confirmed (as `fuelid identify --effects-from` would); write out_dir/model.json (with those
+    effects), out_dir/diagnosis.json (of the model without them) and out_dir/report.html (both models).
 
     orders: 'paper' or a SPEC as `fuelid identify --orders`. previous_model: the truck's current model.json;
     PEM starts from it when it has the same structure (a refit then needs fewer iterations) and its metrics on
-    the same data are returned as previous_metrics (is the new version better?).
+    the same data are returned as previous_metrics (is the new version better?). names: the files' names as
+    uploaded, for the model, the diagnosis and the report (default: the paths).
     Returns (JSON-ready) {"truck", "model_path", "diagnosis_path", "report_path" (None when the report failed: see warnings),
     "metrics": {"fit_percent": {simulation, prediction} [%], "rmse": {simulation, prediction} [unit],
     "cycle_fuel_error_percent": {cycle id: E, mean, rms} [%], "unit", "held_out": {"rmse_simulation" [unit],
     "cycle_fuel_error_percent": {mean, rms} [%]} or None},
-    "previous_metrics" (same keys but held_out, or None), "n_samples" (identification samples, Ts = 0.3 s),
+    "effects_added" (the confirmed effects the stored model includes), "without_effects" (the metrics of the
+    model without them, the one diagnosed; None when nothing was added), "previous_metrics" (same keys but
+    held_out, or None), "n_samples" (identification samples, Ts = 0.3 s),
     "duration_s" (valid data [s]), "wall_s" and "cpu_s" (this job's wall and CPU time [s]), "phases_s" (wall time
     [s] of dataset, identify, diagnose with the held-out refits, write of the files and report), "top_effect"
     (the id of the significant missing effect, or None), "warnings"}. Raises JobError for unusable data, with a
@@ -82,6 +86,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     """
     t_start, cpu_start = time.perf_counter(), time.process_time()
     paths = [str(p) for p in mcap_paths]
+    names = list(names) if names else paths
     if not paths:
         raise JobError(f"{truck}: no recordings to identify on")
     missing = [p for p in paths if not os.path.isfile(p)]
@@ -103,10 +108,14 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
                 ds = build_dataset(paths)
             lap("dataset")
             previous = load_model(previous_model) if previous_model else None
-            model = identify_model(ds, structure, files=paths, init=previous)
+            model = identify_model(ds, structure, files=names, init=previous)
             lap("identify")
             found = diagnose(model, ds)
             lap("diagnose")
+            diagnosis = found.to_json()
+            effects = confirmed_effects(diagnosis["candidates"])
+            stored = identify_model(ds, structure, effects, files=names, init=previous) if effects else model
+            lap("identify with effects")
         except FuelidError as exc:
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None
         previous_metrics = None
@@ -115,12 +124,12 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
                 previous_metrics = evaluate(previous, ds)
             except FuelidError:  # another fuel unit or effects whose signals this data lacks: not comparable
                 pass
-        save_model(model, model_path)
-        diagnosis = found.to_json()
-        diagnosis["data"]["files"] = paths
-        diagnosis["model"]["file"] = str(model_path)
+        save_model(stored, model_path)
+        diagnosis["data"]["files"] = names
+        diagnosis["model"]["file"] = "the model without the effects it names" if effects else str(model_path)
         _write_json(diagnosis_path, diagnosis)
-        report_path, report_error = _report(out, model, found, ds, truck, paths)
+        after = [(f"with {', '.join(effects)}", stored)] if effects else []
+        report_path, report_error = _report(out, model, found, ds, truck, names, after)
         lap("write")
 
     def metrics(m):
@@ -133,17 +142,19 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         "model_path": str(model_path),
         "diagnosis_path": str(diagnosis_path),
         "report_path": report_path,
-        "metrics": {**metrics(model.validation), "held_out": diagnosis["held_out"] and {
+        "metrics": {**metrics(stored.validation), "held_out": diagnosis["held_out"] and {
             "rmse_simulation": diagnosis["held_out"]["rmse"],
             "cycle_fuel_error_percent": diagnosis["held_out"]["cycle_fuel_error_percent"]}},
+        "effects_added": effects,
+        "without_effects": metrics(model.validation) if effects else None,
         "previous_metrics": previous_metrics and metrics(previous_metrics),
-        "n_samples": model.training["identification_samples"],
-        "duration_s": model.training["valid_duration_s"],
+        "n_samples": stored.training["identification_samples"],
+        "duration_s": stored.training["valid_duration_s"],
         "wall_s": time.perf_counter() - t_start,
         "cpu_s": time.process_time() - cpu_start,
         "phases_s": phases,
         "top_effect": top["effect"] if top and top["significant"] else None,
-        "warnings": ds.notes + list(model.info.get("warnings", [])) + ([report_error] if report_error else []),
+        "warnings": ds.notes + list(stored.info.get("warnings", [])) + ([report_error] if report_error else []),
     })
 
 

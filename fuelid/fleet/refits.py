@@ -68,12 +68,20 @@ class RefitManager:
         self._thread.start()
 
     def request(self, truck: str, reason: str) -> dict:
-        """Start a job for `truck` unless one is queued or running (that one is returned)."""
+        """Start a job for `truck` unless one is queued or running (that one is returned), or unless its latest
+        model was identified on exactly the files a job would take now: then a job with status "unchanged" and
+        that model's version says so, and no duplicate version is made."""
         with self._lock:
             active = db.list_jobs(self.engine, truck=truck, active_only=True, limit=1)
             if active:
                 return active[0]
             job = db.create_job(self.engine, truck, reason)
+            latest = db.get_model(self.engine, truck, None)
+            files = [f["sha256"] for f in newest_files(db.list_files(self.engine, truck), self.window_s)]
+            if latest is not None and latest["metrics"].get("files_sha256") == files:
+                db.update_job(self.engine, job["id"], status="unchanged", model_version=latest["version"],
+                              started_unix_s=time.time(), finished_unix_s=time.time())
+                return db.get_job(self.engine, job["id"])
         try:
             self._submit(job)
         except Exception as exc:  # no runner (Dask missing, scheduler unreachable): the job fails, said why
@@ -111,13 +119,15 @@ class RefitManager:
         out_dir = self.work_dir / f"job-{job['id']}"
         runner = self._runner_instance()
         db.update_job(self.engine, job["id"], status="running", started_unix_s=time.time())
-        future = runner.submit(truck, paths, str(out_dir), previous_model=previous)
-        future.add_done_callback(lambda fut: self._finished(job["id"], truck, out_dir, fut))
+        future = runner.submit(truck, paths, str(out_dir), previous_model=previous,
+                               names=[f["name"] or f["sha256"] for f in files])
+        sha256s = [f["sha256"] for f in files]
+        future.add_done_callback(lambda fut: self._finished(job["id"], truck, out_dir, fut, sha256s))
 
     def _fail(self, job_id: int, error: str) -> None:
         db.update_job(self.engine, job_id, status="failed", error=error, finished_unix_s=time.time())
 
-    def _finished(self, job_id: int, truck: str, out_dir: Path, future) -> None:
+    def _finished(self, job_id: int, truck: str, out_dir: Path, future, files_sha256: list[str]) -> None:
         try:
             result = future.result()
             report = result.get("report_path")
@@ -126,7 +136,7 @@ class RefitManager:
                 model_sha256=self.store.put_file(result["model_path"]),
                 diagnosis_sha256=self.store.put_file(result["diagnosis_path"]),
                 report_sha256=self.store.put_file(report) if report else None,
-                metrics=result.get("metrics", {}), n_samples=result.get("n_samples"),
+                metrics={**result.get("metrics", {}), "files_sha256": files_sha256}, n_samples=result.get("n_samples"),
                 duration_s=result.get("duration_s"), top_effect=result.get("top_effect"))
         except Exception as exc:  # JobError (unusable data) or a worker failure: one line on the job
             message = " ".join(str(exc).split()) or type(exc).__name__

@@ -121,7 +121,7 @@ def upload_file(path: str | Path, server_url: str, token: str, *, truck: str | N
         raise Rejected(f"{path}: an empty file (0 bytes) is not an MCAP recording; nothing to upload")
     digest = sha256 or file_sha256(path)
     base = f"{server_url.rstrip('/')}{API}/uploads/{digest}"
-    query = {"size": size, **({"truck": truck} if truck else {})}
+    query = {"size": size, "name": path.name, **({"truck": truck} if truck else {})}
     state = request_json("GET", f"{base}?{urllib.parse.urlencode(query)}", token, timeout_s=timeout_s)
     offset = state.get("offset", 0)
     reply = state if state.get("stored") else None

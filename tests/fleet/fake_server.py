@@ -17,7 +17,8 @@ import uvicorn
 from fuelid.fleet.app import MiB, Settings, create_app
 
 
-def fake_identify(truck: str, mcap_paths: list[str], out_dir: str, previous_model: str | None = None) -> dict:
+def fake_identify(truck: str, mcap_paths: list[str], out_dir: str, previous_model: str | None = None,
+                  names: list[str] | None = None) -> dict:
     if truck.startswith("BAD"):
         raise RuntimeError(f"{truck}: too little valid data to identify 41 parameters")
     if truck.startswith("SLOW"):
@@ -25,7 +26,7 @@ def fake_identify(truck: str, mcap_paths: list[str], out_dir: str, previous_mode
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "model.json").write_text(json.dumps({"truck": truck, "files": len(mcap_paths),
-                                                "previous": previous_model is not None}))
+                                                "previous": previous_model is not None, "names": names}))
     (out / "diagnosis.json").write_text(json.dumps({"truck": truck, "verdict": "nothing missing"}))
     (out / "report.html").write_text(f"<html><body>{truck}</body></html>")
     return {"truck": truck, "model_path": str(out / "model.json"), "diagnosis_path": str(out / "diagnosis.json"),

@@ -157,14 +157,16 @@ def test_refit_fetch_and_trucks_commands(sqlite_server, tmp_path, capsys, monkey
     monkeypatch.setenv("FUELID_TOKEN", s.token("engineer"))
     for truck in ("T1", "BAD1"):
         upload_file(make_mcap(tmp_path / f"{truck}.mcap", truck), s.url, s.token("truck", truck))
-    upload_file(make_mcap(tmp_path / "T1b.mcap", "T1", seed=1), s.url, s.token("admin"))
 
     assert fuelid(["refit", "T1", "--wait", "20", "--json"]) == 0
     [job] = json.loads(capsys.readouterr().out)
     assert (job["status"], job["model_version"], job["reason"]) == ("done", 1, "request")
     assert fuelid(["refit", "--all", "--wait", "20"]) == 1  # BAD1's job fails
-    out = capsys.readouterr().out
-    assert "BAD1: failed BAD1: too little valid data" in out and "T1: done model version 2" in out
+    out = capsys.readouterr().out  # no new data for T1: no duplicate version
+    assert "BAD1: failed BAD1: too little valid data" in out and "T1: unchanged (no new data since model version 1)" in out
+    upload_file(make_mcap(tmp_path / "T1b.mcap", "T1", seed=1), s.url, s.token("admin"))
+    assert fuelid(["refit", "T1", "--wait", "20"]) == 0
+    assert "T1: done model version 2" in capsys.readouterr().out
     upload_file(make_mcap(tmp_path / "SLOW1.mcap", "SLOW1"), s.url, s.token("truck", "SLOW1"))
     assert fuelid(["refit", "SLOW1", "--wait", "0.5"]) == 1  # a wait that times out is not success
     captured = capsys.readouterr()
@@ -173,7 +175,8 @@ def test_refit_fetch_and_trucks_commands(sqlite_server, tmp_path, capsys, monkey
     assert fuelid(["fetch", "T1", "--version", "1", "-o", str(tmp_path / "m.json"),
                    "--report", str(tmp_path / "r.html"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["version"] == 1
-    assert json.loads((tmp_path / "m.json").read_text()) == {"truck": "T1", "files": 2, "previous": False}
+    assert json.loads((tmp_path / "m.json").read_text()) == {"truck": "T1", "files": 1, "previous": False,
+                                                              "names": ["T1.mcap"]}  # the uploaded names, not blobs
     assert "T1" in (tmp_path / "r.html").read_text()
     assert fuelid(["fetch", "T1", "-o", str(tmp_path / "latest.json")]) == 0
     assert "T1 model version 2" in capsys.readouterr().out

@@ -101,3 +101,24 @@ def test_runner_refits_several_trucks_and_reports_a_failing_one(trip, no_fuel, t
         assert "error" not in r and load_model(r["model_path"]).structure.nb == (2, 2)
         assert r["metrics"]["fit_percent"]["simulation"] > 80
     assert results[0]["metrics"] != results[2]["metrics"]
+
+
+def test_a_refit_stores_the_model_with_the_effects_its_diagnosis_confirmed(tmp_path):
+    """A truck regenerating its particulate filter: the job's model includes the effect the diagnosis named (as
+    `identify --effects-from` would add it), with the figures of the model without it beside, and the files are
+    named as uploaded, not by their blob paths."""
+    from fuelid.sim.trip import TripConfig, simulate, write
+
+    log = tmp_path / "dpf.log.gz"
+    write(simulate(TripConfig(duration_s=1200, seed=2004, effects=(("dpf_regeneration", 0.1),))), log)
+    blob = tmp_path / ("ab" * 32)  # the store names a file by its sha256
+    assert main(["convert", str(log), "-o", str(blob), "--json"]) == 0
+    res = identify_truck("dpf", [str(blob)], str(tmp_path / "job"), names=["2024-06-01-trip.mcap"])
+    model = load_model(res["model_path"])
+    assert res["top_effect"] == "dpf_regeneration" and res["effects_added"] == ["dpf_regeneration"]
+    assert model.effects == ("dpf_regeneration",) and model.training["files"] == ["2024-06-01-trip.mcap"]
+    assert res["metrics"]["rmse"]["simulation"] < 0.85 * res["without_effects"]["rmse"]["simulation"]
+    diagnosis = json.loads(open(res["diagnosis_path"]).read())
+    assert diagnosis["data"]["files"] == ["2024-06-01-trip.mcap"]
+    page = open(res["report_path"]).read()
+    assert "2024-06-01-trip.mcap" in page and str(blob) not in page and "with dpf_regeneration" in page

@@ -43,6 +43,7 @@ class Running:
         self.thread = threading.Thread(target=self.daemon.run)
         self.thread.start()
         _wait(lambda: self.daemon.bus is not None and self.daemon.bus.state == "up", timeout=120)  # numba compile
+        _wait(self.config.status_file.exists, timeout=10)  # written by the loop's first pass, just after
         self.tx = can.Bus(interface="virtual", channel=name, preserve_timestamps=preserve_timestamps)
 
     def status(self):

@@ -213,7 +213,7 @@ async function refit() {
     let job = await api("POST", `/api/v1/trucks/${encodeURIComponent(truck)}/refit`);
     for (;;) {
       $("job").textContent = `job ${job.id}: ${job.status}${job.error ? " — " + job.error : ""}`;
-      if (job.status === "done" || job.status === "failed") break;
+      if (job.status !== "queued" && job.status !== "running") break;  // done, failed, or unchanged (no new data)
       await new Promise((resolve) => setTimeout(resolve, 1000));
       job = await api("GET", `/api/v1/jobs/${job.id}`);
     }

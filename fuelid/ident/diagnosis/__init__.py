@@ -14,8 +14,8 @@ The package follows the loop, each module using only those before it:
                   tests and verification, one class per kind
     ranking       the candidates' tests, Holm, verification, the conditional check: `diagnose` → Diagnosis
 """
-from fuelid.ident.diagnosis.candidate import Candidate
+from fuelid.ident.diagnosis.candidate import Candidate, confirmed_effects
 from fuelid.ident.diagnosis.ranking import Diagnosis, diagnose, rank_candidates
 from fuelid.ident.diagnosis.run import Run, run_gradients
 
-__all__ = ["Candidate", "Diagnosis", "Run", "diagnose", "rank_candidates", "run_gradients"]
+__all__ = ["Candidate", "Diagnosis", "Run", "confirmed_effects", "diagnose", "rank_candidates", "run_gradients"]

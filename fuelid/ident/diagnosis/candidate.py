@@ -72,3 +72,9 @@ class Candidate:
     def to_json(self) -> dict:
         """The candidate as `fuelid diagnose --json` lists it."""
         return {k: getattr(self, k) for k in (JSON_FIELDS if self.tests is not None else UNTESTED_FIELDS)}
+
+
+def confirmed_effects(candidates: list[dict]) -> list[str]:
+    """The effects a diagnosis (its JSON `candidates`) confirmed as missing, strongest first, as
+    `fuelid identify --effect` and identify_model take them (a fuel delay with the shift found: fuel_delay=0.36)."""
+    return [c.get("spec", c["effect"]) for c in candidates if c["significant"]]
