@@ -34,6 +34,10 @@ def test_identify_diagnose_add_the_effect_and_watch_the_error_fall(trip, capsys)
     assert strict["verdict"].startswith("No significant candidate")
     dpf = next(c for c in strict["candidates"] if c["effect"] == "dpf_regeneration")
     assert not dpf["significant"] and "not confirmed" in dpf["explanation"]
+    for c in result["candidates"] + strict["candidates"]:  # advice only where confirmed; the rest is evidence
+        if c.get("testable") and not c["significant"]:
+            assert "add effect" not in c["explanation"] and "is evidence, not advice" in c["explanation"]
+            assert c["explanation"].startswith(("not significant (Holm p = ", "significant in its own test"))
     run_json(capsys, "identify", data, "--effect", top["effect"], "-o", after)
     compared = run_json(capsys, "compare", before, after, data)
     rmse = [m["rmse"]["simulation"] for m in compared["models"]]

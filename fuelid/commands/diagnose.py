@@ -41,7 +41,8 @@ def format_report(result: dict, top: int = 8) -> str:
         f"cycle fuel error: mean {c['cycle_fuel_error_percent']['mean']:+.2f} %, "
         f"RMS {c['cycle_fuel_error_percent']['rms']:.2f} %",
         "residual whiteness (99 %): " + ("pass" if w["autocorr_pass"] else "FAIL") + "; input cross-correlation: "
-        + ", ".join(f"{k} {'pass' if v else 'FAIL'}" for k, v in w["crosscorr_pass"].items()),
+        + ", ".join(f"{k} {'pass' if v else 'FAIL'}" for k, v in w["crosscorr_pass"].items())
+        + " (a pass: no dynamics of speed and torque left in the errors; not that nothing is missing)",
         "worst stretches (minutes since the start of the data):",
     ]
     for s in result["where_it_fails"]["worst_segments"][:3]:

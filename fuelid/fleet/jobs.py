@@ -80,7 +80,8 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     model without them, the one diagnosed; None when nothing was added), "previous_metrics" (same keys but
     held_out, or None), "n_samples" (identification samples, Ts = 0.3 s),
     "duration_s" (valid data [s]), "wall_s" and "cpu_s" (this job's wall and CPU time [s]), "phases_s" (wall time
-    [s] of dataset, identify, diagnose with the held-out refits, write of the files and report), "top_effect"
+    [s] of dataset, identify, diagnose with the held-out refits, identify with effects, write of the files and
+    report), "top_effect"
     (the id of the significant missing effect, or None), "warnings"}. Raises JobError for unusable data, with a
     one-line message.
     """

@@ -36,7 +36,7 @@ import numpy as np
 from fuelid import __version__
 from fuelid.ident.diagnosis import Diagnosis, diagnose
 from fuelid.ident.modelrun import ModelRun, run_model
-from fuelid.ident.validation import autocorr_test, crosscorr_test, metrics
+from fuelid.ident.validation import WHITENESS_MEANING, autocorr_test, crosscorr_test, metrics
 
 MAX_POINTS = 6000  # points per time-series trace after decimation
 PLOTLY_CONFIG = {"displaylogo": False, "responsive": True}
@@ -459,6 +459,7 @@ cycle (paper eq. 20), mean and RMS over the {n_cycles} drive cycle{'s' * (n_cycl
 <p class="note">Normalised correlations of the 1-step prediction errors; a model passes when every bar stays inside
 its dashed bounds, at lags h ≥ 1 for r_e and h ≥ 0 for r_eu (negative lags, fuel leading the input, show feedback
 and are not tested).</p>
+<p class="note">{_esc(WHITENESS_MEANING)}</p>
 <div class="grid">{plots["autocorr"]}{"".join(plots[f"crosscorr{j}"] for j in range(len(model.input_names[:2])))}</div>
 <h3>Error over engine speed × torque</h3>
 <div class="grid">{plots["map_bias"]}{plots["map_rms"]}</div>

@@ -227,3 +227,9 @@ def evaluate_static(yhat, ds) -> dict:
         "rmse": {"simulation": rmse(y, yhat)},
         "cycle_fuel_error_percent": {**{str(c): e for c, e in cycles.items()}, **error_table(cycles)},
     }
+
+
+WHITENESS_MEANING = ("The residual tests ask whether the 1-step prediction errors are white and uncorrelated with "
+                     "the inputs: a pass means no dynamics of speed and torque are left in the errors, not that "
+                     "nothing is missing - an effect acting through another signal (a regeneration, the weather) "
+                     "leaves them white; the candidate tests below ask that.")

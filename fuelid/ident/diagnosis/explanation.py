@@ -89,3 +89,14 @@ def explain(entry, effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarr
         return f"fuel changes by {gains[0]:+.3g} {unit} per {reg.units[0] or 'unit'} of {reg.names[0]} ({sig}) " \
                f"beyond what speed and torque explain (RMS {rms:.2f} {unit}); {act}", size
     return f"{effect.name} ({sig}) explains {rms:.2f} {unit} RMS of the fuel beyond speed and torque; {act}", size
+
+
+def as_evidence(c) -> str:
+    """The sentence of a tested candidate that was not confirmed: evidence, never advice. Its size and its "add
+    effect" are left out (a size is trusted only for a confirmed effect, whose coefficient the held-out refit
+    checked); why it was not confirmed stays."""
+    reasons = c.explanation.split(" — ", 1)[1] if " — " in c.explanation else ""
+    p = f"Holm p = {c.p_holm:.2g}" if c.p_holm is not None else "not tested"
+    verdict = f"significant in its own test ({p}) but not confirmed" if c.test_significant else f"not significant ({p})"
+    return (f"{verdict}: {c.name} ({signals_text(c.definition)}) is evidence, not advice"
+            + (f" — {reasons}" if reasons else ""))

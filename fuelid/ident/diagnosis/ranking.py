@@ -29,7 +29,7 @@ from fuelid.errors import InputError
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import Candidate
 from fuelid.ident.diagnosis.entries import ENTRIES
-from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain
+from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid, explain
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm, level_test, nuisance_basis, one_blas_thread
@@ -219,6 +219,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         elif c.test_significant and not c.significant and c.estimated_drop_percent < min_effect_percent:
             c.explanation += f" — statistically detectable, but it explains only " \
                              f"{c.estimated_drop_percent:.1f} % of the simulation error (< {min_effect_percent:g} %)"
+    for c in rows:
+        if c.testable and not c.significant:
+            c.explanation = as_evidence(c)
     order = {id(c): k for k, c in enumerate(accepted)}
     rows.sort(key=lambda c: (not c.significant, order.get(id(c), 0), c.log10_p))
     testable = [c for c in rows if c.testable]
