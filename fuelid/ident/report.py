@@ -37,6 +37,7 @@ from fuelid import __version__
 from fuelid.ident.diagnosis import Diagnosis, diagnose
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.validation import WHITENESS_MEANING, autocorr_test, crosscorr_test, metrics
+from fuelid.logger.decode import signal_units
 
 MAX_POINTS = 6000  # points per time-series trace after decimation
 PLOTLY_CONFIG = {"displaylogo": False, "responsive": True}
@@ -211,6 +212,31 @@ def residual_figure(ds, curves: list[Curve], worst: list[dict], max_points: int 
     return {"data": traces, "layout": layout}
 
 
+def effect_signal_figure(ds, curve: Curve, candidate: dict, max_points: int = MAX_POINTS) -> dict | None:
+    """A confirmed effect's bus signals over time (right axis, in their DBC units) under the model's simulation
+    error (left axis [output unit]), so the engineer sees the fuel step with the signal; None when none of its
+    signals is in the data."""
+    unit = pretty_unit(ds.output_unit)
+    tmin = _minutes(ds, ds.t)
+    x, y = minmax_decimate(tmin, curve.run.on_tested(curve.run.ysim) - curve.run.y, max_points)
+    traces = [{"type": "scatter", "mode": "lines", "x": x, "y": y, "name": f"{curve.label}: model − measured",
+               "line": {"color": curve.colour, "width": 1.0}}]
+    units = signal_units()
+    shown = [s for s in candidate.get("signals", []) if s in ds.extra]
+    for k, name in enumerate(shown):
+        x, y = minmax_decimate(tmin, ds.extra[name], max_points)
+        traces.append({"type": "scatter", "mode": "lines", "x": x, "y": y, "yaxis": "y2",
+                       "name": f"{name} [{units.get(name, '-')}]",
+                       "line": {"color": COLOURS[(k + 2) % len(COLOURS)], "width": 1.4, "shape": "hv"}})
+    if not shown:
+        return None
+    axis2 = ", ".join(f"{n} [{units.get(n, '-')}]" for n in shown)
+    layout = _layout(f"{candidate.get('name', candidate['effect'])}: its signal and the model's error",
+                     "time since start [min]", f"model − measured [{unit}]", 420)
+    layout["yaxis2"] = _axis(axis2, overlaying="y", side="right", showgrid=False, mirror=False)
+    return {"data": traces, "layout": layout}
+
+
 def correlation_figure(title: str, tests: list[tuple[str, str, dict]], Ts: float, min_lag: int | None = None) -> dict:
     """Bars of normalised correlations r(h) [-] over lag h·Ts [s], h ≥ min_lag, with the ±99 % bound of each
     test; tests: (name, colour, {"lags", "r", "bound", "passed"}) as in diagnosis['where_it_fails']['whiteness']."""
@@ -299,13 +325,14 @@ def effects_table(candidates: list[dict], top: int = 12) -> str:
                      _esc(c.get("explanation", ""))])
     out = _table(head, rows[:top], "effects")
     if rows[top:]:
-        out += (f"<details><summary>{len(rows) - top} more tested candidates</summary>"
+        out += (f"<details><summary>{len(rows) - top} more tested candidate{'s' * (len(rows) - top != 1)}</summary>"
                 f"{_table(head, rows[top:], 'effects')}</details>")
     untestable = [c for c in candidates if c not in testable]
     if untestable:
         items = "".join(f"<li>{_effect(c)} ({_signals(c)}): {_esc(c.get('explanation', ''))}</li>"
                         for c in untestable)
-        out += (f"<details><summary>{len(untestable)} candidates not testable on this data</summary>"
+        out += (f"<details><summary>{len(untestable)} candidate{'s' * (len(untestable) != 1)} not testable on "
+                f"this data</summary>"
                 f"<ul>{items}</ul></details>")
     return out
 
@@ -424,6 +451,10 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, label: 
             + [(c.label, c.colour, e[1][j]) for c, e in zip(curves[1:], extra)], ds.Ts)))
     figs += [("map_bias", error_map_figure(fails["error_map"], unit, "mean_error")),
              ("map_rms", error_map_figure(fails["error_map"], unit, "rms_error"))]
+    confirmed = [c for c in diagnosis["candidates"] if c.get("significant")]
+    effect_figs = [(f"effect{k}", fig) for k, c in enumerate(confirmed)
+                   if (fig := effect_signal_figure(ds, curves[0], c, max_points)) is not None]
+    figs += effect_figs
     plots = {name: _plot(fig, f"fig-{name}") for name, fig in figs}
 
     header_rows = [["truck", _esc(truck or "unknown")],
@@ -467,6 +498,7 @@ and are not tested).</p>
 <p class="note">{_esc(test.get("method", ""))}; family-wise α = {_esc(test.get("alpha", ""))},
 {_esc(test.get("candidates_tested", ""))} candidates tested on {_esc(test.get("samples", ""))} samples.</p>
 {effects_table(diagnosis["candidates"], top)}
+{"".join(plots[name] for name, _ in effect_figs)}
 """
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{_esc(title)}</title>'
             f'<style>{CSS}</style><script type="text/javascript">{plotly.offline.get_plotlyjs()}</script></head>'

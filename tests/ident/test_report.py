@@ -156,6 +156,22 @@ def test_worst_stretches_are_labelled_only_with_what_differs_from_the_trip(case,
     assert all("always on" not in s["context"] and "DPF active regeneration" in s["context"] for s in again[:1])
 
 
+def test_a_confirmed_effects_signal_is_plotted_beside_the_error(case):
+    """The DPF regeneration status, as logged, on the right axis in its unit, over the model's error: the page
+    holds that figure, and only confirmed effects get one."""
+    ds, model, diagnosis, after, page = case
+    dpf = next(c for c in diagnosis["candidates"] if c["effect"] == "dpf_regeneration")
+    assert dpf["significant"]
+    fig = rp.effect_signal_figure(ds, rp.Curve("model", "#000", model, run_model(model, ds), diagnosis["compare"]), dpf)
+    signal = next(t for t in fig["data"] if t.get("yaxis") == "y2")
+    assert signal["name"].startswith("DPFC1.DPFActiveRegenStatus [") and max(signal["y"]) == 1
+    assert fig["layout"]["yaxis"]["title"]["text"] == "model − measured [L/h]"
+    assert fig["layout"]["yaxis2"]["title"]["text"].startswith("DPFC1.DPFActiveRegenStatus")
+    assert 'id="fig-effect0"' in page and 'id="fig-effect1"' not in page
+    level = {"effect": "level:X", "signals": ["NOT.InTheData"], "significant": True}
+    assert rp.effect_signal_figure(ds, rp.Curve("model", "#000", model, run_model(model, ds), {}), level) is None
+
+
 def test_figures_carry_the_diagnosis_numbers_and_units(case):
     ds, model, diagnosis, after, page = case
     fails = diagnosis["where_it_fails"]

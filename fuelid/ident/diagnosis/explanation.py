@@ -98,5 +98,6 @@ def as_evidence(c) -> str:
     reasons = c.explanation.split(" — ", 1)[1] if " — " in c.explanation else ""
     p = f"Holm p = {c.p_holm:.2g}" if c.p_holm is not None else "not tested"
     verdict = f"significant in its own test ({p}) but not confirmed" if c.test_significant else f"not significant ({p})"
-    return (f"{verdict}: {c.name} ({signals_text(c.definition)}) is evidence, not advice"
+    named = c.name if all(s in c.name for s in c.definition.signals) else f"{c.name} ({signals_text(c.definition)})"
+    return (f"{verdict}: {named} is evidence, not advice"
             + (f" — {reasons}" if reasons else ""))
