@@ -2,7 +2,7 @@
 does adding what it names help on another trip as much as adding the true effect would?
 
     python benchmarks/bench_generic_effects.py                      # seeds 5000-5002, both generic effects
-    python benchmarks/bench_generic_effects.py --seeds 2 --first-seed 6000
+    python benchmarks/bench_generic_effects.py --seeds 2 --first-seed 6000 --null-seeds 5   # and trips with nothing hidden
 
 Per effect and seed: an identification trip (seed) and a validation trip (seed + 50), 20 minutes each on the
 effect's route (sim.catalog.GENERIC_EFFECT_TRIPS), through the bus and fuelid's decoder (tests/ident/hidden.py);
@@ -44,6 +44,21 @@ def validation_rmse(ds, val, effects, defined) -> float:
     return evaluate(model, val)["rmse"]["simulation"]
 
 
+def null_trips(n: int, first_seed: int, defined):
+    """Trips on each generic effect's route with nothing hidden: how often each diagnosis names something."""
+    for routes_of in GENERIC_EFFECTS:
+        alarms = {"generic": 0, "file": 0}
+        for seed in range(first_seed, first_seed + n):
+            ds, _, _ = hidden.simulated(None, seed, routes_of=routes_of)
+            model = hidden.identify(ds)
+            for k, d in (("generic", dg.diagnose(model, ds)), ("file", dg.diagnose(model, ds, effects=defined))):
+                alarms[k] += bool(named(d))
+                if named(d):
+                    print(f"null seed {seed} on the {routes_of} route ({k}): named {','.join(named(d))}", flush=True)
+        print(f"nothing hidden, {routes_of} route: named something in {alarms['generic']} of {n} trips without the "
+              f"file, {alarms['file']} of {n} with it", flush=True)
+
+
 def main(seeds: int, first_seed: int):
     defined = read_effects_file(FILE)
     print("effect          seed  built-in+generic: named (found)            with the file: named (found)"
@@ -70,5 +85,8 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=3, help="seeds per generic effect (default 3)")
     ap.add_argument("--first-seed", type=int, default=5000, help="first identification seed (default 5000)")
+    ap.add_argument("--null-seeds", type=int, default=0, help="also trips with nothing hidden per route (default 0)")
+    ap.add_argument("--first-null-seed", type=int, default=500, help="first null seed (default 500)")
     args = ap.parse_args()
     main(args.seeds, args.first_seed)
+    null_trips(args.null_seeds, args.first_null_seed, read_effects_file(FILE))
