@@ -77,7 +77,7 @@ def main(argv=None) -> int:
 
 # files every command that has them reads (--diagnosis differs: fetch writes it, report reads it)
 INPUT_ARGUMENTS = ("inputs", "input", "model", "files", "flowmeter", "effects_from", "map_from", "config", "prior",
-                   "identify_model")
+                   "identify_model", "effects_file")
 OUTPUT_ARGUMENTS = ("output",)  # -o: the file a command writes
 
 

@@ -1,6 +1,7 @@
 """The diagnosis loop end to end through the commands a user runs, on a short simulated trip with a hidden DPF
 regeneration: identify → diagnose names it → identify --effect → compare shows the error falling."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -79,3 +80,38 @@ def test_bad_input_is_one_line_on_stderr(trip, capsys):
     assert main(["diagnose", str(trip / "missing.json"), str(trip / "trip.mcap")]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("fuelid diagnose: error:") and "\n" not in err
+
+
+EXAMPLE_EFFECTS = Path(__file__).resolve().parents[1] / "docs" / "effects-example.toml"
+
+
+def test_effects_the_engineer_defines_are_tested_and_added(trip, capsys):
+    """docs/effects-example.toml defines the DPF regeneration again (an on/off state scaling the fuel): tested
+    beside the built-in one with the same statistic and said in its own words; `identify --effects-file --effect`
+    adds it, and the model runs without the file afterwards."""
+    data, before, mine = trip / "trip.mcap", trip / "before_file.json", trip / "mine.json"
+    run_json(capsys, "identify", data, "-o", before)
+    result = run_json(capsys, "diagnose", before, data, "--effects-file", EXAMPLE_EFFECTS)
+    by_id = {c["effect"]: c for c in result["candidates"]}
+    assert {"regen_from_file", "hot_intake_air", "parasitic_torque"} <= set(by_id)
+    regen, builtin = by_id["regen_from_file"], by_id["dpf_regeneration"]
+    assert regen["statistic"] == pytest.approx(builtin["statistic"], rel=1e-9) and regen["spns"] == [3700]
+    assert regen["explanation"].startswith("fuel is +") and \
+        f"add effect regen_from_file (defined in {EXAMPLE_EFFECTS})" in regen["explanation"]
+    assert regen["significant"] or builtin["significant"]
+    run_json(capsys, "identify", data, "--effects-file", EXAMPLE_EFFECTS, "--effect", "regen_from_file", "-o", mine)
+    compared = run_json(capsys, "compare", before, mine, data)  # no --effects-file: the model carries it
+    rmse = [m["rmse"]["simulation"] for m in compared["models"]]
+    assert rmse[1] < 0.85 * rmse[0]
+
+
+def test_a_bad_effect_file_is_one_line_naming_file_effect_and_field(trip, tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(EXAMPLE_EFFECTS.read_text().replace('above = 30.0', 'above = "hot"'))
+    model = tmp_path / "model.json"
+    model.write_text("{}")  # never read: the effect file is checked first
+    assert main(["diagnose", str(model), str(trip / "trip.mcap"), "--effects-file", str(bad)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"fuelid diagnose: error: {bad}: effect 'hot_intake_air': x.above: must be a number, not 'hot'"]
+    assert main(["identify", str(trip / "trip.mcap"), "-o", str(tmp_path / "m.json"), "--effect", "regen_from_file"]) != 0
+    assert "unknown effect 'regen_from_file'" in capsys.readouterr().err

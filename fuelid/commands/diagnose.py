@@ -2,6 +2,7 @@
 
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
 from fuelid.ident.diagnosis import diagnose
+from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
 
@@ -20,6 +21,9 @@ def add_arguments(p):
     p.add_argument("--min-effect", type=float, default=1.0, metavar="PERCENT",
                    help="smallest share of the simulation error [%%] an effect must explain to be named "
                         "(default 1; smaller ones are detectable but not worth an input)")
+    p.add_argument("--effects-file", action="append", default=[], metavar="EFFECTS.toml",
+                   help="also test the effects defined in this file (docs/formats.md; docs/effects-example.toml); "
+                        "repeatable")
     p.add_argument("--top", type=int, default=8, metavar="N", help="candidates shown in the report (default 8)")
     add_dataset_arguments(p)
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
@@ -63,10 +67,11 @@ def format_report(result: dict, top: int = 8) -> str:
 
 
 def run(args) -> int:
+    effects = defined_effects(args.effects_file)  # a bad effect file fails before any work
     model = load_model(args.model)
     ds = build_for_models(args, args.inputs, [(args.model, model)])
     result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect,
-                      min_drop_percent=args.min_drop).to_json()
+                      min_drop_percent=args.min_drop, effects=effects).to_json()
     result["data"]["files"] = list(map(str, args.inputs))
     result["model"]["file"] = args.model
     if args.json:

@@ -8,6 +8,7 @@ from pathlib import Path
 from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis import confirmed_effects
+from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.identify import identify_model
 from fuelid.ident.modelfile import save_model
 from fuelid.ident.orders import search_dataset_orders
@@ -24,6 +25,9 @@ def add_arguments(p):
     p.add_argument("--effect", action="append", default=[], metavar="ID",
                    help="add a physical effect as extra input (ids as in `fuelid diagnose`; fuel_delay=SECONDS); "
                         "repeatable")
+    p.add_argument("--effects-file", action="append", default=[], metavar="EFFECTS.toml",
+                   help="effects you define (docs/formats.md): --effect ID may name them; the model carries their "
+                        "definitions; repeatable")
     p.add_argument("--effects-from", metavar="DIAGNOSIS.json",
                    help="also add every effect named significant in a saved `fuelid diagnose --json` result")
     p.add_argument("--min-segment", type=float, default=30.0, metavar="S",
@@ -59,13 +63,15 @@ def run(args) -> int:
     if args.effects_from:
         args.effect += [e for e in significant_effects(args.effects_from) if e not in args.effect]
     structure = None if args.orders == "auto" else Structure(**parse_orders(args.orders))
+    defined = defined_effects(args.effects_file)
     ds = build(args, args.inputs)
     t_data = time.perf_counter()
     search = None
     if structure is None:  # the lowest orders passing the paper's residual tests, then the fit with effects
         search = search_dataset_orders(ds, args.min_segment)
         structure = search.structure
-    model = identify_model(ds, structure, args.effect, min_segment_s=args.min_segment, files=args.inputs)
+    model = identify_model(ds, structure, args.effect, min_segment_s=args.min_segment, files=args.inputs,
+                           defined=defined)
     save_model(model, args.output)
     t_end = time.perf_counter()
 

@@ -44,8 +44,9 @@ def add_arguments(p):
 
 def _listing() -> dict:
     return {"truths": list(TRUTH_NAMES), "engines": list(SHIPPED), "cycles": list(route.CYCLE_NAMES),
-            "effects": {n: {"default": e.default, "unit": e.unit, "spns": list(e.spns)}
-                        for n, e in effects.EFFECTS.items()},
+            "effects": {n: {"default": e.default, "unit": e.unit, "spns": list(e.spns),
+                            **({"generic": True} if n in effects.GENERIC_EFFECTS else {})}
+                        for n, e in effects.ALL_EFFECTS.items()},
             "catalog": {n: catalog.command_line(n) for n in catalog.CATALOG}}
 
 

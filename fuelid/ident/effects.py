@@ -33,7 +33,8 @@ leading unknowns by its first value.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+import importlib.metadata
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import cantools
@@ -78,6 +79,9 @@ class Effect:
     lags: tuple[int, ...] = (0, 1, 2)
     sign: int = 0
     enters: str = "additive"
+    template: str | None = None  # an engineer-defined effect's explanation (ident.effectfile)
+    source: str = ""  # where an effect defined outside the catalogue comes from: its file or plug-in
+    definition: dict | None = field(default=None, compare=False, repr=False)  # its effect-file table
 
 
 @dataclass
@@ -142,14 +146,15 @@ def regime(ds, on: np.ndarray, label: str) -> Regressors:
                       ("1", ds.input_units[0], ds.input_units[1]))
 
 
-def _reference_torque(ds) -> float | None:
+def reference_torque(ds) -> float | None:
+    """The engine's reference torque [Nm] (EC1 SPN 544), None when it never arrived."""
     ref = _signal(ds, "EC1.EngReferenceTorque")
     return None if ref is None else float(np.median(ref))
 
 
 def _percent_torque_in_model_unit(ds, pct: np.ndarray) -> tuple[np.ndarray, str]:
     """A J1939 percent-of-reference-torque signal in the unit of the model's torque input (Nm when known)."""
-    ref = _reference_torque(ds)
+    ref = reference_torque(ds)
     if ds.input_units[1] == "Nm" and ref:
         return pct * ref / 100.0, "Nm"
     return pct, "%"
@@ -290,7 +295,7 @@ def _fan(ds):
     torque_nm = 1000.0 * share / (np.maximum(ds.u[:, 0], 300.0) * RPM_TO_RAD_S)
     if ds.input_units[1] == "Nm":
         return Regressors(torque_nm[:, None], ("fan torque per kW of fan power at full speed",), ("Nm/kW",))
-    ref = _reference_torque(ds)
+    ref = reference_torque(ds)
     return None if not ref else Regressors((100.0 * torque_nm / ref)[:, None],
                                            ("fan torque per kW of fan power at full speed",),
                                            (f"{ds.input_units[1]}/kW",))
@@ -420,19 +425,43 @@ def generic_effects(ds, max_states: int = 16) -> list[Effect]:
     return out
 
 
-def get_effect(effect_id: str, ds=None) -> Effect:
-    """The effect with this id: built-in (or an alias), else a generic ``level:``/``rate:``/``state:SIG``
+PLUGIN_GROUP = "fuelid.effects"
+
+
+@functools.lru_cache(maxsize=1)
+def plugin_effects() -> tuple[Effect, ...]:
+    """Effects installed packages define in Python: each entry point of the group `fuelid.effects` names an
+    Effect or a list of Effects (e.g. ``[project.entry-points."fuelid.effects"] mine = "pkg.mod:EFFECTS"``)."""
+    out = []
+    for ep in importlib.metadata.entry_points(group=PLUGIN_GROUP):
+        try:
+            obj = ep.load()
+        except Exception as exc:  # a broken plug-in is the user's input: say which one
+            raise InputError(f"effect plug-in {ep.name} ({ep.value}): cannot load ({exc})") from None
+        items = [obj] if isinstance(obj, Effect) else list(obj) if isinstance(obj, (list, tuple)) else [None]
+        if not all(isinstance(e, Effect) for e in items):
+            raise InputError(f"effect plug-in {ep.name} ({ep.value}): not an Effect or a list of Effects")
+        out += [e if e.source else replace(e, source=f"plug-in {ep.name}") for e in items]
+    return tuple(out)
+
+
+def get_effect(effect_id: str, ds=None, defined=()) -> Effect:
+    """The effect with this id: built-in (or an alias), one of `defined` (effects the engineer defined,
+    ident.effectfile), an installed plug-in's (`plugin_effects`), else a generic ``level:``/``rate:``/``state:SIG``
     (needs ds to see the signal)."""
     effect_id = ALIASES.get(effect_id, effect_id)
     if effect_id in EFFECTS:
         return EFFECTS[effect_id]
+    for e in (*defined, *plugin_effects()):
+        if e.id == effect_id:
+            return e
     if ds is not None:
         for e in generic_effects(ds):
             if e.id == effect_id:
                 return e
     known = ", ".join(EFFECTS)
     raise InputError(f"unknown effect {effect_id!r}: built in are {known}; any logged signal SIG also as "
-                     "level:SIG, rate:SIG or state:SIG")
+                     "level:SIG, rate:SIG or state:SIG; an effect you define, from its --effects-file")
 
 
 def parse_effect(spec: str) -> tuple[str, float | None]:

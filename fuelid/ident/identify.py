@@ -40,13 +40,14 @@ def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
         return sweep_fuel_shift(score, shifts_s)
 
 
-def effect_inputs(ds, effects, structure: Structure) -> EffectInputs:
-    """apply_effects for a fit of `structure` (speed, torque inputs) with `effects`; a fuel delay asked for
-    without its value is estimated by `estimate_fuel_delay` on the structure with the other effects' inputs."""
+def effect_inputs(ds, effects, structure: Structure, defined=()) -> EffectInputs:
+    """apply_effects for a fit of `structure` (speed, torque inputs) with `effects` (built-in, or among `defined`,
+    effects the engineer defined); a fuel delay asked for without its value is estimated by `estimate_fuel_delay`
+    on the structure with the other effects' inputs."""
     def sweep(others: EffectInputs) -> float:
         return estimate_fuel_delay(ds, np.hstack([ds.u, others.u]), others.extend(structure))["best_s"]
 
-    return apply_effects(ds, effects, estimate_shift=sweep)
+    return apply_effects(ds, effects, estimate_shift=sweep, defined=defined)
 
 
 def training_segments(ds, u, y, min_s: float) -> list[slice]:
@@ -58,14 +59,16 @@ def training_segments(ds, u, y, min_s: float) -> list[slice]:
 
 
 def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float = 30.0, files=(),
-                   init: PolyModel | None = None) -> PolyModel:
+                   init: PolyModel | None = None, defined=()) -> PolyModel:
     """The PolyModel of `structure` (speed, torque inputs) plus `effects` ("ID" or "ID=VALUE") identified on
     dataset ds, with names, units, training summary (`files` recorded) and validation metrics filled in.
 
     init: a model of the final structure (with the effects' inputs) to start PEM from instead of the ARX /
     Steiglitz–McBride initialisation, e.g. the truck's previous model; ignored when its structure differs.
+    defined: effects the engineer defined (ident.effectfile) that `effects` may name; the model carries the
+    definitions of those it uses (info["effect_definitions"]), so it runs without their file.
     Raises FuelidError for an unusable effect, too little valid data, or a failed estimation."""
-    fx = effect_inputs(ds, effects, structure)
+    fx = effect_inputs(ds, effects, structure, defined)
     u, y = np.hstack([ds.u, fx.u]), fx.y
     structure = fx.extend(structure)
     segs = training_segments(ds, u, y, min_segment_s)
@@ -83,13 +86,21 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     model = dataclasses.replace(
         model, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
         output_name=ds.output_name, output_unit=ds.output_unit, effects=fx.effects,
-        info={**model.info, "effect_parameters": fx.parameters},
+        info={**model.info, "effect_parameters": fx.parameters,
+              **effect_definitions(fx.effects, defined)},
         training={**ds.summary(), "files": list(map(str, files)),
                   "identification_samples": int(n_train), "identification_stretches": len(segs)})
     model = dataclasses.replace(model, validation=evaluate(model, ds))
     model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
                                                 n_train - len(segs) * structure.n_start)
     return model
+
+
+def effect_definitions(used, defined) -> dict:
+    """{"effect_definitions": {id: effect-file table}} for the effects among `used` defined in a file (plug-ins'
+    are found again by their id), or {} when there are none."""
+    tables = {e.id: e.definition for e in defined if e.id in used and e.definition is not None}
+    return {"effect_definitions": tables} if tables else {}
 
 
 FPE_WARN = 1.1  # warn when Akaike's FPE expects the error on new data ≥ 10 % above the fit's

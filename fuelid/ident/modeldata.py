@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from fuelid.errors import InputError
+from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.effects import get_effect, parse_effect
 from fuelid.ident.fueldelay import shift_signal
 from fuelid.ident.polymodel import Structure
@@ -41,12 +42,12 @@ class EffectInputs:
 
 
 def apply_effects(ds, ids, parameters: dict | None = None,
-                  estimate_shift: Callable[[EffectInputs], float] | None = None) -> EffectInputs:
+                  estimate_shift: Callable[[EffectInputs], float] | None = None, defined=()) -> EffectInputs:
     """Extra inputs and shifted fuel for the effects `ids` ("ID" or "ID=VALUE") on dataset ds.
 
     parameters: {"fuel_delay": τ [s]} the fuel advance; when fuel_delay is asked for without τ, τ [s] is
     estimate_shift(the EffectInputs of the other effects, fuel not shifted), e.g. ident.identify's sweep with
-    the model (required then).
+    the model (required then). defined: effects the engineer defined (ident.effectfile) the ids may name.
     Raises ValueError for an unknown id or an effect whose signals are not logged.
     """
     parameters = dict(parameters or {})
@@ -55,9 +56,10 @@ def apply_effects(ds, ids, parameters: dict | None = None,
     shift = None
     for raw in ids:
         eid, value = parse_effect(raw)
-        effect = get_effect(eid, ds)
+        effect = get_effect(eid, ds, defined)
         used.append(effect.id)
         if effect.enters == "shift":
+            shift_id = effect.id
             shift = value if value is not None else parameters.get(effect.id, "sweep")
             continue
         reg = effect.build(ds)
@@ -73,7 +75,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
             raise InputError("fuel_delay needs its shift: give fuel_delay=SECONDS (or a structure to sweep with)")
         shift = estimate_shift(EffectInputs(u, (), (), tuple(orders), y, (), {}))
     if shift is not None:
-        parameters["fuel_delay"] = float(shift)
+        parameters[shift_id] = float(shift)
         y = shift_signal(y, shift / ds.Ts, ds.segments())
     return EffectInputs(u, tuple(names), tuple(units), tuple(orders), y, tuple(used), parameters)
 
@@ -86,8 +88,10 @@ def at_operating_point(ds, model):
 def model_data(model, ds) -> tuple[np.ndarray, np.ndarray]:
     """(u, y) on which `model` runs: the dataset's speed and torque plus the extra inputs of the effects the
     model includes (model.effects, shift from model.info['effect_parameters']; regimes use the model's
-    operating point), and the (shifted) fuel."""
-    fx = apply_effects(at_operating_point(ds, model), model.effects, model.info.get("effect_parameters"))
+    operating point; effects the engineer defined from the definitions the model carries), and the (shifted)
+    fuel."""
+    fx = apply_effects(at_operating_point(ds, model), model.effects, model.info.get("effect_parameters"),
+                       defined=effects_of_model(model))
     u = np.hstack([ds.u, fx.u])
     if u.shape[1] != len(model.B):
         raise InputError(f"model has {len(model.B)} inputs but the data and its effects give {u.shape[1]}")

@@ -4,7 +4,7 @@ Identification and validation trips after the seed paper (1.5 h identification, 
 a gas-truck pair with flow-meter captures, eleven 30-minute diesel drive cycles like the paper's Table I, one
 trip per physical effect (two for ambient air), and a one-minute sample for the README's quick start.
 """
-from fuelid.sim.effects import EFFECTS
+from fuelid.sim.effects import ALL_EFFECTS
 from fuelid.sim.trip import TripConfig
 
 CYCLE_ROTATION = ("urban", "rural", "motorway", "mixed")
@@ -26,6 +26,15 @@ EFFECT_TRIPS = {
                 dict(cycle="rural", hilliness=1.5, altitude_m=1400.0, ambient_c=30.0)),
 }
 """Per hidden effect, the routes and weather of the trip(s) that show it (TripConfig fields)."""
+# The generic effects (sim.effects.GENERIC_EFFECTS, no entry in fuelid's effect catalogue): hot intake air on a
+# hot, hilly day (the intake air 29-41 °C, above 30 °C on the climbs); the auxiliary load on mixed driving.
+GENERIC_EFFECT_TRIPS = {
+    "hot_intake_air": (dict(cycle="rural", hilliness=1.8, ambient_c=25.0),),
+    "auxiliary_load": (dict(cycle="mixed"),),
+}
+"""Per generic hidden effect, the routes and weather of its trip; made on demand (`--catalog generic_NAME_20min`),
+not shipped."""
+ALL_EFFECT_TRIPS = {**EFFECT_TRIPS, **GENERIC_EFFECT_TRIPS}
 SECOND_TRIP_SEED = 100
 """The k-th trip (k = 0, 1, …) of an effect's set has seed `seed + k * SECOND_TRIP_SEED`: another day."""
 
@@ -48,18 +57,19 @@ def _entries() -> dict:
     for k in range(1, 12):
         c[f"map_cycle_{k:02d}"] = TripConfig(truth="map", cycle=CYCLE_ROTATION[(k - 1) % 4], duration_s=1800.0,
                                              seed=1000 + k, mass_kg=40000.0 + 400.0 * (k - 1))
-    for k, (name, trips) in enumerate(EFFECT_TRIPS.items()):
+    for k, (name, trips) in enumerate(ALL_EFFECT_TRIPS.items()):
         for j, extra in enumerate(trips):
-            label = f"effect_{name}_20min" + (f"_{j + 1}" if len(trips) > 1 else "")
+            kind = "generic" if name in GENERIC_EFFECT_TRIPS else "effect"
+            label = f"{kind}_{name}_20min" + (f"_{j + 1}" if len(trips) > 1 else "")
             c[label] = TripConfig(duration_s=1200.0, seed=2000 + k + j * SECOND_TRIP_SEED,
-                                  effects=((name, EFFECTS[name].default),), **extra)
+                                  effects=((name, ALL_EFFECTS[name].default),), **extra)
     return c
 
 
 CATALOG = _entries()
-SHIPPED = tuple(n for n in CATALOG if not n.startswith("map_cycle_"))
+SHIPPED = tuple(n for n in CATALOG if not n.startswith(("map_cycle_", "generic_")))
 """The entries whose files are in replay_logs/ (`fuelid simulate --all`); the map engine's eleven cycles (17 MB)
-are made on demand by `--catalog map_cycle_NN`."""
+and the generic effects' trips are made on demand by `--catalog map_cycle_NN` / `generic_NAME_20min`."""
 DEFAULT = TripConfig()
 
 

@@ -68,7 +68,27 @@ EFFECTS = {e.name: e for e in [
            "SPN 108 and SPN 171, ρ_ref at 15 °C and 101.325 kPa."),
 ]}
 
+# Generic effects: physics fuelid's effect catalogue (ident.effects) has no entry for, acting only through bus
+# signals the DBC decodes, so the diagnosis can find them only as "some bus signal" or as an effect the engineer
+# defines (ident.effectfile).
+GENERIC_EFFECTS = {e.name: e for e in [
+    Effect("hot_intake_air", 0.15, "fraction of extra fuel per 10 K of intake air above 30 °C",
+           ("AMB.EngAirInletTemp",), (172,),
+           "Hot charge air is thin: while the intake air (SPN 172, which follows the load over about 30 s) is "
+           "above 30 °C the engine burns more fuel for the same torque, f x (1 + m max(T_inlet - 30 °C, 0)/10 K) "
+           "(the default is strong on purpose: a test of whether the diagnosis finds the form, not of its "
+           "detection limit)."),
+    Effect("auxiliary_load", 80.0, "Nm of auxiliary torque while the auxiliary runs",
+           ("EEC3.EstEngParasiticLossesPercentTorque",), (2978,),
+           "An auxiliary (air-conditioning or air compressor) cycles on and off (episodes of 1-4 min, off 1-6 "
+           "min); the ECU's parasitic-loss estimate (EEC3 SPN 2978) includes its torque, the actual engine torque "
+           "(EEC1 SPN 513) does not, and the fuel burns for it."),
+]}
+ALL_EFFECTS = {**EFFECTS, **GENERIC_EFFECTS}
+"""Every effect `fuelid simulate --effect` takes: the catalogued ones and the generic ones."""
+
 AIR_DENSITY_REF_KG_M3 = 101325.0 / (287.05 * 288.15)
+HOT_INTAKE_LEVEL_C = 30.0
 OVERRUN_MIN_RPM = 800.0
 SHIFT_TRANSIENT_TAU_S = 0.5
 SHIFT_TRANSIENT_S = 1.5
@@ -81,10 +101,10 @@ def parse_effects(specs) -> dict:
     for spec in specs or ():
         name, _, value = spec.partition("=")
         name = name.strip()
-        if name not in EFFECTS:
-            raise InputError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+        if name not in ALL_EFFECTS:
+            raise InputError(f"unknown effect {name!r}; known: {', '.join(ALL_EFFECTS)}")
         try:
-            out[name] = float(value) if value else EFFECTS[name].default
+            out[name] = float(value) if value else ALL_EFFECTS[name].default
         except ValueError:
             raise InputError(f"effect {name}: magnitude {value!r} is not a number") from None
         if out[name] < 0:
@@ -94,8 +114,9 @@ def parse_effects(specs) -> dict:
 
 def describe(effects: dict) -> list:
     """Truth-file entries: name, magnitude, unit, signals, SPNs, explanation."""
-    return [{"name": name, "magnitude": m, "unit": EFFECTS[name].unit, "signals": list(EFFECTS[name].signals),
-             "spns": list(EFFECTS[name].spns), "description": EFFECTS[name].description}
+    return [{"name": name, "magnitude": m, "unit": ALL_EFFECTS[name].unit,
+             "signals": list(ALL_EFFECTS[name].signals), "spns": list(ALL_EFFECTS[name].spns),
+             "description": ALL_EFFECTS[name].description, **({"generic": True} if name in GENERIC_EFFECTS else {})}
             for name, m in effects.items()]
 
 
@@ -159,6 +180,24 @@ def overrun_mask(indicated_torque_pct, pedal, engine_speed_rpm, clutch_closed):
 def overrun_factor(m: float, mask):
     """1 - m where `overrun_mask`, else 1."""
     return 1.0 - m * np.asarray(mask, float)
+
+
+def hot_intake_factor(m: float, inlet_c):
+    """1 + m max(T_inlet - 30 °C, 0)/10 K."""
+    return 1.0 + m * np.maximum(np.asarray(inlet_c) - HOT_INTAKE_LEVEL_C, 0.0) / 10.0
+
+
+def auxiliary_episodes(t_s, rng: np.random.Generator, on_s=(60.0, 240.0), off_s=(60.0, 360.0)):
+    """Auxiliary running (bool per sample): alternating off and on episodes of uniform random lengths [s],
+    starting off."""
+    t_s = np.asarray(t_s)
+    on = np.zeros(len(t_s), bool)
+    edge = rng.uniform(*off_s)
+    while edge < t_s[-1]:
+        length = rng.uniform(*on_s)
+        on |= (t_s >= edge) & (t_s < edge + length)
+        edge += length + rng.uniform(*off_s)
+    return on
 
 
 def delayed(t_s, values, delay_s: float):

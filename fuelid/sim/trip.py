@@ -164,7 +164,9 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     fan_pct = thermal.fan_speed_pct(fan_on, rpm, dt)
     t_fan = (fx.fan_torque_nm(eff["engine_fan"], fan_pct, rpm) - fx.fan_torque_nm(eff["engine_fan"], 8.0, rpm)
              if "engine_fan" in eff else np.zeros(n))
-    t_true = np.maximum(0.0, d.brake_torque_nm + drag + t_fan)
+    aux_on = fx.auxiliary_episodes(t, rng["effects"]) if "auxiliary_load" in eff else np.zeros(n, bool)
+    t_aux = eff.get("auxiliary_load", 0.0) * aux_on
+    t_true = np.maximum(0.0, d.brake_torque_nm + drag + t_fan + t_aux)
     t_shown = np.maximum(0.0, d.brake_torque_nm + drag)
     if "inertia" in eff:
         t_shown = t_shown - fx.inertia_torque_nm(engine.inertia_kgm2, rpm, dt)
@@ -188,6 +190,8 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     dpf_active = fx.dpf_events(t, rng["effects"]) if "dpf_regeneration" in eff else np.zeros(n, bool)
     shift_end = t[1:][(d.mode[:-1] == SHIFT) & (d.mode[1:] != SHIFT)]
     overrun = fx.overrun_mask(true_pct, d.pedal, rpm, d.mode == DRIVE)
+    load_smooth = _smooth(load, dt, 30.0)
+    inlet = ambient + 4.0 + 12.0 * load_smooth  # intake air after the charge-air cooler [°C]
 
     def engine_fuel(f):
         if "power_nonlinearity" in eff:
@@ -196,7 +200,8 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
                    "cold_engine": lambda m: fx.cold_factor(m, coolant),
                    "gear_shift": lambda m: fx.shift_factor(m, t, shift_end),
                    "ambient": lambda m: fx.ambient_factor(m, rho),
-                   "overrun_cutoff": lambda m: fx.overrun_factor(m, overrun)}
+                   "overrun_cutoff": lambda m: fx.overrun_factor(m, overrun),
+                   "hot_intake_air": lambda m: fx.hot_intake_factor(m, inlet)}
         for name, factor in factors.items():
             if name in eff:
                 f = f * factor(eff[name])
@@ -219,7 +224,6 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     demand = np.clip(d.demand_torque_nm + drag, 0.0, None)
     fuel_l = fuel_bus if cfg.diesel else fuel_bus / truth.fuel_density_kg_l
     trip_fuel_l = np.cumsum(fuel_l) * dt / 3600.0
-    load_smooth = _smooth(load, dt, 30.0)
     signals = {
         "zero": 0.0,
         "torque_mode": np.select([(d.mode == NEUTRAL) & stopped, d.mode == SHIFT, d.cruise, d.pedal <= 0.0],
@@ -233,7 +237,7 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
         "load_pct": 100.0 * load,
         "friction_pct": engine.percent(engine.friction_torque_nm(rpm)),
         "desired_speed_rpm": np.where(d.mode == NEUTRAL, engine.idle_speed_rpm, rpm),
-        "aux_pct": np.full(n, engine.percent(engine.aux_nm)),
+        "aux_pct": engine.percent(engine.aux_nm + t_aux),
         "fuel_rate_l_h": fuel_bus,
         "economy_km_l": np.where(stopped, 0.0, speed_kmh / np.maximum(fuel_bus, 1e-3)),
         "throttle_pct": np.clip(100.0 * t_true / np.maximum(full, 1.0), 0.0, 100.0),
@@ -252,7 +256,7 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
         "pressure_kpa": pressure,
         "cab_c": 21.0 + 0.3 * np.sin(2 * np.pi * t / 900.0),
         "ambient_c": ambient,
-        "inlet_c": ambient + 4.0 + 12.0 * load_smooth,
+        "inlet_c": inlet,
         "coolant_c": coolant,
         "fuel_temp_c": ambient + (8.0 if "cold_engine" in eff else 20.0) + 15.0 * (1 - np.exp(-t / 2400.0)),
         "oil_c": coolant + 3.0 + 6.0 * load_smooth,
@@ -271,6 +275,11 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
         "air_density_kg_m3": rho[k], "coolant_c": coolant[k], "fan_pct": fan_pct[k],
         "dpf_active": dpf_active[k], "overrun": overrun[k],
     }
+    # the generic effects' driving signals, only on trips that have them (the other trips' files stay as they were)
+    if "hot_intake_air" in eff:
+        truth_arrays["inlet_c"] = inlet[k]
+    if "auxiliary_load" in eff:
+        truth_arrays["auxiliary_torque_nm"] = t_aux[k]
     trip = Trip(cfg, t, signals, truth_arrays)
     if not cfg.diesel:
         tick("meter")

@@ -29,7 +29,7 @@ from scipy.ndimage import shift as spline_shift
 from scipy.signal import lfilter
 
 from fuelid.ident.dataset import Dataset
-from fuelid.ident.identify import effect_inputs
+from fuelid.ident.identify import effect_definitions, effect_inputs
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure
 
@@ -147,17 +147,17 @@ def _records(cfg):
 def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitude: float | None = None,
               routes_of: str | None = None):
     """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
-    hidden `effect` (its default magnitude unless given) on the routes the shipped trips of effect `routes_of`
-    (default: `effect`) use (sim.catalog.EFFECT_TRIPS: one trip, two for ambient air, on days seed,
+    hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS)
+    on the routes the trips of effect `routes_of` (default: `effect`) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, two for ambient air, on days seed,
     seed + SECOND_TRIP_SEED; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
     arrays of several trips are concatenated, the summary is the first trip's; cached."""
     from fuelid.ident.dataset import build_dataset
-    from fuelid.sim.catalog import EFFECT_TRIPS, SECOND_TRIP_SEED
-    from fuelid.sim.effects import EFFECTS
+    from fuelid.sim.catalog import ALL_EFFECT_TRIPS, SECOND_TRIP_SEED
+    from fuelid.sim.effects import ALL_EFFECTS
     from fuelid.sim.trip import TripConfig
 
-    routes = EFFECT_TRIPS[routes_of or effect] if routes_of or effect else ({"cycle": "mixed"},)
-    effects = ((effect, EFFECTS[effect].default if magnitude is None else magnitude),) if effect else ()
+    routes = ALL_EFFECT_TRIPS[routes_of or effect] if routes_of or effect else ({"cycle": "mixed"},)
+    effects = ((effect, ALL_EFFECTS[effect].default if magnitude is None else magnitude),) if effect else ()
     records, trips = [], []
     for j, route in enumerate(routes):
         recs, trip = _records(TripConfig(duration_s=duration_s, seed=seed + j * SECOND_TRIP_SEED, effects=effects,
@@ -171,9 +171,10 @@ def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitu
     return ds, truth, trips[0].summary
 
 
-def identify(ds, structure: Structure = PAPER, effects=()) -> PolyModel:
-    """The model `fuelid identify` makes of ds (paper orders by default) with the effects added."""
-    fx = effect_inputs(ds, list(effects), structure)
+def identify(ds, structure: Structure = PAPER, effects=(), defined=()) -> PolyModel:
+    """The model `fuelid identify` makes of ds (paper orders by default) with the effects added (built-in, or
+    among `defined`, effects an engineer defined: ident.effectfile)."""
+    fx = effect_inputs(ds, list(effects), structure, defined)
     u = np.hstack([ds.u, fx.u])
     segs = [s for s in ds.segments() if s.stop - s.start > 100]
     with warnings.catch_warnings():
@@ -182,4 +183,5 @@ def identify(ds, structure: Structure = PAPER, effects=()) -> PolyModel:
                 y0=ds.y0)
     return dataclasses.replace(m, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
                                output_name=ds.output_name, output_unit=ds.output_unit, effects=fx.effects,
-                               info={**m.info, "effect_parameters": fx.parameters})
+                               info={**m.info, "effect_parameters": fx.parameters,
+                                     **effect_definitions(fx.effects, defined)})

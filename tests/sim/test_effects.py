@@ -14,7 +14,7 @@ BASE = dict(cycle="mixed", duration_s=600.0, seed=31)
 
 def pair(trip, name, magnitude=None, **overrides):
     kw = {**BASE, **overrides}
-    m = fx.EFFECTS[name].default if magnitude is None else magnitude
+    m = fx.ALL_EFFECTS[name].default if magnitude is None else magnitude
     return trip(**kw), trip(**kw, effects=((name, m),)), m
 
 
@@ -24,6 +24,42 @@ def test_every_effect_is_documented():
     assert fx.parse_effects(["dpf_regeneration", "fuel_delay=0.17"]) == {"dpf_regeneration": 0.1, "fuel_delay": 0.17}
     with pytest.raises(ValueError):
         fx.parse_effects(["warp_drive"])
+
+
+def test_generic_effects_act_only_through_decoded_bus_signals_fuelid_has_no_effect_for():
+    from fuelid.ident import effects as ident_effects
+    from fuelid.ident.effectfile import dbc_signals
+
+    claimed = {s for e in ident_effects.EFFECTS.values() for s in e.signals}
+    for name, e in fx.GENERIC_EFFECTS.items():
+        assert name not in ident_effects.EFFECTS and e.unit and e.description
+        assert set(e.signals) <= dbc_signals() and not set(e.signals) & claimed
+        assert fx.parse_effects([name]) == {name: e.default}
+
+
+def test_hot_intake_air_scales_the_fuel_above_30_c_of_spn172(trip):
+    base, on, m = pair(trip, "hot_intake_air", cycle="rural", hilliness=1.8, ambient_c=25.0)
+    inlet = on.truth["inlet_c"]
+    hot = inlet > 30.0
+    assert 0.1 < hot.mean() < 0.9 and inlet.max() > 35.0
+    np.testing.assert_allclose(on.truth["fuel_true"], base.truth["fuel_true"]
+                               * (1 + m * np.maximum(inlet - 30.0, 0.0) / 10.0), rtol=1e-5)
+    # what the bus says (AMB SPN 172) is the inlet temperature that scales the fuel
+    np.testing.assert_allclose(on.signals["inlet_c"][::30], np.repeat(inlet, 30)[: len(on.t_s)][::30], atol=0.5)
+    assert "inlet_c" not in base.truth
+
+
+def test_auxiliary_load_burns_fuel_for_torque_eec3_reports_and_eec1_leaves_out(trip):
+    base, on, m = pair(trip, "auxiliary_load")
+    running = on.truth["auxiliary_torque_nm"] > 0
+    assert 0.2 < running.mean() < 0.8
+    np.testing.assert_array_equal(on.truth["torque_reported_pct"], base.truth["torque_reported_pct"])
+    assert on.truth["torque_true_pct"][running].mean() > base.truth["torque_true_pct"][running].mean()
+    assert on.truth["fuel_true"][running].mean() > base.truth["fuel_true"][running].mean() + 0.5
+    far = np.convolve(running, np.ones(200), mode="same") == 0  # a minute away from any episode
+    assert far.any() and np.abs(on.truth["fuel_true"] - base.truth["fuel_true"])[far].max() < 0.05
+    aux = on.signals["aux_pct"]
+    assert np.ptp(aux) > 0 and np.ptp(base.signals["aux_pct"]) == 0
 
 
 def test_dpf_regeneration_adds_fuel_only_while_spn3700_is_active(trip):

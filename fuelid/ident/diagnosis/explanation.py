@@ -40,6 +40,21 @@ def torque_response(models, x: np.ndarray) -> np.ndarray:
 
 def explain(entry, effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gains: np.ndarray,
             torque_models, ds, run: Run) -> tuple[str, dict]:
+    """`sentence`, or for an effect the engineer defined with an explanation template, the template filled in
+    (ident.effectfile) and what to do."""
+    text, size = sentence(entry, effect, reg, contribution, gains, torque_models, ds, run)
+    if effect.template is None:
+        return text, size
+    measure = next((size[k] for k in ("mean_change_when_on", "relative_change_per_unit", "torque_scale",
+                                      "gain_per_unit") if k in size), float("nan"))
+    percent = size.get("percent_change_when_on", 100.0 * size.get("relative_change_per_unit", float("nan")))
+    filled = effect.template.format(signals=signals_text(effect), size=measure, percent=percent,
+                                    rms=size["rms_contribution"], unit=ds.output_unit, x_unit=reg.units[0])
+    return f"{filled}; add effect {effect.id} (defined in {effect.source})", size
+
+
+def sentence(entry, effect: fx.Effect, reg: fx.Regressors, contribution: np.ndarray, gains: np.ndarray,
+             torque_models, ds, run: Run) -> tuple[str, dict]:
     """One sentence an engineer acts on, and the size of the effect (JSON-ready), from its estimated fuel contribution
     [output unit] on the grid and its steady-state gain per regressor column [output unit per column unit] (for the
     shift: −τ [s]); entry the effect's entry kind (ident.diagnosis.entries), whose own sentence, if it has one, is

@@ -64,11 +64,14 @@ class Diagnosis:
                 "candidates": [c.to_json() for c in self.candidates], "verdict": self.verdict}
 
 
-def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: float = 0.05) -> list[Candidate]:
+def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: float = 0.05,
+                    effects=()) -> list[Candidate]:
     """Both tests of every candidate effect not already in the model (ident.diagnosis.statistics, 1–3), each as its
-    entry kind tests it (ident.diagnosis.entries); Holm-corrected; sorted by p-value (log p), the untested last."""
+    entry kind tests it (ident.diagnosis.entries); Holm-corrected; sorted by p-value (log p), the untested last.
+    candidates: default the built-in effects, installed plug-ins', `effects` (the engineer's, ident.effectfile)
+    and every other bus signal's."""
     if candidates is None:
-        candidates = list(fx.EFFECTS.values()) + fx.generic_effects(ds)
+        candidates = list(fx.EFFECTS.values()) + list(fx.plugin_effects()) + list(effects) + fx.generic_effects(ds)
     included = {fx.parse_effect(e)[0] for e in model.effects}
     dsm = at_operating_point(ds, model)
     rows, untested = [], []
@@ -120,7 +123,7 @@ def _priority(c: Candidate) -> float:
     more than it)."""
     v = c.verification
     drop = c.estimated_drop_percent if v is None or "error" in v else c.entry.relevance(v)
-    return drop * (1.0 if c.effect in fx.EFFECTS else GENERIC_WEIGHT)
+    return drop * (GENERIC_WEIGHT if ":" in c.effect else 1.0)  # generic ids are FORM:SIGNAL
 
 
 def accept_sequentially(rows: list[Candidate], run: Run, model: PolyModel, ds, alpha: float,
@@ -163,7 +166,7 @@ def accept_sequentially(rows: list[Candidate], run: Run, model: PolyModel, ds, a
 
 
 def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_effect_percent: float = 1.0,
-             candidates=None, min_drop_percent: float = 2.0) -> Diagnosis:
+             candidates=None, min_drop_percent: float = 2.0, effects=()) -> Diagnosis:
     """The whole diagnosis of `model` on dataset ds (ident.diagnosis and its modules).
 
     Returns a Diagnosis: model, data, compare (ident.validation.metrics of its run), held_out (held_out_scores of
@@ -177,10 +180,11 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     verification (held-out RMSE and cycle fuel errors without/with, direction), significant (a missing effect:
     when verified, a held-out drop ≥ min_drop_percent in the direction of its physics, then accepted by
     `accept_sequentially`), size, explanation, physics, tests. At most n_verify of the candidates that pass the
-    tests and explain min_effect_percent are verified, by estimated drop."""
+    tests and explain min_effect_percent are verified, by estimated drop. effects: effects the engineer defined
+    (ident.effectfile), tested beside the built-in ones."""
     mrun = run_model(model, ds)
     run = run_gradients(mrun)
-    rows = rank_candidates(model, ds, run, candidates, alpha)
+    rows = rank_candidates(model, ds, run, candidates, alpha, effects)
     testable = [c for c in rows if c.testable]
     try:  # the model as it is, scored on each block left out: the reference every verification is measured against
         base_ysim = held_out(model, run, np.zeros((run.r.size, 0)))["ysim"]
