@@ -448,7 +448,7 @@ def test_identify_settings(tmp_path, capsys):
     assert (c.identify, c.identify_orders, c.identify_forgetting, c.snapshot_s, c.replay_speed) == \
         (True, "paper", 0.999, 60, 10)
     for bad, says in [(["--method", "kalman"], "needs a prior model"), (["--forgetting", "1.5"], "(0, 1]"),
-                      (["--model", str(tmp_path / "none.json")], "cannot read model"),
+                      (["--model", str(tmp_path / "none.json")], "none.json: no such file"),
                       (["--orders", "nb=1"], "orders")]:
         assert main(["log", "--identify", "--interface", "virtual", "--output-dir", str(tmp_path), *bad]) == 1
         err = capsys.readouterr().err
