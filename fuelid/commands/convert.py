@@ -42,8 +42,7 @@ def run(args) -> int:
     if args.flowmeter:
         streams.append((r.t, 1, r) for r in capture_readings(args.flowmeter, calibration))
 
-    # no disk sync every second: unlike the daemon's log, a conversion can be run again from its source
-    writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), fsync=False)
+    writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), live=False)
     recorder = Recorder(writer)
     try:
         for _, kind, item in progress(heapq.merge(*streams, key=lambda e: e[0]), desc="convert", unit="msg"):
