@@ -132,7 +132,7 @@ class McapLogWriter:
         self._writer = foxglove.open_mcap(
             self.path, allow_overwrite=True, context=self._context, writer_options=options
         )
-        self._channels: dict[str, object] = {}
+        self._channels: dict[str, tuple] = {}  # topic -> (channel, its native log)
         self._timed = chunk_flush_s is not None
         self._flush_ns = int(chunk_flush_s * 1e9) if self._timed else 0
         self._fsync = fsync and self._timed
@@ -148,16 +148,17 @@ class McapLogWriter:
         mcap_schema = self._foxglove.Schema(
             name=schema.get("title", topic), encoding="jsonschema", data=orjson.dumps(schema)
         )
-        self._channels[topic] = self._foxglove.Channel(
-            topic, schema=mcap_schema, message_encoding="json", context=self._context
-        )
+        channel = self._foxglove.Channel(topic, schema=mcap_schema, message_encoding="json", context=self._context)
+        # the SDK's native log(bytes, log_time, sink_id): Channel.log's checks of the encoding and the message
+        # type cost as much again per message, and the bytes here are always JSON
+        self._channels[topic] = (channel, channel.base.log)
 
     def has_channel(self, topic: str) -> bool:
         return topic in self._channels
 
     def write(self, topic: str, log_time_ns: int, record: dict) -> None:
         """Write one message; `log_time_ns` is the receive time [ns]."""
-        self._channels[topic].log(orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY), log_time=log_time_ns)
+        self._channels[topic][1](orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY), log_time_ns, None)
         if not self._timed:
             return
         if self._log_due_ns is None:

@@ -46,9 +46,27 @@ class RecorderStats:
     error_frames: int = 0
     remote_frames: int = 0
     standard_frames: int = 0
-    decoded: Counter = field(default_factory=Counter)  # (message name, source address) -> messages
-    invalid: Counter = field(default_factory=Counter)  # (message name, signal, status) -> count
+    messages: Counter = field(default_factory=Counter)
+    """(message name, source address, ((null signal, status), ...)) -> messages: one count per message, the
+    per-signal counts below are summed from it when asked for."""
     flow_readings: Counter = field(default_factory=Counter)  # status -> readings
+
+    @property
+    def decoded(self) -> Counter:
+        """(message name, source address) -> messages."""
+        counts: Counter = Counter()
+        for (name, sa, _), n in self.messages.items():
+            counts[name, sa] += n
+        return counts
+
+    @property
+    def invalid(self) -> Counter:
+        """(message name, signal, status) -> null values."""
+        counts: Counter = Counter()
+        for (name, _, nulls), n in self.messages.items():
+            for signal, status in nulls:
+                counts[name, signal, status] += n
+        return counts
 
 
 class Recorder(can.Listener):
@@ -99,9 +117,7 @@ class Recorder(can.Listener):
     def _record(self, decoded) -> None:
         if decoded is None:
             return
-        self.stats.decoded[decoded.name, decoded.sa] += 1
-        for signal, status in decoded.invalid.items():
-            self.stats.invalid[decoded.name, signal, status] += 1
+        self.stats.messages[decoded.name, decoded.sa, tuple(decoded.invalid.items())] += 1
         self._write(f"/j1939/{decoded.name}", message_schema(decoded.name), int(decoded.t * 1e9), decoded.to_record())
         vin = decoded.values.get("VIN") if decoded.name == "VI" else None
         if vin and vin != self.vin:
