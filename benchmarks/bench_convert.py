@@ -1,16 +1,26 @@
-"""Decode + MCAP write throughput against python-can's own writers, on the same FMS-like frames, in one run.
+"""Decode + MCAP write throughput against python-can's own writers, and `fuelid convert` end to end against
+`python -m can.logconvert` to BLF on a recorded candump, in one run.
 
-    .venv/bin/python benchmarks/bench_convert.py [--frames 200000] [--repeat 3]
+    .venv/bin/python benchmarks/bench_convert.py [--frames 200000] [--repeat 3] [--candump replay_logs/diesel_ident_90min.log.gz]
 
-The frame stream mixes the FMS messages at their bus rates (EEC1 every 20 ms, EEC2 50 ms, LFE1/CCVS1/ETC2
-100 ms, EEC3 250 ms, AMB/ET1/DPFC1/FD/LFC1/HRLFC 1 s, a second ECU repeating CCVS1 and LFE1, EC1 and VI by
-BAM every 5 s), with random in-range values. fuelid runs twice: as `fuelid convert` writes (no disk sync) and as the daemon does (fsync every second of
-wall time, so a power cut loses at most a second). Each contender gets the frames already in memory and writes a file
-in a temporary directory; the best of --repeat runs counts. One core: the process is pinned to CPU 0 where possible.
+In memory: the frame stream mixes the FMS messages at their bus rates (EEC1 every 20 ms, EEC2 50 ms,
+LFE1/CCVS1/ETC2 100 ms, EEC3 250 ms, AMB/ET1/DPFC1/FD/LFC1/HRLFC 1 s, a second ECU repeating CCVS1 and LFE1,
+EC1 and VI by BAM every 5 s), with random in-range values. fuelid runs twice: as `fuelid convert` writes (big
+chunks, no disk sync) and as the daemon does (one-second chunks, fsync every second of wall time, so a power cut
+loses at most a second). Each contender gets the frames already in memory and writes a file in a temporary
+directory; the best of --repeat runs counts. One core: the process is pinned to CPU 0 where possible.
+
+End to end (--candump, skipped when empty): each command runs as a user runs it, in a child process pinned to
+the same core, reading the gzipped candump and writing its file; CPU time (user + sys) of the best of --repeat
+runs counts, and the file sizes are compared with the gzipped candump and with the same frames written the way
+the daemon writes (one-second chunks with message indexes).
 """
 import argparse
 import os
 import random
+import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -19,6 +29,7 @@ import can
 import cantools
 
 from fuelid.dbc import FMS_DBC
+from fuelid.logger.readers import read_frames
 from fuelid.logger.recorder import Recorder, open_writer
 from fuelid.logger.tp import bam_frames
 
@@ -56,9 +67,9 @@ def fms_frames(n_frames: int, seed: int = 1) -> list[can.Message]:
     return frames
 
 
-def time_fuelid(frames, path: Path, fsync: bool) -> float:
+def time_fuelid(frames, path: Path, live: bool) -> float:
     start = time.perf_counter()
-    writer = open_writer(path, source="benchmark", fsync=fsync)
+    writer = open_writer(path, source="benchmark", live=live)
     recorder = Recorder(writer)
     for msg in frames:
         recorder.on_message_received(msg)
@@ -75,26 +86,67 @@ def time_python_can(writer_class, frames, path: Path) -> float:
     return time.perf_counter() - start
 
 
+def child_cpu_s(command: list[str]) -> float:
+    """CPU time [s] (user + sys) of running `command` to completion in a child process."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+
+
+def end_to_end(candump: Path, repeat: int, tmp: Path) -> None:
+    mcap, blf, live = tmp / "converted.mcap", tmp / "converted.blf", tmp / "live.mcap"
+    fuelid = [str(Path(sys.executable).with_name("fuelid")), "convert", str(candump), "-o", str(mcap)]  # as installed
+    logconvert = [sys.executable, "-m", "can.logconvert", str(candump), str(blf)]
+    cpu = {"fuelid convert → MCAP (decoded channels)": min(child_cpu_s(fuelid) for _ in range(repeat)),
+           "python -m can.logconvert → BLF": min(child_cpu_s(logconvert) for _ in range(repeat))}
+    frames = 0
+    writer = open_writer(live, source="benchmark")  # the daemon's file of the same frames
+    recorder = Recorder(writer)
+    for msg in read_frames(candump):
+        recorder.on_message_received(msg)
+        frames += 1
+    writer.close()
+    ours = cpu["fuelid convert → MCAP (decoded channels)"]
+    print(f"\nend to end on {candump} ({frames} frames), CPU s (user + sys) best of {repeat}, one core")
+    print(f"{'command':<45} {'CPU s':>8} {'frames/s':>10} {'fuelid ÷ it (time)':>19}")
+    for name, seconds in cpu.items():
+        print(f"{name:<45} {seconds:>8.2f} {frames / seconds:>10,.0f} {ours / seconds:>19.2f}")
+    sizes = {"fuelid convert (MCAP, big chunks, no message indexes)": mcap.stat().st_size,
+             "the daemon's MCAP (1 s chunks, message indexes)": live.stat().st_size,
+             "BLF (can.logconvert)": blf.stat().st_size, "gzipped candump (input)": candump.stat().st_size}
+    print(f"{'file':<55} {'MB':>8} {'converted ÷ it':>15}")
+    for name, size in sizes.items():
+        print(f"{name:<55} {size / 1e6:>8.2f} {sizes[next(iter(sizes))] / size:>15.2f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=200_000)
+    parser.add_argument("--frames", type=int, default=200_000, help="in-memory frames (0: skip that part)")
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--candump", default="replay_logs/diesel_ident_90min.log.gz",
+                        help="recorded candump for the end-to-end part ('' to skip it)")
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {0})
-    frames = fms_frames(args.frames)
+        os.sched_setaffinity(0, {0})  # inherited by the child processes
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.frames:
+            in_memory(args.frames, args.repeat, Path(tmp))
+        if args.candump:
+            end_to_end(Path(args.candump), args.repeat, Path(tmp))
+
+
+def in_memory(n_frames: int, repeat: int, tmp: Path) -> None:
+    frames = fms_frames(n_frames)
     contenders = {
-        "fuelid convert (decode + MCAP)": lambda p: time_fuelid(frames, p.with_suffix(".mcap"), fsync=False),
-        "fuelid log (+ fsync every second)": lambda p: time_fuelid(frames, p.with_suffix(".mcap"), fsync=True),
+        "fuelid convert (decode + MCAP)": lambda p: time_fuelid(frames, p.with_suffix(".mcap"), live=False),
+        "fuelid log (+ fsync every second)": lambda p: time_fuelid(frames, p.with_suffix(".mcap"), live=True),
         "python-can BLFWriter (no decoding)": lambda p: time_python_can(can.BLFWriter, frames, p.with_suffix(".blf")),
         "python-can ASCWriter (no decoding)": lambda p: time_python_can(can.ASCWriter, frames, p.with_suffix(".asc")),
     }
-    results = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for name, run in contenders.items():
-            results[name] = min(run(Path(tmp) / f"run{i}") for i in range(args.repeat))
+    results = {name: min(run(tmp / f"run{i}") for i in range(repeat)) for name, run in contenders.items()}
     ours = len(frames) / results["fuelid convert (decode + MCAP)"]
-    print(f"{len(frames)} frames, best of {args.repeat}, one core")
+    print(f"{len(frames)} frames in memory, best of {repeat}, one core")
     print(f"{'writer':<40} {'frames/s':>12} {'fuelid ÷ it':>12}")
     for name, seconds in results.items():
         rate = len(frames) / seconds

@@ -1,14 +1,20 @@
 """`fuelid convert` end to end: recorded logs in, MCAP out, read back the way the identifier reads it."""
+import gzip
+import itertools
 import json
 import statistics
+from pathlib import Path
 
 import can
 import pytest
+from mcap.reader import make_reader
 
 from fuelid.cli import main
 from fuelid.ident.dataset import build_dataset
 from fuelid.logger.flowmeter import CaptureWriter
 from fuelid.logger.mcap_log import read_messages, read_metadata
+from fuelid.logger.readers import read_frames
+from fuelid.logger.recorder import Recorder, open_writer
 
 
 def convert(capsys, *args):
@@ -180,3 +186,43 @@ def test_a_recording_without_j1939_traffic_is_an_error_unless_raw_frames_are_ask
     assert main(["convert", str(log), "-o", str(out), "--raw-only", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["frames"] == 50 and summary["messages"] == {} and out.exists()
+
+
+SAMPLE = Path(__file__).resolve().parents[1] / "replay_logs" / "sample_diesel_1min.log.gz"
+OLD_FILE = Path(__file__).resolve().parent / "logger" / "data" / "convert_v0.1.0.mcap"
+
+
+def _plain_reader_messages(path):
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        assert reader.get_summary().statistics.message_count > 0
+        return [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in reader.iter_messages(log_time_order=False)]
+
+
+def test_a_file_converted_by_version_0_1_0_reads_as_todays_conversion(tmp_path, capsys):
+    """convert_v0.1.0.mcap: the first 800 lines of the sample trip converted by fuelid 0.1.0 (one-second
+    chunks, message indexes); today's conversion of the same lines holds the same messages."""
+    src = tmp_path / "first.log"
+    with gzip.open(SAMPLE, "rt") as f:
+        src.write_text("".join(itertools.islice(f, 800)))
+    out = tmp_path / "today.mcap"
+    code, summary, _ = convert(capsys, src, "-o", out)
+    assert code == 0 and summary["frames"] == 800
+    today = list(read_messages(out))
+    assert len(today) == 1591 and list(read_messages(OLD_FILE)) == today
+    assert _plain_reader_messages(OLD_FILE) == _plain_reader_messages(out) == today
+    assert read_metadata(OLD_FILE)["fuelid"]["truck"] == read_metadata(out)["fuelid"]["truck"] == "YS2R4X20007105543"
+
+
+def test_a_converted_file_is_less_than_half_a_live_log_of_the_same_frames(tmp_path, capsys):
+    out, live = tmp_path / "converted.mcap", tmp_path / "live.mcap"
+    code, summary, _ = convert(capsys, SAMPLE, "-o", out)
+    assert code == 0
+    writer = open_writer(live)
+    recorder = Recorder(writer)
+    for msg in read_frames(SAMPLE):
+        recorder.on_message_received(msg)
+    writer.close()
+    assert list(read_messages(out)) == list(read_messages(live))
+    assert _plain_reader_messages(out) == _plain_reader_messages(live)
+    assert out.stat().st_size < 0.5 * live.stat().st_size

@@ -45,11 +45,11 @@ def run(args) -> int:
     if args.flowmeter:
         streams.append((r.t, 1, r) for r in capture_readings(args.flowmeter, calibration))
 
-    # no disk sync every second: unlike the daemon's log, a conversion can be run again from its source
-    writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), fsync=False)
+    writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), live=False)
     recorder = Recorder(writer)
     try:
-        for _, kind, item in progress(heapq.merge(*streams, key=lambda e: e[0]), desc="convert", unit="msg"):
+        merged = heapq.merge(*streams, key=lambda e: e[0]) if len(streams) > 1 else frames
+        for _, kind, item in progress(merged, desc="convert", unit="msg"):
             if kind == 0:
                 recorder.on_message_received(item)
             else:

@@ -124,14 +124,19 @@ def _metadata_strings(metadata: dict) -> dict[str, str]:
 
 
 class McapLogWriter:
-    """Writes one MCAP log that survives a power cut.
+    """Writes one MCAP log that survives a power cut (live) or a compact one (`chunk_flush_s=None`).
 
-    Messages are JSON (orjson) on channels with jsonschema schemas, in zstd chunks. A chunk is closed and
-    pushed to the OS as soon as a write finds `chunk_flush_s` [s] of log time passed since the chunk began,
-    or the chunk exceeds `chunk_size` [bytes]; every `chunk_flush_s` of wall time everything is also
-    fsync'd (when `fsync`). Live, log time is wall time, so a file cut at any byte loses only the last
-    second. A caller whose messages may pause (quiet bus) calls `flush_if_due()` from its idle loop to keep
-    that bound.
+    Messages are JSON (orjson) on channels with jsonschema schemas, in zstd chunks. Live, a chunk is closed
+    and pushed to the OS as soon as a write finds `chunk_flush_s` [s] of log time passed since the chunk
+    began, or the chunk exceeds `chunk_size` [bytes of records]; every `chunk_flush_s` of wall time
+    everything is also fsync'd (when `fsync`). Live, log time is wall time, so a file cut at any byte loses
+    only the last second. A caller whose messages may pause (quiet bus) calls `flush_if_due()` from its idle
+    loop to keep that bound. With `chunk_flush_s=None` chunks close at `chunk_size` only and nothing is
+    flushed before `close()` (a conversion, which can be run again).
+
+    `message_indexes`: MCAP's optional per-chunk, per-channel index of every message (12 bytes each, about
+    half of a file of one-second chunks). Readers that read whole chunks (fuelid's, mcap's Python and
+    TypeScript readers) do without; it only lets a reader seek to a time inside a chunk.
 
     Built on the Foxglove SDK's MCAP writer (Rust) rather than the pure-Python `mcap` Writer, which
     caps at ~120,000 messages/s on one core, too slow for the logger's decode + write budget.
@@ -143,8 +148,9 @@ class McapLogWriter:
         path: str | Path,
         *,
         metadata: dict,
-        chunk_flush_s: float = 1.0,
+        chunk_flush_s: float | None = 1.0,
         chunk_size: int = 1 << 20,
+        message_indexes: bool = True,
         fsync: bool = True,
     ):
         import foxglove  # imported here: loading the SDK takes a moment and readers do not need it
@@ -159,13 +165,15 @@ class McapLogWriter:
             chunk_size=chunk_size,
             profile="",
             compression_threads=0,  # compress in the calling thread: the in-cab box has few cores
+            emit_message_indexes=message_indexes,
         )
         self._writer = foxglove.open_mcap(
             self.path, allow_overwrite=True, context=self._context, writer_options=options
         )
-        self._channels: dict[str, object] = {}
-        self._flush_ns = int(chunk_flush_s * 1e9)
-        self._fsync = fsync
+        self._channels: dict[str, tuple] = {}  # topic -> (channel, its native log)
+        self._timed = chunk_flush_s is not None
+        self._flush_ns = int(chunk_flush_s * 1e9) if self._timed else 0
+        self._fsync = fsync and self._timed
         self._log_due_ns: int | None = None  # set by the first message after a flush
         self._wall_due_ns = time.monotonic_ns() + self._flush_ns
         self._closed = False
@@ -178,9 +186,10 @@ class McapLogWriter:
         mcap_schema = self._foxglove.Schema(
             name=schema.get("title", topic), encoding="jsonschema", data=orjson.dumps(schema)
         )
-        self._channels[topic] = self._foxglove.Channel(
-            topic, schema=mcap_schema, message_encoding="json", context=self._context
-        )
+        channel = self._foxglove.Channel(topic, schema=mcap_schema, message_encoding="json", context=self._context)
+        # the SDK's native log(bytes, log_time, sink_id): Channel.log's checks of the encoding and the message
+        # type cost as much again per message, and the bytes here are always JSON
+        self._channels[topic] = (channel, channel.base.log)
 
     def has_channel(self, topic: str) -> bool:
         return topic in self._channels
@@ -188,10 +197,12 @@ class McapLogWriter:
     def write(self, topic: str, log_time_ns: int, record: dict) -> None:
         """Write one message; `log_time_ns` is the receive time [ns]. A failed write raises OSError (errno
         ENOSPC for a full disk), and so does every write after it: the file is broken from there on."""
-        self._channels[topic].log(orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY), log_time=log_time_ns)
+        self._channels[topic][1](orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY), log_time_ns, None)
         failure = _SINK_ERRORS.take()
         if failure is not None:
             raise failure
+        if not self._timed:
+            return
         if self._log_due_ns is None:
             self._log_due_ns = log_time_ns + self._flush_ns
         elif log_time_ns >= self._log_due_ns:
@@ -204,11 +215,12 @@ class McapLogWriter:
         record again; readers take the last one. Flushed at once, so a cut file still names its truck."""
         self.metadata.update(metadata)
         self._writer.write_metadata(METADATA_NAME, _metadata_strings(self.metadata))
-        self.flush()
+        if self._timed:
+            self.flush()
 
     def flush_if_due(self) -> None:
         """Flush when `chunk_flush_s` of wall time has passed since the last flush."""
-        if time.monotonic_ns() >= self._wall_due_ns:
+        if self._timed and time.monotonic_ns() >= self._wall_due_ns:
             self.flush()
 
     def _close_chunk(self) -> None:

@@ -21,11 +21,21 @@ def dbc_sha256() -> str:
     return hashlib.sha256(FMS_DBC.read_bytes()).hexdigest()
 
 
-def open_writer(path, *, truck: str = "unknown", source: str = "", fsync: bool = True) -> McapLogWriter:
-    """An MCAP writer for `path` with the fuelid metadata record (truck, logger version, DBC hash, source);
-    fsync: sync to disk every second of wall time (the daemon, which a power cut may stop) or never."""
+CONVERT_CHUNK_BYTES = 4 << 20
+"""Records per chunk of a converted file [bytes, uncompressed]: about a minute of a busy bus."""
+
+
+def open_writer(path, *, truck: str = "unknown", source: str = "", live: bool = True) -> McapLogWriter:
+    """An MCAP writer for `path` with the fuelid metadata record (truck, logger version, DBC hash, source).
+
+    live (the daemon, which a power cut may stop): one-second chunks with message indexes, synced to disk
+    every second of wall time. Otherwise (a conversion, which can be run again): big chunks, no message
+    indexes, no sync; less than half the bytes (README, Logging and converting)."""
     metadata = {"truck": truck, "logger_version": __version__, "dbc_sha256": dbc_sha256(), "source": source}
-    return McapLogWriter(path, metadata=metadata, fsync=fsync)
+    if live:
+        return McapLogWriter(path, metadata=metadata)
+    return McapLogWriter(path, metadata=metadata, chunk_flush_s=None, chunk_size=CONVERT_CHUNK_BYTES,
+                         message_indexes=False, fsync=False)
 
 
 @dataclass
@@ -36,9 +46,27 @@ class RecorderStats:
     error_frames: int = 0
     remote_frames: int = 0
     standard_frames: int = 0
-    decoded: Counter = field(default_factory=Counter)  # (message name, source address) -> messages
-    invalid: Counter = field(default_factory=Counter)  # (message name, signal, status) -> count
+    messages: Counter = field(default_factory=Counter)
+    """(message name, source address, ((null signal, status), ...)) -> messages: one count per message, the
+    per-signal counts below are summed from it when asked for."""
     flow_readings: Counter = field(default_factory=Counter)  # status -> readings
+
+    @property
+    def decoded(self) -> Counter:
+        """(message name, source address) -> messages."""
+        counts: Counter = Counter()
+        for (name, sa, _), n in self.messages.items():
+            counts[name, sa] += n
+        return counts
+
+    @property
+    def invalid(self) -> Counter:
+        """(message name, signal, status) -> null values."""
+        counts: Counter = Counter()
+        for (name, _, nulls), n in self.messages.items():
+            for signal, status in nulls:
+                counts[name, signal, status] += n
+        return counts
 
 
 class Recorder(can.Listener):
@@ -89,9 +117,7 @@ class Recorder(can.Listener):
     def _record(self, decoded) -> None:
         if decoded is None:
             return
-        self.stats.decoded[decoded.name, decoded.sa] += 1
-        for signal, status in decoded.invalid.items():
-            self.stats.invalid[decoded.name, signal, status] += 1
+        self.stats.messages[decoded.name, decoded.sa, tuple(decoded.invalid.items())] += 1
         self._write(f"/j1939/{decoded.name}", message_schema(decoded.name), int(decoded.t * 1e9), decoded.to_record())
         vin = decoded.values.get("VIN") if decoded.name == "VI" else None
         if vin and vin != self.vin:

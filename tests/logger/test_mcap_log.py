@@ -50,10 +50,15 @@ def _write_log(path, n=400, **kwargs):
     return written
 
 
-@pytest.fixture(scope="module")
-def log(tmp_path_factory):
+# the daemon's files (one-second chunks, message indexes) and converted ones (chunks by size, no message
+# indexes; a small size here to get many chunks) must read, cut, recover and refuse damage alike
+WRITERS = {"live": {}, "compact": {"chunk_flush_s": None, "chunk_size": 2048, "message_indexes": False}}
+
+
+@pytest.fixture(scope="module", params=list(WRITERS))
+def log(tmp_path_factory, request):
     path = tmp_path_factory.mktemp("mcap") / "trip.mcap"
-    return path, _write_log(path)
+    return path, _write_log(path, **WRITERS[request.param])
 
 
 def test_plain_mcap_reader_opens_the_file_with_schemas(log):
@@ -272,6 +277,19 @@ def test_chunks_close_every_second_of_log_time(tmp_path):
             w.write("/can/raw", T0 + i * 200_000_000, {"t": i})
     with open(path, "rb") as f:
         assert 9 <= make_reader(f).get_summary().statistics.chunk_count <= 11
+
+
+def test_compact_writing_has_no_message_indexes_and_chunks_by_size(tmp_path):
+    path = tmp_path / "t.mcap"
+    with McapLogWriter(path, metadata={}, chunk_flush_s=None, chunk_size=1 << 17, message_indexes=False) as w:
+        w.add_channel("/can/raw", RAW_SCHEMA)
+        for i in range(2000):  # 400 s of log time, ~80 kB of records
+            w.write("/can/raw", T0 + i * 200_000_000, {"t": i})
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary.statistics.chunk_count == 1
+    assert all(not index.message_index_offsets for index in summary.chunk_indexes)
+    assert [r["t"] for _, _, r in read_messages(path)] == list(range(2000))
 
 
 def test_data_reaches_disk_within_a_second_of_wall_time(tmp_path):
