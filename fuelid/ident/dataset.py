@@ -237,12 +237,12 @@ _COMMA = np.frombuffer(b",       ", np.uint64)[0]
 
 def _word_view(data: bytes) -> np.ndarray:
     """The 8 bytes from each offset of `data` as a little-endian uint64 (an unaligned view, zero-padded)."""
-    return np.ndarray((len(data),), "<u8", data + bytes(8), 0, (1,))
+    return np.ndarray((len(data) + 1,), "<u8", data + bytes(8), 0, (1,))
 
 
 def _words(words: np.ndarray, at: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """words[at] (see _word_view) with the bytes from the n-th on zeroed."""
-    return words[at] & _BYTE_MASK[np.clip(n, 0, 8)]
+    """words[at] (see _word_view) with the bytes from the n-th on zeroed (all of them, past the data's end)."""
+    return words[np.minimum(at, len(words) - 1)] & _BYTE_MASK[np.clip(n, 0, 8)]
 
 
 class _Layout:

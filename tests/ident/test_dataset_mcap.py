@@ -149,3 +149,17 @@ def test_a_cut_file_gives_the_dataset_of_the_messages_it_still_holds(tmp_path):
     assert sorted(got) == sorted(want) and str(got.pop("meta")) == str(want.pop("meta"))
     for name, values in want.items():
         np.testing.assert_array_equal(got[name], values, err_msg=name)
+
+
+def test_a_file_of_decoded_messages_only_reads_to_its_last_byte(tmp_path):
+    """The last value of a batch sits a few bytes before the end of the chunk data: parsing it must not read
+    past the end (a file without /can/raw or flow-meter messages after the last /j1939 record)."""
+    recs = [(topic, ns, rec) for topic, ns, rec in recording(1_700_000_000.0, 30.0, 6)
+            if topic in ("/j1939/EEC1", "/j1939/LFE1", "/j1939/EC1")]
+    recs.append(("/j1939/EEC1", recs[-1][1] + 1, _record(recs[-1][2]["t"], 61444, 0, {
+        "EngTorqueMode": 0.15000000000000002, "DriversDemandEngPercentTorque": 1.0000000000000002,
+        "ActualEngPercentTorque": 3.0000000000000004, "EngSpeed": 1234.5678901234567})))
+    got, want = frozen(build([write_mcap(tmp_path / "d.mcap", recs)], {})), frozen(build(recs, {}))
+    assert str(got.pop("meta")) == str(want.pop("meta"))
+    for name, values in want.items():
+        np.testing.assert_array_equal(got[name], values, err_msg=name)
