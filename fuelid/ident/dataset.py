@@ -378,6 +378,11 @@ def _median(values: np.ndarray, counts: np.ndarray) -> float:
     return float(np.median(values[np.searchsorted(cum, middle, side="right")]))
 
 
+def _narrow(x: np.ndarray) -> np.ndarray:
+    """Non-negative integers x as int32 when they fit (they do, but for a tiny Ts or a huge one)."""
+    return x.astype(np.int32) if not len(x) or x.max() < 2**31 else x
+
+
 class _Binned:
     """The valid samples of one signal from one source address, reduced per bin of the absolute grid
     k = t // Ts as they arrive: count, sum (in time order, as np.bincount adds), and the last sample; plus
@@ -387,6 +392,7 @@ class _Binned:
         self.arrival, self._ts, self._mean = arrival, ts_ns, mean
         self.n, self.t_min, self.t_last = 0, None, None
         self._blocks: list[tuple] = []
+        self._k_first: int | None = None
         self._tail = (np.zeros(0, np.int64), np.zeros(0))  # the samples of the newest bin, still open
         self._steps: dict[int, int] = {}
         self._values: dict[float, int] | None = {} if values else None
@@ -410,21 +416,38 @@ class _Binned:
         self._tail = (t[cut:], v[cut:])
 
     def _close(self, t, v, k) -> None:
+        # Kept compact (grid-sized memory is the point): bins as int32 steps from the signal's first bin, the
+        # last sample's time as its int32 offset [ns] in its bin, counts and sums only for averaged signals.
         if not len(t):
             return
         first = np.concatenate([[0], np.flatnonzero(np.diff(k)) + 1])
         last = np.concatenate([first[1:], [len(k)]]) - 1
-        sums = np.bincount(np.repeat(np.arange(len(first)), last - first + 1), weights=v) if self._mean else None
-        self._blocks.append((k[first], last - first + 1, sums, t[last], v[last]))
+        if self._k_first is None:
+            self._k_first = int(k[0])
+        counts = (last - first + 1) if self._mean else None
+        sums = np.bincount(np.repeat(np.arange(len(first)), counts), weights=v) if self._mean else None
+        steps, offsets = k[first] - self._k_first, t[last] - k[last] * self._ts
+        self._blocks.append((_narrow(steps), _narrow(offsets), v[last],
+                             None if counts is None else _narrow(counts), sums))
 
     def finish(self) -> None:
+        """Bin the samples of the last bin too."""
         t, v = self._tail
         self._close(t, v, t // self._ts)
         self._tail = (t[:0], v[:0])
-        bins, counts, sums, last_t, last_v = zip(*self._blocks)
-        self.bins, self.counts, self.last_t, self.last_v = (np.concatenate(x) for x in (bins, counts, last_t, last_v))
-        self.sums = np.concatenate(sums) if self._mean else None
-        self._blocks = []
+
+    def bins(self) -> np.ndarray:
+        """The bins k that have samples, increasing."""
+        return self._k_first + np.concatenate([b[0] for b in self._blocks]).astype(np.int64)
+
+    def last(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per bin with samples: the time [ns] and value of its last sample."""
+        k = self.bins()
+        return k * self._ts + np.concatenate([b[1] for b in self._blocks]), np.concatenate([b[2] for b in self._blocks])
+
+    def means(self) -> np.ndarray:
+        """Per bin with samples: the mean of its samples (averaged signals only)."""
+        return np.concatenate([b[4] for b in self._blocks]) / np.concatenate([b[3] for b in self._blocks]).astype(np.int64)
 
     def median_step(self) -> float:
         """Median time between consecutive samples [ns]."""
@@ -548,14 +571,15 @@ def _choose(sig: dict, preference: dict) -> tuple[dict[str, _Binned], dict]:
 def _resample(s: _Binned, k_rows, k0, Ts, hold, mean):
     """One signal on the grid rows k_rows (bin numbers from bin k0): bin mean (or last sample) with a hold of
     at most `hold`; Ts, hold in integer ns, so a sample on a bin boundary always opens the bin."""
-    bins = s.bins - k0
+    bins = s.bins() - k0
+    last_t, last_v = s.last()
     bin_end = (k0 + k_rows + 1) * Ts
     j = np.searchsorted(bins, k_rows, side="right") - 1  # the last bin with samples up to each row
     out = np.full(len(k_rows), np.nan)
-    fresh = (j >= 0) & (bin_end - s.last_t[np.maximum(j, 0)] <= hold)
-    out[fresh] = s.last_v[j[fresh]]
+    fresh = (j >= 0) & (bin_end - last_t[np.maximum(j, 0)] <= hold)
+    out[fresh] = last_v[j[fresh]]
     if mean:
-        out[np.searchsorted(k_rows, bins)] = s.sums / s.counts
+        out[np.searchsorted(k_rows, bins)] = s.means()
     return out
 
 
@@ -633,7 +657,9 @@ def build_dataset(
                  "meter's capture beside it, `fuelid convert LOG --flowmeter CAPTURE.flow`"))
 
     k0 = min(s.t_min for s in chosen.values()) // ts_ns  # bins start at multiples of Ts
-    occupied = np.unique(np.concatenate([s.bins - k0 for s in chosen.values()]))
+    occupied = np.zeros(0, np.int64)
+    for s in chosen.values():  # one signal's bins at a time
+        occupied = np.union1d(occupied, s.bins() - k0)
     span = int(np.ceil(max_gap_s / Ts)) + 2  # hold bins + one invalid row after a gap
     k_rows = np.unique((occupied[:, None] + np.arange(span)).ravel())
     k_rows = k_rows[k_rows <= occupied[-1]]  # nothing held past the end of the data
