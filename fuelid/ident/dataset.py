@@ -35,6 +35,14 @@ accessories, a few % of the reference torque). idle_rpm defaults to EC1.EngSpeed
 else 600 rpm. `u`, `y` are kept absolute; `du`, `dy` are the deviations the paper identifies on (PolyModel
 subtracts its u0, y0 itself).
 
+Reading (bounded memory). Files are read a batch of verified chunks at a time (`logger.mcap_log.read_chunks`,
+/can/raw skipped); /j1939 records laid out alike are parsed column-wise with numpy (each record's keys checked
+byte for byte, its numbers parsed as one text), any other record one by one. Each signal's samples per source
+address are reduced as they arrive to, per bin: count, sum (added in time order, as np.bincount adds) and the
+last sample, plus the counts of its time steps (for the median period) — memory grows with the grid, not the
+records. A signal whose samples come out of time order (a log clock that stepped back, files given latest
+first) makes the build start again keeping every sample and sorting at the end: the same values, more memory.
+
 Drive cycles (for eq. 20 / Table I). Each segment is cut into consecutive windows of `cycle_s` seconds
 (default 1800 s, the paper's 30-minute cycles); a remainder shorter than cycle_s joins the window before
 it, and a segment shorter than cycle_s is one cycle. Segments shorter than `min_cycle_s` belong to no
@@ -42,6 +50,7 @@ cycle (id −1). Engine-off stops split segments (no traffic), so a cycle never 
 """
 from __future__ import annotations
 
+import itertools
 import json
 import warnings
 from dataclasses import dataclass, field
@@ -49,11 +58,12 @@ from pathlib import Path
 
 import numpy as np
 from scipy.io import loadmat, savemat
+import orjson
 
 from fuelid.errors import FuelidError
 from fuelid.logger.decode import Decoder, signal_units
 from fuelid.logger.j1939 import DEFAULT_SOURCE_PREFERENCE, preferred_source
-from fuelid.logger.mcap_log import MAGIC, read_messages
+from fuelid.logger.mcap_log import MAGIC, read_chunks, read_messages
 from fuelid.progress import progress
 
 SPEED = "EEC1.EngSpeed"
@@ -65,6 +75,7 @@ FUEL_SIGNALS = {"flowmeter": ("flowmeter.flow_kg_h", "kg/h"), "lfe1": ("LFE1.Eng
 AVERAGED = {SPEED, TORQUE_PCT, VEHICLE_SPEED, *(name for name, _ in FUEL_SIGNALS.values())}
 NOT_SIGNALS = {"t", "pgn", "sa", "da", "invalid", "tp", "device_t", "raw", "status"}
 NUMBER_OR_NULL = {int, float, type(None)}
+MEDIANS = {REF_TORQUE, IDLE_SPEED}  # signals whose median value is used
 
 
 @dataclass
@@ -133,66 +144,46 @@ class Dataset:
         }
 
 
-def _records(sources, damaged=None):
-    """Chain (topic, log_time_ns, record) from MCAP paths (read with a progress bar on a terminal) and/or
-    record iterables; a bare list of records works too. A damaged chunk of a file raises FuelidError, or,
-    when a `damaged` list is given, is skipped and appended to it."""
-    if isinstance(sources, (str, Path)):
-        sources = [sources]
-    spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
-    for src in sources:
-        if isinstance(src, (str, Path)):
-            p = Path(src)
-            if not p.is_file():
-                raise FuelidError(f"{p}: no such file")
-            topics = ["/flowmeter"] + [f"/j1939/{m}" for m in Decoder().message_names()]  # not /can/raw
-            first = last = None
-            for record in progress(read_messages(p, topics, damaged=damaged), desc=p.name, unit="msg"):
-                t = record[1]
-                if first is None:
-                    first = last = t
-                elif t < first:  # comparisons, not min()/max(): this runs once per message
-                    first = t
-                elif t > last:
-                    last = t
-                yield record
-            for other, (a, b) in spans.items():
-                if first is not None and a is not None and first <= b and a <= last:
-                    raise FuelidError(f"{p} and {other} overlap in time: they are not parts of one recording; "
-                                      "give them to separate runs")
-            spans[p] = (first, last)
-        elif isinstance(src, tuple) and len(src) == 3 and isinstance(src[0], str):
-            yield src
-        else:
-            yield from src
+# ---- reading: MCAP chunks or records → valid samples of each signal from each source address ------------
+
+_BATCH_BYTES = 8 << 20  # uncompressed chunk records parsed at once: a few numpy passes each, memory bounded
+_HEAD = 31  # bytes of an MCAP Message record before its data: opcode, length, channel, sequence, two times
+_INVALID_KEY = np.frombuffer(b',"invalid":', np.uint8)
 
 
-def _collect(records) -> dict[str, dict]:
-    """signal name → source address → (log times [ns] int64 array, values float array) of the valid
-    (numeric) samples; signals and addresses in the order their first valid sample arrived.
+@dataclass
+class _Found:
+    """Valid samples of one signal from one source address in one batch of records, in arrival order."""
+    arrival: tuple[int, int]  # (index of the record with the first valid sample, the signal's key position in it)
+    name: str
+    sa: int | None
+    t: np.ndarray  # log times [ns], int64
+    v: np.ndarray  # values in the DBC unit
+
+
+def _message_name(topic: str) -> str | None:
+    return "flowmeter" if topic == "/flowmeter" else topic[7:] if topic.startswith("/j1939/") else None
+
+
+def _found_in_records(records: list[tuple[str, int, dict]], arrival: np.ndarray) -> list[_Found]:
+    """_Found of decoded records (topic, log time [ns], record) whose arrival indices are `arrival`.
 
     Records are grouped by topic and source address, then each signal becomes one column of its group:
-    JSON null (not available) is NaN in a float array and dropped, booleans and strings are no samples. (A
-    per-value dict walk here was the slowest step after reading the file.)"""
-    by_topic: dict[str, tuple[list, list, list]] = {}
-    for n, (topic, log_ns, rec) in enumerate(records):  # once per message: as little work as possible
-        group = by_topic.get(topic)
-        if group is None:
-            group = by_topic[topic] = ([], [], [])
-        group[0].append(n)
-        group[1].append(log_ns)
-        group[2].append(rec)
-    found = []  # (arrival of the first valid sample, its key position in the record, name, sa, times, values)
-    for topic, (order, times, recs) in by_topic.items():
-        if topic == "/flowmeter":
-            msg, sas = "flowmeter", [None] * len(recs)
-        elif topic.startswith("/j1939/"):
-            msg, sas = topic[7:], [r.get("sa") for r in recs]
-        else:
+    JSON null (not available) is NaN in a float array and dropped, booleans and strings are no samples."""
+    by_topic: dict[str, list[int]] = {}
+    for n, (topic, _, _) in enumerate(records):
+        by_topic.setdefault(topic, []).append(n)
+    found = []
+    for topic, idx in by_topic.items():
+        msg = _message_name(topic)
+        if msg is None:
             continue
+        recs = [records[i][2] for i in idx]
+        sas = [None] * len(recs) if msg == "flowmeter" else [r.get("sa") for r in recs]
+        times, order = np.array([records[i][1] for i in idx], dtype=np.int64), arrival[idx]
         for sa in dict.fromkeys(sas):
-            idx = [i for i, a in enumerate(sas) if a == sa]
-            group, group_times = [recs[i] for i in idx], np.asarray(times, np.int64)[idx]
+            sub = [i for i, a in enumerate(sas) if a == sa]
+            group = [recs[i] for i in sub]
             for name in set().union(*group) - NOT_SIGNALS:
                 col = [r.get(name) for r in group]
                 if set(map(type, col)) <= NUMBER_OR_NULL:  # the usual case: numpy makes None NaN
@@ -201,13 +192,10 @@ def _collect(records) -> dict[str, dict]:
                     values = np.array([v if type(v) in (int, float) else np.nan for v in col], dtype=float)
                 keep = ~np.isnan(values)  # JSON has no NaN: NaN here is exactly "no sample"
                 if keep.any():
-                    first = idx[int(np.argmax(keep))]
-                    found.append((order[first], list(recs[first]).index(name), f"{msg}.{name}", sa,
-                                  group_times[keep], values[keep]))
-    sig: dict[str, dict] = {}
-    for _, _, name, sa, ts, vs in sorted(found, key=lambda f: f[:2]):
-        sig.setdefault(name, {})[sa] = (ts, vs)
-    return sig
+                    first = int(np.argmax(keep))
+                    found.append(_Found((int(order[sub[first]]), list(group[first]).index(name)), f"{msg}.{name}",
+                                        sa, times[sub][keep], values[keep]))
+    return found
 
 
 def _cut_files(sources) -> str:
@@ -226,32 +214,389 @@ def _cut_files(sources) -> str:
     return "; " + "; ".join(notes) + " (`fuelid recover` rewrites what is left)" if notes else ""
 
 
-def _choose(sig: dict, preference: dict) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict]:
-    """Per signal the samples of one source address (preferred, else the one with most samples), time-sorted."""
+def _u64(arr: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The little-endian uint64 at each offset `at` of the byte array `arr`, as int64."""
+    return arr[at[:, None] + np.arange(8)].copy().view("<u8").ravel().astype(np.int64)
+
+
+def _message_starts(data: bytes, arr: np.ndarray, braces: np.ndarray) -> np.ndarray:
+    """Offsets of the Message records among the MCAP records `data` (arr: its bytes, braces: offsets of '{').
+
+    Messages whose JSON starts with {"t": (every fuelid record) are found by that text, 31 bytes after their
+    opcode; a run of them counts only where each record ends exactly where the next begins, starting from a
+    known record boundary, so a false hit (those bytes inside a header) can never be taken for a record.
+    Everything else (schemas, channels, other messages) is walked record by record."""
+    c = braces[(braces >= _HEAD) & (braces + 4 < len(arr))]
+    c = c[(arr[c + 1] == 34) & (arr[c + 2] == 116) & (arr[c + 3] == 34) & (arr[c + 4] == 58) & (arr[c - _HEAD] == 5)]
+    starts = c - _HEAD
+    ends = starts + 9 + _u64(arr, starts + 1)
+    breaks = np.flatnonzero(ends[:-1] != starts[1:])
+    out, pos, size = [], 0, len(data)
+    while pos < size:
+        i = int(np.searchsorted(starts, pos))
+        if i < len(starts) and starts[i] == pos:  # a chained run from here
+            b = int(np.searchsorted(breaks, i))
+            last = int(breaks[b]) if b < len(breaks) else len(starts) - 1
+            out.append(starts[i:last + 1])
+            pos = int(ends[last])
+        else:
+            opcode, length = data[pos], int.from_bytes(data[pos + 1:pos + 9], "little")
+            if opcode == 5:
+                out.append(np.array([pos], dtype=np.int64))
+            pos += 9 + length
+    return np.concatenate(out) if out else np.zeros(0, np.int64)
+
+
+_BYTE_MASK = np.array([(1 << (8 * n)) - 1 for n in range(8)] + [(1 << 64) - 1], dtype=np.uint64)
+_SPACES = np.frombuffer(b" " * 8, np.uint64)[0]
+_COMMA = np.frombuffer(b",       ", np.uint64)[0]
+
+
+def _word_view(data: bytes) -> np.ndarray:
+    """The 8 bytes from each offset of `data` as a little-endian uint64 (an unaligned view, zero-padded)."""
+    return np.ndarray((len(data) + 1,), "<u8", data + bytes(8), 0, (1,))
+
+
+def _words(words: np.ndarray, at: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """words[at] (see _word_view) with the bytes from the n-th on zeroed (all of them, past the data's end)."""
+    return words[np.minimum(at, len(words) - 1)] & _BYTE_MASK[np.clip(n, 0, 8)]
+
+
+class _Layout:
+    """The keys of a /j1939 record up to "invalid" as JSON text, to recognise and parse records laid out alike."""
+
+    def __init__(self, record: dict):
+        keys = list(record)
+        self.keys = keys[:keys.index("invalid")] if "invalid" in keys else keys
+        self.ok = ("invalid" in keys and set(keys[keys.index("invalid") + 1:]) <= {"tp"} and "sa" in self.keys
+                   and self.keys[0] == "t")
+        self.text = [orjson.dumps(k) for k in self.keys]
+        self.columns = [i for i, k in enumerate(self.keys) if k not in NOT_SIGNALS or k == "sa"]
+
+
+def _alike(words, arr, colons, commas, braces, start, end, layout: _Layout) -> tuple | None:
+    """(colon, end) byte offsets (records × layout.columns) of the values of the JSON records at
+    the records at [start, end) when every one is laid out as `layout`, else None (the caller parses them one by one):
+    each record's keys are compared with the layout's, byte for byte; a value runs from its key's colon to
+    the next comma."""
+    k = len(layout.keys)
+    inner = braces[np.searchsorted(braces, end) - 1]  # the "invalid" object opens at the last '{' of a record
+    if not (inner > start).all() or not (arr[inner[:, None] - 11 + np.arange(11)] == _INVALID_KEY).all():
+        return None
+    head_end = inner - 11
+    lo, hi = np.searchsorted(colons, start), np.searchsorted(colons, head_end)
+    clo, chi = np.searchsorted(commas, start), np.searchsorted(commas, head_end)
+    if not ((hi - lo == k).all() and (chi - clo == k - 1).all() and (arr[start] == 123).all()):
+        return None
+    colon = colons[lo[:, None] + np.arange(k)]
+    comma = commas[clo[:, None] + np.arange(k - 1)]
+    key_from = np.column_stack([start, comma]) + 1  # first byte of each key's text (its opening quote)
+    value_end = np.column_stack([comma, head_end])
+    if not (colon + 1 < value_end).all():
+        return None
+    for j, text in enumerate(layout.text):
+        if not (colon[:, j] - key_from[:, j] == len(text)).all():
+            return None
+        for m in range(0, len(text), 8):
+            piece = text[m:m + 8]
+            want = np.frombuffer(piece.ljust(8, b"\0"), np.uint64)[0]
+            if not (_words(words, key_from[:, j] + m, np.full(len(start), len(piece))) == want).all():
+                return None
+    return colon[:, layout.columns], value_end[:, layout.columns]
+
+
+def _numbers(words: np.ndarray, colon: np.ndarray, end: np.ndarray) -> np.ndarray | None:
+    """The JSON numbers (null → NaN) at bytes [colon + 1, end) (words: _word_view) for each (colon, end), in that order, parsed by
+    numpy as one text of fixed-width fields; None when one is not a number or null."""
+    width = int(np.ceil((end - colon - 1).max() / 8))
+    field = np.empty((len(colon), width + 1), np.uint64)
+    field[:, 0] = _COMMA
+    for m in range(width):
+        n = end - colon - 1 - 8 * m
+        field[:, m + 1] = _words(words, colon + 1 + 8 * m, n) | (_SPACES & ~_BYTE_MASK[np.clip(n, 0, 8)])
+    text = field.tobytes()[1:].replace(b"null", b"nan ")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            values = np.fromstring(text, dtype=float, sep=",")
+    except (ValueError, DeprecationWarning):  # true, false, a string: not numbers
+        return None
+    return values if values.size == len(colon) else None
+
+
+def _found_in_chunks(data: bytes, topics: dict[int, str], first_arrival: int,
+                     layouts: dict) -> tuple[list[_Found], int, tuple | None]:
+    """_Found of the /j1939 and /flowmeter messages among the MCAP records `data` (whole chunks), their arrival
+    indices counted from first_arrival; also how many there were and their (first, last) log time [ns].
+
+    /j1939 records laid out alike are parsed column-wise (_alike, _numbers); the others one by one."""
+    arr = np.frombuffer(data, np.uint8)
+    braces = np.flatnonzero(arr == 123)
+    starts = _message_starts(data, arr, braces)
+    channel = arr[starts + 9].astype(np.int64) | arr[starts + 10].astype(np.int64) << 8
+    keep = np.isin(channel, list(topics))
+    starts, channel = starts[keep], channel[keep]
+    if not len(starts):
+        return [], 0, None
+    log_time = _u64(arr, starts + 15)
+    data_end = starts + 9 + _u64(arr, starts + 1)
+    arrival = first_arrival + np.arange(len(starts))
+    words = _word_view(data)
+    scans = (words, arr, np.flatnonzero(arr == 58), np.flatnonzero(arr == 44), braces)
+    fast, slow = [], []  # fast: (topic, record indices, layout, value table)
+    for ch in np.unique(channel):
+        topic, idx = topics[int(ch)], np.flatnonzero(channel == ch)
+        begin, end = starts[idx] + _HEAD, data_end[idx]
+        layout = layouts.get(topic)
+        if layout is None and topic != "/flowmeter":
+            layout = layouts[topic] = _Layout(orjson.loads(data[begin[0]:end[0]]))
+        spans = _alike(*scans, begin, end, layout) if layout is not None and layout.ok else None
+        table = None if spans is None else _numbers(words, spans[0].ravel(), spans[1].ravel())
+        if table is None:
+            slow.append(idx)
+        else:
+            fast.append((topic, idx, layout, table.reshape(spans[0].shape)))
+    found = []
+    for topic, idx, layout, table in fast:
+        keys = [layout.keys[i] for i in layout.columns]
+        sa_col = table[:, keys.index("sa")]
+        if not (sa_col == np.round(sa_col)).all():  # null or not a whole number: as the records say, one by one
+            slow.append(idx)
+            continue
+        for sa in dict.fromkeys(sa_col.tolist()):
+            group = np.flatnonzero(sa_col == sa)
+            for j, key in enumerate(keys):
+                if key in NOT_SIGNALS:
+                    continue
+                col = table[group, j]
+                ok = ~np.isnan(col)
+                if ok.any():
+                    at = idx[group[int(np.argmax(ok))]]
+                    found.append(_Found((int(arrival[at]), layout.columns[j]), f"{_message_name(topic)}.{key}",
+                                        int(sa), log_time[idx[group[ok]]], col[ok]))
+    if slow:
+        slow = np.sort(np.concatenate(slow))
+        records = [(topics[int(channel[i])], int(log_time[i]), orjson.loads(data[starts[i] + _HEAD:data_end[i]]))
+                   for i in slow]
+        found += _found_in_records(records, arrival[slow])
+    return found, len(starts), (int(log_time.min()), int(log_time.max()))
+
+
+class _OutOfOrder(Exception):
+    """Samples of a signal came earlier than ones already binned: their bins must be summed in time order."""
+
+
+def _median(values: np.ndarray, counts: np.ndarray) -> float:
+    """np.median of the multiset where values[i] (sorted) occurs counts[i] times, from its one or two middle
+    elements, so the result is the very float np.median gives on the whole array."""
+    n = int(counts.sum())
+    cum = np.cumsum(counts)
+    middle = [n // 2] if n % 2 else [n // 2 - 1, n // 2]
+    return float(np.median(values[np.searchsorted(cum, middle, side="right")]))
+
+
+def _narrow(x: np.ndarray) -> np.ndarray:
+    """Non-negative integers x as int32 when they fit (they do, but for a tiny Ts or a huge one)."""
+    return x.astype(np.int32) if not len(x) or x.max() < 2**31 else x
+
+
+class _Binned:
+    """The valid samples of one signal from one source address, reduced per bin of the absolute grid
+    k = t // Ts as they arrive: count, sum (in time order, as np.bincount adds), and the last sample; plus
+    how often each time step and (for signals whose median is used) each value occurred."""
+
+    def __init__(self, arrival: tuple[int, int], ts_ns: int, mean: bool, values: bool):
+        self.arrival, self._ts, self._mean = arrival, ts_ns, mean
+        self.n, self.t_min, self.t_last = 0, None, None
+        self._blocks: list[tuple] = []
+        self._k_first: int | None = None
+        self._tail = (np.zeros(0, np.int64), np.zeros(0))  # the samples of the newest bin, still open
+        self._steps: dict[int, int] = {}
+        self._values: dict[float, int] | None = {} if values else None
+
+    def add(self, t: np.ndarray, v: np.ndarray) -> None:
+        """Samples in arrival order; _OutOfOrder when one is earlier than its predecessor."""
+        steps = np.diff(t) if self.t_last is None else np.diff(np.concatenate([[self.t_last], t]))
+        if (steps < 0).any():
+            raise _OutOfOrder
+        for counter, new in ((self._steps, steps), (self._values, v)):
+            if counter is not None:
+                for x, c in zip(*np.unique(new, return_counts=True)):
+                    counter[x.item()] = counter.get(x.item(), 0) + int(c)
+        self.n += len(t)
+        self.t_min = int(t[0]) if self.t_min is None else self.t_min
+        self.t_last = int(t[-1])
+        t, v = np.concatenate([self._tail[0], t]), np.concatenate([self._tail[1], v])
+        k = t // self._ts
+        cut = int(np.searchsorted(k, k[-1]))
+        self._close(t[:cut], v[:cut], k[:cut])
+        self._tail = (t[cut:], v[cut:])
+
+    def _close(self, t, v, k) -> None:
+        # Kept compact (grid-sized memory is the point): bins as int32 steps from the signal's first bin, the
+        # last sample's time as its int32 offset [ns] in its bin, counts and sums only for averaged signals.
+        if not len(t):
+            return
+        first = np.concatenate([[0], np.flatnonzero(np.diff(k)) + 1])
+        last = np.concatenate([first[1:], [len(k)]]) - 1
+        if self._k_first is None:
+            self._k_first = int(k[0])
+        counts = (last - first + 1) if self._mean else None
+        sums = np.bincount(np.repeat(np.arange(len(first)), counts), weights=v) if self._mean else None
+        steps, offsets = k[first] - self._k_first, t[last] - k[last] * self._ts
+        self._blocks.append((_narrow(steps), _narrow(offsets), v[last],
+                             None if counts is None else _narrow(counts), sums))
+
+    def finish(self) -> None:
+        """Bin the samples of the last bin too."""
+        t, v = self._tail
+        self._close(t, v, t // self._ts)
+        self._tail = (t[:0], v[:0])
+
+    def bins(self) -> np.ndarray:
+        """The bins k that have samples, increasing."""
+        return self._k_first + np.concatenate([b[0] for b in self._blocks]).astype(np.int64)
+
+    def last(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per bin with samples: the time [ns] and value of its last sample."""
+        k = self.bins()
+        return k * self._ts + np.concatenate([b[1] for b in self._blocks]), np.concatenate([b[2] for b in self._blocks])
+
+    def means(self) -> np.ndarray:
+        """Per bin with samples: the mean of its samples (averaged signals only)."""
+        return np.concatenate([b[4] for b in self._blocks]) / np.concatenate([b[3] for b in self._blocks]).astype(np.int64)
+
+    def median_step(self) -> float:
+        """Median time between consecutive samples [ns]."""
+        keys = np.array(sorted(self._steps))
+        return _median(keys, np.array([self._steps[x] for x in keys]))
+
+    def median_value(self) -> float:
+        keys = np.array(sorted(self._values))
+        return _median(keys, np.array([self._values[x] for x in keys]))
+
+
+class _Signals:
+    """Every signal's _Binned per source address. With `in_order` False the samples are kept whole and
+    time-sorted at the end (a recording whose clock stepped back): exact, but memory grows with the records."""
+
+    def __init__(self, ts_ns: int, in_order: bool):
+        self._ts, self._in_order = ts_ns, in_order
+        self.by_key: dict[tuple[str, int | None], _Binned] = {}
+        self._kept: dict[tuple, list] = {}
+
+    def add(self, found: list[_Found]) -> None:
+        for f in found:
+            key = (f.name, f.sa)
+            binned = self.by_key.get(key)
+            if binned is None:
+                binned = self.by_key[key] = _Binned(f.arrival, self._ts, f.name in AVERAGED, f.name in MEDIANS)
+            if self._in_order:
+                binned.add(f.t, f.v)
+            else:
+                self._kept.setdefault(key, []).append((f.t, f.v))
+
+    def finish(self) -> dict[str, dict]:
+        """signal name → source address → its finished _Binned, both in the order their first valid sample
+        arrived (then the key's place in its record)."""
+        for key, parts in self._kept.items():
+            t, v = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+            order = np.argsort(t, kind="stable")
+            self.by_key[key].add(t[order], v[order])
+        sig: dict[str, dict] = {}
+        for (name, sa), binned in sorted(self.by_key.items(), key=lambda item: item[1].arrival):
+            binned.finish()
+            sig.setdefault(name, {})[sa] = binned
+        return sig
+
+
+def _read(sources, ts_ns: int, damaged: list | None, in_order: bool) -> dict[str, dict]:
+    """The signals of MCAP paths and/or lists of (topic, log_time_ns, record) records, see _Signals.finish.
+    Files are read chunk batch by chunk batch (with a progress bar on a terminal). A damaged chunk of a file
+    raises FuelidError, or, when a `damaged` list is given, is skipped and appended to it."""
+    signals = _Signals(ts_ns, in_order)
+    spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
+    arrival = 0
+    topics = ["/flowmeter"] + [f"/j1939/{m}" for m in Decoder().message_names()]  # not /can/raw
+    for src in sources:
+        if not isinstance(src, Path):
+            signals.add(_found_in_records(src, arrival + np.arange(len(src))))
+            arrival += len(src)
+            continue
+        first = last = None
+        layouts: dict[str, _Layout] = {}
+        batch, size = [], 0
+        chunks = progress(read_chunks(src, topics, damaged=damaged), desc=src.name, unit="chunk")
+        ids: dict[int, str] = {}
+        for new_ids, data in itertools.chain(chunks, [(None, None)]):
+            if data is not None:
+                ids = new_ids
+                batch.append(data)
+                size += len(data)
+                if size < _BATCH_BYTES:
+                    continue
+            if batch:
+                found, count, span = _found_in_chunks(b"".join(batch), ids, arrival, layouts)
+                signals.add(found)
+                arrival += count
+                if span is not None:
+                    first = span[0] if first is None else min(first, span[0])
+                    last = span[1] if last is None else max(last, span[1])
+            batch, size = [], 0
+        for other, (a, b) in spans.items():
+            if first is not None and a is not None and first <= b and a <= last:
+                raise FuelidError(f"{src} and {other} overlap in time: they are not parts of one recording; "
+                                  "give them to separate runs")
+        spans[src] = (first, last)
+    return signals.finish()
+
+
+def _sources(sources) -> list:
+    """MCAP paths (checked to exist) and lists of records, from what build_dataset accepts."""
+    if isinstance(sources, (str, Path)):
+        sources = [sources]
+    out, records = [], []
+    for src in sources:
+        if isinstance(src, (str, Path)):
+            if records:
+                out.append(records)
+                records = []
+            p = Path(src)
+            if not p.is_file():
+                raise FuelidError(f"{p}: no such file")
+            out.append(p)
+        elif isinstance(src, tuple) and len(src) == 3 and isinstance(src[0], str):
+            records.append(src)
+        else:
+            out.append(list(src))
+    if records:
+        out.append(records)
+    return out
+
+
+def _choose(sig: dict, preference: dict) -> tuple[dict[str, _Binned], dict]:
+    """Per signal the samples of one source address (preferred, else the one with most samples)."""
     chosen, used = {}, {}
     for name, by_sa in sig.items():
         msg = name.split(".", 1)[0]
         pref = None if msg == "flowmeter" else preferred_source(msg, preference)
-        sa = pref if pref in by_sa else max(by_sa, key=lambda a: len(by_sa[a][0]))
-        ts, vs = by_sa[sa]
-        order = np.argsort(ts, kind="stable")
-        chosen[name], used[name] = (ts[order], vs[order]), sa
+        sa = pref if pref in by_sa else max(by_sa, key=lambda a: by_sa[a].n)
+        chosen[name], used[name] = by_sa[sa], sa
     return chosen, used
 
 
-def _resample(ts, vs, k_rows, t0, Ts, hold, mean):
-    """One signal on the grid rows k_rows (bin numbers): bin mean (or last sample) with a hold of at most
-    `hold`; times ts, t0, Ts, hold in integer ns, so a sample on a bin boundary always opens the bin."""
-    bin_end = t0 + (k_rows + 1) * Ts
-    j = np.searchsorted(ts, bin_end, side="left") - 1  # last sample before each bin's end
+def _resample(s: _Binned, k_rows, k0, Ts, hold, mean):
+    """One signal on the grid rows k_rows (bin numbers from bin k0): bin mean (or last sample) with a hold of
+    at most `hold`; Ts, hold in integer ns, so a sample on a bin boundary always opens the bin."""
+    bins = s.bins() - k0
+    last_t, last_v = s.last()
+    bin_end = (k0 + k_rows + 1) * Ts
+    j = np.searchsorted(bins, k_rows, side="right") - 1  # the last bin with samples up to each row
     out = np.full(len(k_rows), np.nan)
-    fresh = (j >= 0) & (bin_end - ts[np.maximum(j, 0)] <= hold)
-    out[fresh] = vs[j[fresh]]
+    fresh = (j >= 0) & (bin_end - last_t[np.maximum(j, 0)] <= hold)
+    out[fresh] = last_v[j[fresh]]
     if mean:
-        row = np.searchsorted(k_rows, (ts - t0) // Ts)
-        n = np.bincount(row, minlength=len(k_rows))
-        s = np.bincount(row, weights=vs, minlength=len(k_rows))
-        out[n > 0] = s[n > 0] / n[n > 0]
+        out[np.searchsorted(k_rows, bins)] = s.means()
     return out
 
 
@@ -307,8 +652,15 @@ def build_dataset(
         raise FuelidError(f"sampling interval must be positive, got {Ts} s")
     if fuel not in ("auto", *FUEL_SIGNALS):
         raise FuelidError(f"fuel must be auto, flowmeter or lfe1, got {fuel!r}")
-    damaged = [] if skip_damaged else None
-    chosen, used = _choose(_collect(_records(sources, damaged)), source_preference)
+    ts_ns = int(round(Ts * 1e9))
+    sources = _sources(sources)
+    try:
+        damaged = [] if skip_damaged else None
+        sig = _read(sources, ts_ns, damaged, in_order=True)
+    except _OutOfOrder:
+        damaged = [] if skip_damaged else None
+        sig = _read(sources, ts_ns, damaged, in_order=False)
+    chosen, used = _choose(sig, source_preference)
     if fuel == "auto":
         fuel = "flowmeter" if FUEL_SIGNALS["flowmeter"][0] in chosen else "lfe1"
     fuel_name, fuel_unit = FUEL_SIGNALS[fuel]
@@ -322,23 +674,23 @@ def build_dataset(
                 else ": a gas truck's engine may not send its fuel rate (LFE1); convert its recording with the flow "
                      "meter's capture beside it, `fuelid convert LOG --flowmeter CAPTURE.flow`")))
 
-    ts_ns = int(round(Ts * 1e9))
-    t0 = min(int(ts[0]) for ts, _ in chosen.values()) // ts_ns * ts_ns  # bins start at multiples of Ts
-    occupied = np.unique(np.concatenate([(ts - t0) // ts_ns for ts, _ in chosen.values()]))
+    k0 = min(s.t_min for s in chosen.values()) // ts_ns  # bins start at multiples of Ts
+    occupied = np.zeros(0, np.int64)
+    for s in chosen.values():  # one signal's bins at a time
+        occupied = np.union1d(occupied, s.bins() - k0)
     span = int(np.ceil(max_gap_s / Ts)) + 2  # hold bins + one invalid row after a gap
     k_rows = np.unique((occupied[:, None] + np.arange(span)).ravel())
     k_rows = k_rows[k_rows <= occupied[-1]]  # nothing held past the end of the data
 
     def grid(name, hold_s=max_gap_s):
-        ts, vs = chosen[name]
-        return _resample(ts, vs, k_rows, t0, ts_ns, int(hold_s * 1e9), name in AVERAGED)
+        return _resample(chosen[name], k_rows, k0, ts_ns, int(hold_s * 1e9), name in AVERAGED)
 
     notes = [f"skipped {d}" for d in damaged or ()]
     for note in notes:
         warnings.warn(note, stacklevel=2)
     speed, pct, y = grid(SPEED), grid(TORQUE_PCT), grid(fuel_name)
     if REF_TORQUE in chosen:
-        torque, torque_unit = pct * np.median(chosen[REF_TORQUE][1]) / 100.0, "Nm"
+        torque, torque_unit = pct * chosen[REF_TORQUE].median_value() / 100.0, "Nm"
     else:
         torque, torque_unit = pct, "%"
         notes.append("EC1 (engine reference torque) never arrived: torque kept in % of reference torque")
@@ -347,14 +699,14 @@ def build_dataset(
     valid = np.isfinite(u).all(axis=1) & np.isfinite(y)
 
     extra = {}
-    for name, (ts, vs) in chosen.items():
+    for name, s in chosen.items():
         if name in (SPEED, TORQUE_PCT, fuel_name):
             continue
-        period = float(np.median(np.diff(ts))) * 1e-9 if len(ts) > 1 else 0.0
+        period = s.median_step() * 1e-9 if s.n > 1 else 0.0
         extra[name] = grid(name, max(max_gap_s, 3 * period))
 
     if idle_rpm is None:
-        idle_rpm = float(np.median(chosen[IDLE_SPEED][1])) if IDLE_SPEED in chosen else 600.0
+        idle_rpm = chosen[IDLE_SPEED].median_value() if IDLE_SPEED in chosen else 600.0
     idle = valid & (np.abs(speed - idle_rpm) <= idle_tol_rpm)
     if VEHICLE_SPEED in extra:
         idle &= extra[VEHICLE_SPEED] < 2.0
@@ -367,7 +719,7 @@ def build_dataset(
         warnings.warn(notes[-1], stacklevel=2)
 
     ds = Dataset(
-        Ts=float(Ts), t=(t0 + k_rows * ts_ns) * 1e-9, u=u, y=y,
+        Ts=float(Ts), t=(k0 * ts_ns + k_rows * ts_ns) * 1e-9, u=u, y=y,
         input_names=(SPEED, "EngTorque"), input_units=("rpm", torque_unit),
         output_name=fuel_name, output_unit=fuel_unit, u0=u0, y0=y0, valid=valid,
         cycle=np.full(len(k_rows), -1, dtype=np.int64), extra=extra, sources=used, notes=notes,

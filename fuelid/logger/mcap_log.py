@@ -490,28 +490,36 @@ def _damage_handler(damaged: list[DamagedChunk] | None) -> Callable[[DamagedChun
     return refuse
 
 
+def _indexed_chunks(path: str | Path, f: IO[bytes], reader: SeekingReader, wanted: set[str] | None,
+                    on_damage: Callable[[DamagedChunk], None]) -> Iterator[tuple[dict[int, str], bytes]]:
+    """(channel id → topic of the wanted JSON channels, verified records) of each chunk of an indexed file
+    that may hold a wanted channel, in file order."""
+    try:
+        summary = reader.get_summary()
+    except Exception as exc:  # mcap, struct and decoding errors alike: a damaged complete file
+        raise FuelidError(f"damaged MCAP file {path} ({exc}); try `fuelid recover`") from exc
+    ids = {i: c.topic for i, c in summary.channels.items()
+           if c.message_encoding == "json" and (wanted is None or c.topic in wanted)}
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+        for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+            if index.message_index_offsets and not ids.keys() & index.message_index_offsets.keys():
+                continue  # the chunk's message index says none of the wanted channels is in it
+            start, end = index.chunk_start_offset, index.chunk_start_offset + index.chunk_length
+            found = _verified_chunk(buf, start, min(end, len(buf)))
+            if found is None or found[2] != end:
+                on_damage(DamagedChunk(Path(path), start, end, _what_is_wrong(buf, start, end)))
+                continue
+            yield ids, found[1]
+
+
 def _raw_messages(path: str | Path, topics: Iterable[str] | None,
                   on_damage: Callable[[DamagedChunk], None]) -> Iterator[tuple[str, int, bytes]]:
     wanted = None if topics is None else set([topics] if isinstance(topics, str) else topics)
     f, reader = _open(path)
     with f:
         if reader is not None:
-            try:
-                summary = reader.get_summary()
-            except Exception as exc:  # mcap, struct and decoding errors alike: a damaged complete file
-                raise FuelidError(f"damaged MCAP file {path} ({exc}); try `fuelid recover`") from exc
-            ids = {i: c.topic for i, c in summary.channels.items()
-                   if c.message_encoding == "json" and (wanted is None or c.topic in wanted)}
-            with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
-                for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
-                    if index.message_index_offsets and not ids.keys() & index.message_index_offsets.keys():
-                        continue  # the chunk's message index says none of the wanted channels is in it
-                    start, end = index.chunk_start_offset, index.chunk_start_offset + index.chunk_length
-                    found = _verified_chunk(buf, start, min(end, len(buf)))
-                    if found is None or found[2] != end:
-                        on_damage(DamagedChunk(Path(path), start, end, _what_is_wrong(buf, start, end)))
-                        continue
-                    yield from _chunk_messages(found[1], ids)
+            for ids, data in _indexed_chunks(path, f, reader, wanted, on_damage):
+                yield from _chunk_messages(data, ids)
             return
         channels: dict[int, Channel] = {}
         for record in _Scan(f, Path(path), on_damage).records():
@@ -521,6 +529,33 @@ def _raw_messages(path: str | Path, topics: Iterable[str] | None,
                 channel = channels[record.channel_id]
                 if channel.message_encoding == "json" and (wanted is None or channel.topic in wanted):
                     yield channel.topic, record.log_time, record.data
+
+
+def read_chunks(path: str | Path, topics: Iterable[str], *,
+                damaged: list[DamagedChunk] | None = None) -> Iterator[tuple[dict[int, str], bytes]]:
+    """(channel id → topic of the wanted JSON channels, records) for every chunk of `path` that may hold one
+    of `topics`, in file order: the chunk's uncompressed records in MCAP record framing, verified as in
+    `read_messages`, for callers that parse many messages at once. A file without a usable index is scanned
+    and its messages come re-framed as Message records, a few thousand at a time. Damage as in
+    `read_messages`; FuelidError for a file that is not MCAP."""
+    wanted, on_damage = set(topics), _damage_handler(damaged)
+    f, reader = _open(path)
+    with f:
+        if reader is not None:
+            yield from _indexed_chunks(path, f, reader, wanted, on_damage)
+            return
+    batch, ids = [], {}
+    for topic, log_time, data in _raw_messages(path, wanted, on_damage):
+        channel = ids.setdefault(topic, len(ids) + 1)
+        batch.append(_MESSAGE_RECORD.pack(Opcode.MESSAGE, 22 + len(data), channel, 0, log_time, log_time) + data)
+        if len(batch) == 4096:
+            yield {i: t for t, i in ids.items()}, b"".join(batch)
+            batch = []
+    if batch:
+        yield {i: t for t, i in ids.items()}, b"".join(batch)
+
+
+_MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # opcode, length, channel id, sequence, log time, publish time
 
 
 def _what_is_wrong(buf, start: int, end: int) -> str:
