@@ -4,9 +4,17 @@ acceptance run on more seeds than the test suite.
     python benchmarks/bench_diagnose.py                  # timing (best of 3): 15/30/60/90-min trips, 90 min with a fuel delay, with fewer candidates
     python benchmarks/bench_diagnose.py --acceptance     # every hidden effect on --seeds seeds, --null-seeds null trips, --null-pairs null pairs
     python benchmarks/bench_diagnose.py --acceptance --first-seed 4000 --first-null-seed 300 --null-seeds 30  # fresh seeds
+    python benchmarks/bench_diagnose.py --truth map                     # the same on the VECTO 325 kW map engine
+    python benchmarks/bench_diagnose.py --acceptance --truth map --with-effect power_nonlinearity  # second round
 
 Trips are simulated diesel trips (fuelid/sim/) decoded by fuelid's recorder (tests/ident/hidden.py), identified with the
-paper's orders; the 90-minute trip hides a DPF regeneration. Times are wall-clock on whatever machine runs it.
+paper's orders (plus the --with-effect effects: the diagnosis's second round); the 90-minute trip hides a DPF
+regeneration. Times are wall-clock on whatever machine runs it.
+
+The floor a verified candidate may reach instead of a 25 % drop: on the paper engine the RMS of the simulator's
+noise H e (the truth is the model class plus noise); the map engine adds no noise, and what the LTI model cannot
+follow there is the engine's own curvature, so its floor is the held-out RMS error of the same model identified
+on the same trip (seed, route) with nothing hidden.
 """
 import argparse
 import sys
@@ -35,17 +43,17 @@ def best_of(f, n: int = 3) -> float:
     return min(times)
 
 
-def timing():
+def timing(truth: str):
     print("trip     samples  candidates  diagnose [s]  without verification [s]   (best of 3)")
     for minutes in (15, 30, 60, 90):
-        ds, _, _ = hidden.simulated("dpf_regeneration", 7, minutes * 60.0)
+        ds, _, _ = hidden.simulated("dpf_regeneration", 7, minutes * 60.0, truth=truth)
         model = hidden.identify(ds)
         out = dg.diagnose(model, ds).to_json()
         total = best_of(lambda: dg.diagnose(model, ds))
         tests_only = best_of(lambda: dg.diagnose(model, ds, n_verify=0))
         print(f"{minutes:3d} min  {out['test']['samples']:7d}  {out['test']['candidates_tested']:10d}  {total:12.2f}"
               f"  {tests_only:24.2f}   top: {out['candidates'][0]['effect']}", flush=True)
-    delayed, _, _ = hidden.simulated("fuel_delay", 7, 5400.0)  # the candidate is verified by seed 2's sweep
+    delayed, _, _ = hidden.simulated("fuel_delay", 7, 5400.0, truth=truth)  # the candidate is verified by seed 2's sweep
     delayed_model = hidden.identify(delayed)
     t = best_of(lambda: dg.diagnose(delayed_model, delayed))
     top = dg.diagnose(delayed_model, delayed).candidates[0]
@@ -56,7 +64,16 @@ def timing():
         print(f" 90 min, {k:3d} candidates, without verification: {t:.2f} s")
 
 
-def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, first_null_seed: int):
+def floor_rmse(effect: str, seed: int, truth: str, arrays: dict, base_effects: tuple) -> float:
+    """The yardstick of a verified candidate [L/h] (module docstring)."""
+    if truth != "map":
+        return float(np.sqrt(np.mean(arrays["noise"] ** 2)))
+    null, _, _ = hidden.simulated(None, seed, routes_of=effect, truth=truth)
+    return hidden.held_out_rmse(hidden.identify(null, effects=base_effects), null)
+
+
+def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, first_null_seed: int,
+               truth: str = "diesel_p320", base_effects: tuple = ()):
     """Issue 7's criteria per trip (tests/ident/test_hidden_effects.py checks the same on fewer seeds): found —
     the top candidate is significant and names the hidden effect (its id or an SPN the simulator shows it on);
     verified — besides, the held-out RMS error falls by ≥ 25 % or to within 5 % of the noise floor; all — besides,
@@ -64,25 +81,30 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
     on trips with nothing hidden: single trips, and pairs of trips in the ambient effect's two weathers identified
     together."""
     print("effect               seed  top candidate                       named  held-out drop  RMSE/floor  "
-          "cycle err %  pass")
+          "cycle err %  pass  hidden effect's rank")
     counts = {}
-    for effect in EFFECTS:
+    for effect in (e for e in EFFECTS if e not in base_effects):
         for seed in range(first_seed, first_seed + seeds):
-            ds, truth, summary = hidden.simulated(effect, seed)
-            out = dg.diagnose(hidden.identify(ds), ds).to_json()
+            ds, arrays, summary = hidden.simulated(effect, seed, truth=truth)
+            out = dg.diagnose(hidden.identify(ds, effects=base_effects), ds).to_json()
             top = out["candidates"][0]
             v = top["verification"] or {}
-            floor = float(np.sqrt(np.mean(truth["noise"] ** 2)))
             spns = {p for e in summary["effects"] for p in e["spns"]} - {190, 513}
-            named = top["significant"] and (top["effect"] == effect or bool(spns & set(top["spns"])))
+            names = [r["effect"] == effect or bool(spns & set(r["spns"])) for r in out["candidates"]]
+            named = top["significant"] and names[0]
+            rank = names.index(True) + 1 if any(names) else "-"
             drop = v.get("rmse_drop_percent")
             cyc = [abs(v.get(f"cycle_fuel_error_percent_{k}", {}).get("rms", np.nan)) for k in ("without", "with")]
+            floor = None  # simulated only when the drop alone does not decide (a null trip on the map engine)
+            if named and drop is not None and drop < 25:
+                floor = floor_rmse(effect, seed, truth, arrays, base_effects)
             verified = named and drop is not None and (drop >= 25 or v["rmse_with"] <= 1.05 * floor)
             ok = verified and cyc[1] <= cyc[0] + 0.1
+            ratio = "-" if floor is None else f"{v['rmse_with'] / floor:.2f}"
             counts.setdefault(effect, []).append((named, verified, ok))
             print(f"{effect:20s} {seed:5d}  {top['effect'][:34]:34s}  {'yes' if named else 'no':>5s}  "
-                  f"{'-' if drop is None else f'{drop:6.1f} %':>13s}  {v.get('rmse_with', np.nan) / floor:10.2f}"
-                  f"  {cyc[0]:5.2f}->{cyc[1]:5.2f}  {'yes' if ok else 'no'}", flush=True)
+                  f"{'-' if drop is None else f'{drop:6.1f} %':>13s}  {ratio:>10s}"
+                  f"  {cyc[0]:5.2f}->{cyc[1]:5.2f}  {'yes' if ok else 'no':>4s}  {rank}", flush=True)
     for effect, rows in counts.items():
         found, verified, ok = (sum(col) for col in zip(*rows))
         print(f"{effect:20s} found {found}/{len(rows)}, verified {verified}/{len(rows)}, all criteria {ok}/{len(rows)}")
@@ -90,8 +112,8 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
                                                              null_pairs)):
         alarms = 0
         for seed in range(first_null_seed, first_null_seed + n):
-            ds, _, _ = hidden.simulated(None, seed, routes_of=routes_of)
-            out = dg.diagnose(hidden.identify(ds), ds).to_json()
+            ds, _, _ = hidden.simulated(None, seed, routes_of=routes_of, truth=truth)
+            out = dg.diagnose(hidden.identify(ds, effects=base_effects), ds).to_json()
             top = out["candidates"][0]
             alarm = top["significant"]
             alarms += alarm
@@ -111,8 +133,14 @@ if __name__ == "__main__":
                     help="pairs of trips in different weather with nothing hidden (default 10)")
     ap.add_argument("--first-seed", type=int, default=3000, help="first seed of the hidden-effect trips (3000)")
     ap.add_argument("--first-null-seed", type=int, default=100, help="first seed of the null trips (100)")
+    ap.add_argument("--truth", choices=("diesel_p320", "map"), default="diesel_p320",
+                    help="the engine's fuel truth: the paper's model (default) or the VECTO 325 kW map engine")
+    ap.add_argument("--with-effect", action="append", default=[], metavar="EFFECT",
+                    help="identify the model with this effect before diagnosing (repeatable); it is not hidden")
     args = ap.parse_args()
+    print(f"engine truth: {args.truth}; model: paper orders" + "".join(f" + {e}" for e in args.with_effect))
     if args.acceptance:
-        acceptance(args.seeds, args.null_seeds, args.null_pairs, args.first_seed, args.first_null_seed)
+        acceptance(args.seeds, args.null_seeds, args.null_pairs, args.first_seed, args.first_null_seed,
+                   args.truth, tuple(args.with_effect))
     else:
-        timing()
+        timing(args.truth)

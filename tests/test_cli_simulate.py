@@ -48,7 +48,7 @@ def test_every_shipped_catalog_entry_is_in_replay_logs():
     logs = Path(__file__).resolve().parents[1] / "replay_logs"
     assert all((logs / f"{name}.log.gz").is_file() for name in catalog.SHIPPED)
     made_on_demand = set(catalog.CATALOG) - set(catalog.SHIPPED)
-    assert made_on_demand == {f"map_cycle_{k:02d}" for k in range(1, 12)} | {
+    assert made_on_demand == {f"map_cycle_{k:02d}" for k in range(1, 12)} | {f"map_day_{k}" for k in range(1, 6)} | {
         f"generic_{name}_20min" for name in catalog.GENERIC_EFFECT_TRIPS}
     assert "--truth map" in catalog.command_line("map_cycle_01") and "--engine vecto_325kW" in \
         catalog.command_line("map_cycle_01")

@@ -1,7 +1,10 @@
-"""The seed paper's validation on the shipped replay logs, end to end through the commands a user runs:
+"""The seed paper's validation on the simulated replay logs, end to end through the commands a user runs:
 convert the 1.5 h identification trip and the eleven 30-minute drive cycles, identify with the paper's orders,
-compare on the cycles (Table I) and on the validation trip."""
+compare on the cycles (Table I) and on the validation trip — on both engines: the paper's linear model as the
+truth (the shipped diesel set) and the VECTO 325 kW map engine (map_ident_90min, map_valid_40min shipped; its
+eleven cycles made here by `fuelid simulate --catalog map_cycle_NN`, a few minutes)."""
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,38 +20,67 @@ LOGS = Path(__file__).resolve().parents[1] / "replay_logs"
 CYCLES = [f"diesel_cycle_{i:02d}" for i in range(1, 12)]
 
 
+@dataclass(frozen=True)
+class TripSet:
+    ident: str
+    valid: str
+    cycles: tuple
+    cycles_shipped: bool
+
+
+SETS = {"paper": TripSet("diesel_ident_90min", "diesel_valid_40min", tuple(CYCLES), True),
+        "map": TripSet("map_ident_90min", "map_valid_40min", tuple(f"map_cycle_{i:02d}" for i in range(1, 12)), False)}
+
+
 def run_json(capsys, *args):
     assert main([*map(str, args), "--json"]) == 0
     return json.loads(capsys.readouterr().out)
 
 
+@pytest.fixture(scope="module", params=list(SETS))
+def engine(request):
+    return request.param
+
+
 @pytest.fixture(scope="module")
-def converted(tmp_path_factory):
-    out = tmp_path_factory.mktemp("paper")
-    for name in ["diesel_ident_90min", "diesel_valid_40min", *CYCLES]:
-        assert main(["convert", str(LOGS / f"{name}.log.gz"), "-o", str(out / f"{name}.mcap"), "--json"]) == 0
+def converted(engine, tmp_path_factory):
+    trips = SETS[engine]
+    out = tmp_path_factory.mktemp(engine)
+    if not trips.cycles_shipped:
+        assert main(["simulate", *[a for c in trips.cycles for a in ("--catalog", c)], "--dir", str(out)]) == 0
+    for name in [trips.ident, trips.valid, *trips.cycles]:
+        folder = LOGS if trips.cycles_shipped or name not in trips.cycles else out
+        assert main(["convert", str(folder / f"{name}.log.gz"), "-o", str(out / f"{name}.mcap"), "--json"]) == 0
     return out
 
 
 @pytest.fixture(scope="module")
-def model_path(converted):
+def model_path(engine, converted):
     path = converted / "model.json"
-    assert main(["identify", str(converted / "diesel_ident_90min.mcap"), "--orders", "paper", "-o", str(path), "--json"]) == 0
+    assert main(["identify", str(converted / f"{SETS[engine].ident}.mcap"), "--orders", "paper", "-o", str(path),
+                 "--json"]) == 0
     return path
 
 
-def test_table_one_cycle_fuel_error(converted, model_path, capsys):
-    """Table I: fuelid's cycle fuel error RMS within the paper's 2.4 % and below the engine map's. The paper's
-    map scored 8.1 %; here the gap is small (measured 0.53 % vs 0.72 %, ratio 0.74) because the simulated
-    engine is the paper's linear model, whose static map integrates like the model itself (next test)."""
-    result = run_json(capsys, "compare", model_path, *[converted / f"{c}.mcap" for c in CYCLES],
-                      "--map-from", converted / "diesel_ident_90min.mcap")
+def test_table_one_cycle_fuel_error(engine, converted, model_path, capsys):
+    """Table I. On the paper engine fuelid's cycle fuel error RMS is within the paper's 2.4 % and below the engine
+    map's. The paper's map scored 8.1 %; here the gap is small (measured 0.53 % vs 0.72 %, ratio 0.74) because
+    the simulated engine is the paper's linear model, whose static map integrates like the model itself (next
+    test). On the map engine it is the other way round (measured 2.95 % vs 1.40 %): the linear model is a plane
+    through a curved map, right on average on its mixed identification trip and off on other driving (README,
+    On a real engine map)."""
+    trips = SETS[engine]
+    result = run_json(capsys, "compare", model_path, *[converted / f"{c}.mcap" for c in trips.cycles],
+                      "--map-from", converted / f"{trips.ident}.mcap")
     cycles = result["models"][0]["cycle_fuel_error_percent"]  # per cycle id, plus "mean" and "rms"
     fmap = result["baselines"]["map"]
     assert len(cycles) - 2 == 11 and fmap["in_sample"] is False
-    assert cycles["rms"] <= 2.4  # the paper: 2.4 %
-    assert cycles["rms"] < 0.9 * fmap["cycle_fuel_error_percent"]["rms"]
-
+    if engine == "paper":
+        assert cycles["rms"] <= 2.4  # the paper: 2.4 %
+        assert cycles["rms"] < 0.9 * fmap["cycle_fuel_error_percent"]["rms"]
+    else:
+        assert cycles["rms"] > 1.5 * fmap["cycle_fuel_error_percent"]["rms"]
+        assert cycles["rms"] <= 4.0
 
 def test_the_static_map_of_a_linear_engine_integrates_like_the_engine():
     """Why the map comes close here: the truth is the paper's linear model y = y0 + G(q) u + H e, and over a
@@ -65,24 +97,39 @@ def test_the_static_map_of_a_linear_engine_integrates_like_the_engine():
         assert abs(error(plane) - error(z["fuel_model"])) < 0.01, name
 
 
-def test_validation_trip_fit_is_the_papers(converted, model_path, capsys):
-    result = run_json(capsys, "compare", model_path, converted / "diesel_valid_40min.mcap")
-    assert result["models"][0]["fit_percent"]["simulation"] >= 88.0  # the paper: 91.2 %
+def test_validation_trip_fit_is_the_papers(engine, converted, model_path, capsys):
+    """The paper: 91.2 % simulation fit on its validation trip. The map engine's curvature costs the linear model
+    a few points (measured 85.9 %), and leaves structure the residuals show: the identification residuals pass
+    the autocorrelation test, the validation residuals correlate with the speed input."""
+    result = run_json(capsys, "compare", model_path, converted / f"{SETS[engine].valid}.mcap")
+    metrics = result["models"][0]
+    white = metrics["whiteness"]
+    if engine == "paper":
+        assert metrics["fit_percent"]["simulation"] >= 88.0
+        assert white["autocorr_pass"] and all(white["crosscorr_pass"].values()), white
+    else:
+        assert 84.0 <= metrics["fit_percent"]["simulation"] < 88.0
+        assert not white["crosscorr_pass"]["EEC1.EngSpeed"], white
 
 
-def test_identified_model_simulates_the_noise_free_truth(converted, model_path):
-    """On the validation trip the model's simulation follows the simulator's noise-free fuel (truth.npz) better
-    than the measurement itself does: it has learnt the engine, not the noise."""
+def test_identified_model_simulates_the_noise_free_truth(engine, converted, model_path):
+    """On the paper engine the model's simulation follows the simulator's noise-free fuel (truth.npz) better than
+    the measurement itself does: it has learnt the engine, not the noise. The map engine adds no noise: the
+    measurement differs from the truth by the ECU's LFE1 reporting only (0.1 s means, one period late; measured
+    fit 90.8 %), and the model is further off (82.5 %): its error is the map's curvature, not noise."""
     model = load_model(model_path)
-    ds = build_dataset([converted / "diesel_valid_40min.mcap"])
-    truth = np.load(LOGS / "diesel_valid_40min.truth.npz")
+    ds = build_dataset([converted / f"{SETS[engine].valid}.mcap"])
+    truth = np.load(LOGS / f"{SETS[engine].valid}.truth.npz")
     (seg,) = ds.segments()
     # Grid rows are bin means over [t, t + Ts), as is the truth (held over its bin): compare row by row.
     fuel_true = np.interp(ds.t[seg] - ds.t[seg][0], truth["t_s"], truth["fuel_true"])
     skip = model.structure.n_start + 100  # initial transient of the simulation
     fit_model = fit_percent(fuel_true[skip:], simulate(model, ds.u[seg])[skip:])
     fit_measured = fit_percent(fuel_true[skip:], ds.y[seg][skip:])
-    assert fit_model >= 94.0 and fit_model > fit_measured + 3.0
+    if engine == "paper":
+        assert fit_model >= 94.0 and fit_model > fit_measured + 3.0
+    else:
+        assert fit_measured >= 89.0 and 80.0 <= fit_model < fit_measured - 5.0
 
 
 EFFECTS = (("inertia", 3.2), ("overrun_cutoff", 1.0), ("gear_shift", 0.3), ("fuel_delay", 0.4))

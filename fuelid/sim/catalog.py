@@ -57,6 +57,11 @@ def _entries() -> dict:
     for k in range(1, 12):
         c[f"map_cycle_{k:02d}"] = TripConfig(truth="map", cycle=CYCLE_ROTATION[(k - 1) % 4], duration_s=1800.0,
                                              seed=1000 + k, mass_kg=40000.0 + 400.0 * (k - 1))
+    # Other days of the same truck (seed paper 000 builds its baseline map from a week of operations): five
+    # 1-hour days for the map engine's baseline map, none of them a trip it is scored on.
+    for k in range(1, 6):
+        c[f"map_day_{k}"] = TripConfig(truth="map", cycle=CYCLE_ROTATION[k % 4], duration_s=3600.0, seed=5000 + k,
+                                       mass_kg=38000.0 + 1000.0 * k)
     for k, (name, trips) in enumerate(ALL_EFFECT_TRIPS.items()):
         for j, extra in enumerate(trips):
             kind = "generic" if name in GENERIC_EFFECT_TRIPS else "effect"
@@ -67,9 +72,10 @@ def _entries() -> dict:
 
 
 CATALOG = _entries()
-SHIPPED = tuple(n for n in CATALOG if not n.startswith(("map_cycle_", "generic_")))
-"""The entries whose files are in replay_logs/ (`fuelid simulate --all`); the map engine's eleven cycles (17 MB)
-and the generic effects' trips are made on demand by `--catalog map_cycle_NN` / `generic_NAME_20min`."""
+SHIPPED = tuple(n for n in CATALOG if not n.startswith(("map_cycle_", "map_day_", "generic_")))
+"""The entries whose files are in replay_logs/ (`fuelid simulate --all`); the map engine's eleven cycles (17 MB),
+five days for its baseline map (about 15 MB) and the generic effects' trips are made on demand by
+`--catalog map_cycle_NN` / `map_day_N` / `generic_NAME_20min`."""
 DEFAULT = TripConfig()
 
 

@@ -37,7 +37,9 @@ EFFECTS = {e.name: e for e in [
     Effect("inertia", 3.2, "kg.m2", ("EEC1.ActualEngPercentTorque", "EEC1.EngSpeed", "EC1.EngMomentOfInertia"),
            (513, 190, 1794),
            "The engine reports net torque T_ind - J dω/dt (what reaches the clutch plus friction) while the "
-           "fuel follows the indicated torque; the magnitude is J, reported in EC1 SPN 1794."),
+           "fuel follows the indicated torque; the magnitude is the J the ECU nets out (the paper engine's own "
+           "3.2 kg·m² by default). The engine's mechanics are unchanged: it keeps its own inertia, which EC1 "
+           "SPN 1794 reports."),
     Effect("overrun_cutoff", 1.0, "fraction of fuel cut", ("EEC2.AccelPedalPos1", "EEC2.AccelPedal1LowIdleSwitch",
                                                              "EEC1.ActualEngPercentTorque", "EEC1.EngSpeed"),
            (91, 558, 513, 190),

@@ -10,7 +10,8 @@ Fuel pipeline (sim.effects explains each step):
                                                                          held over each bin [k Ts, (k+1) Ts)
     f_engine = max(0, (y + Δf_power) x k_dpf x k_cold x k_shift x k_air x k_overrun)
     f_bus    = f_engine(t - delay)                                       LFE1 SPN 183 or the flow meter
-    T_bus%   = T_true% - T_fan% (fan effect) - J dω/dt (inertia effect)  EEC1 SPN 513
+    T_bus%   = T_true% - T_fan% (fan effect) - J dω/dt (inertia effect)  EEC1 SPN 513, J the effect's magnitude;
+                                                                         the drive keeps the engine's own inertia
 
 With the map truth (`truth="map"`, a VECTO engine set, sim.mapfuel) the second line is instead the engine's
 fuel map at the instantaneous (fine-grid) speed and flywheel torque T_true - T_fric, with transient fuelling, in
@@ -132,8 +133,6 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     vecto_engine = vecto.read_engine(cfg.engine) if cfg.truth == MAP_TRUTH else None
     truth = fuel.TRUTHS.get(cfg.truth)  # None for the map truth
     engine = mapfuel.sim_engine(vecto_engine) if vecto_engine else ENGINES[cfg.truth]
-    if "inertia" in eff:
-        engine = dataclasses.replace(engine, inertia_kgm2=eff["inertia"])
     truck = Truck(mass_kg=cfg.mass_kg)
     dt = cfg.dt_s
     n = int(round(cfg.duration_s / dt))
@@ -169,7 +168,7 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     t_true = np.maximum(0.0, d.brake_torque_nm + drag + t_fan + t_aux)
     t_shown = np.maximum(0.0, d.brake_torque_nm + drag)
     if "inertia" in eff:
-        t_shown = t_shown - fx.inertia_torque_nm(engine.inertia_kgm2, rpm, dt)
+        t_shown = t_shown - fx.inertia_torque_nm(eff["inertia"], rpm, dt)
     true_pct, shown_pct = engine.percent(t_true), engine.percent(t_shown)
 
     tick("fuel")

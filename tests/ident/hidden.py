@@ -29,7 +29,10 @@ from scipy.ndimage import shift as spline_shift
 from scipy.signal import lfilter
 
 from fuelid.ident.dataset import Dataset
+from fuelid.ident.diagnosis.run import run_gradients
+from fuelid.ident.diagnosis.verification import held_out, held_out_scores
 from fuelid.ident.identify import effect_definitions, effect_inputs
+from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure
 
@@ -145,12 +148,13 @@ def _records(cfg):
 
 @functools.lru_cache(maxsize=None)
 def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitude: float | None = None,
-              routes_of: str | None = None):
+              routes_of: str | None = None, truth: str = "diesel_p320"):
     """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
     hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS)
     on the routes the trips of effect `routes_of` (default: `effect`) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, two for ambient air, on days seed,
     seed + SECOND_TRIP_SEED; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
-    arrays of several trips are concatenated, the summary is the first trip's; cached."""
+    arrays of several trips are concatenated, the summary is the first trip's; cached. `truth`: the engine's
+    fuel truth (the paper's diesel model, or "map": the VECTO 325 kW engine's map, sim.mapfuel)."""
     from fuelid.ident.dataset import build_dataset
     from fuelid.sim.catalog import ALL_EFFECT_TRIPS, SECOND_TRIP_SEED
     from fuelid.sim.effects import ALL_EFFECTS
@@ -160,15 +164,15 @@ def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitu
     effects = ((effect, ALL_EFFECTS[effect].default if magnitude is None else magnitude),) if effect else ()
     records, trips = [], []
     for j, route in enumerate(routes):
-        recs, trip = _records(TripConfig(duration_s=duration_s, seed=seed + j * SECOND_TRIP_SEED, effects=effects,
-                                         **route))
+        recs, trip = _records(TripConfig(truth=truth, duration_s=duration_s, seed=seed + j * SECOND_TRIP_SEED,
+                                         effects=effects, **route))
         records += recs
         trips.append(trip)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = build_dataset(records)
-    truth = {k: np.concatenate([t.truth[k] for t in trips]) for k in trips[0].truth}
-    return ds, truth, trips[0].summary
+    arrays = {k: np.concatenate([t.truth[k] for t in trips]) for k in trips[0].truth}
+    return ds, arrays, trips[0].summary
 
 
 def identify(ds, structure: Structure = PAPER, effects=(), defined=()) -> PolyModel:
@@ -185,3 +189,10 @@ def identify(ds, structure: Structure = PAPER, effects=(), defined=()) -> PolyMo
                                output_name=ds.output_name, output_unit=ds.output_unit, effects=fx.effects,
                                info={**m.info, "effect_parameters": fx.parameters,
                                      **effect_definitions(fx.effects, defined)})
+
+
+def held_out_rmse(model: PolyModel, ds) -> float:
+    """The model's RMS simulation error [output unit] on held-out blocks (ident.diagnosis's h-block scoring of the
+    model as it is, the reference of every verification)."""
+    run = run_gradients(run_model(model, ds))
+    return held_out_scores(held_out(model, run, np.zeros((run.r.size, 0))), ds)["rmse"]
