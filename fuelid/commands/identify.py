@@ -46,11 +46,12 @@ def estimator_summary(info: dict) -> str | None:
 
 
 def significant_effects(path: str) -> list[str]:
-    """The effects a saved `fuelid diagnose --json` result names as missing, strongest first, as `--effect` takes
-    them (a fuel delay with the shift found: fuel_delay=0.36)."""
+    """The effects a saved `fuelid diagnose --json` result recommends (named as missing and verified on held-out
+    data, and on held-out trips when it had several; a result without that field recommends none), in the order
+    found, as `--effect` takes them (a fuel delay with the shift found: fuel_delay=0.36)."""
     try:
         candidates = json.loads(Path(path).read_text())["candidates"]
-        return [c.get("spec", c["effect"]) for c in candidates if c["significant"]]
+        return [c.get("spec", c["effect"]) for c in candidates if c.get("recommended") is True]
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise FuelidError(f"--effects-from {path}: not a `fuelid diagnose --json` result ({exc})") from exc
 

@@ -10,7 +10,8 @@ from fuelid.ident import effects as fx
 
 JSON_FIELDS = ("effect", "spec", "name", "form", "signals", "spns", "statistic", "df", "p_value", "log10_p",
                "testable", "tests", "estimated_drop_percent", "size", "explanation", "physics", "p_holm",
-               "test_significant", "significant", "rmse_drop_percent", "verification", "conditional", "explained_by")
+               "test_significant", "significant", "recommended", "rmse_drop_percent", "verification", "conditional",
+               "explained_by")
 UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "statistic", "df", "p_value",
                    "significant", "test_significant", "estimated_drop_percent", "explanation", "rmse_drop_percent",
                    "verification", "conditional", "explained_by")
@@ -57,6 +58,7 @@ class Candidate:
     p_holm: float | None = None
     test_significant: bool = False
     significant: bool = False
+    recommended: bool = False
     rmse_drop_percent: float | None = None
     verification: dict | None = None
     conditional: dict | None = None
