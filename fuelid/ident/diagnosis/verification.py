@@ -35,8 +35,8 @@
    condition): whether the effect carries over to another day. So, when the data hold several trips (the run's
    segments grouped at breaks of the log of at least TRIP_BREAK_S, `trip_groups`: other files, other days), the
    refit is also scored leaving one trip out at a time (`leave_one_trip_out`: fitted by least squares on the other
-   trips, minimum norm, so a direction they do not determine stays at 0), and a candidate is confirmed only if no
-   held-out trip's RMS error rises with it. And a candidate whose coefficient these data cannot determine is
+   trips, minimum norm, so a direction they do not determine stays at 0), and a candidate is confirmed only if the
+   RMS error over the held-out trips (pooled) does not rise with it. And a candidate whose coefficient these data cannot determine is
    reported as not identifiable from these data instead of confirmed (`identifiability` below 1/√10, a variance
    inflation factor above 10): the share of its decisive column (x; x·ŷ for an effect that scales the fuel) that
    the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after projecting out an offset and the segments'
