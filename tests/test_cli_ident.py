@@ -198,10 +198,11 @@ def test_identify_rejects_bad_orders(recording, tmp_path, capsys):
 
 def test_identify_adds_the_effects_a_diagnosis_named(recording, tmp_path, capsys):
     diagnosis = tmp_path / "diagnosis.json"  # as `fuelid diagnose --json` writes it, cut to what identify reads
-    diagnosis.write_text(json.dumps({"candidates": [{"effect": "power_nonlinearity", "significant": True},
-                                                    {"effect": "fuel_delay", "spec": "fuel_delay=0.3",
-                                                     "significant": True},
-                                                    {"effect": "idle_fuelling", "significant": False}]}))
+    diagnosis.write_text(json.dumps({"candidates": [
+        {"effect": "power_nonlinearity", "significant": True, "recommended": True},
+        {"effect": "fuel_delay", "spec": "fuel_delay=0.3", "significant": True, "recommended": True},
+        {"effect": "ambient", "significant": True},  # named, but not verified on held-out trips: never added
+        {"effect": "idle_fuelling", "significant": False, "recommended": False}]}))
     model = tmp_path / "after.json"
     spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
     assert main(["identify", str(recording), "--orders", spec, "--effects-from", str(diagnosis),

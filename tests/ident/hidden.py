@@ -1,4 +1,4 @@
-"""Synthetic datasets with a known Box-Jenkins fuel model and optionally one hidden physical effect
+"""Synthetic datasets with a known Box-Jenkins fuel model and optionally hidden physical effects
 (tests of ident.effects and ident.diagnosis).
 
 Truth: y = y0 + Gn ñ + GT T̃ + C/D e at Ts = 0.3 s, ñ [rpm] and T̃ [Nm] deviations from idle (600 rpm,
@@ -59,9 +59,12 @@ def _held(n, rng, lo, hi, hold=(3.0, 40.0)):
     return out
 
 
-def make(effect: str | None = None, n: int = 8000, seed: int = 0, noise: float = 0.5, size: float | None = None,
-         delay_s: float = 0.4) -> Dataset:
-    """A Dataset of n samples (n·0.3 s) with the hidden `effect` (module docstring) of magnitude `size`."""
+def make(effect: str | tuple[str, ...] | None = None, n: int = 8000, seed: int = 0, noise: float = 0.5,
+         size: float | None = None, delay_s: float = 0.4) -> Dataset:
+    """A Dataset of n samples (n·0.3 s) with the hidden `effect` (module docstring) of magnitude `size`; a tuple
+    of ids hides them all (each of its default magnitude)."""
+    hidden = set(effect) if isinstance(effect, tuple) else {effect}
+    size = None if len(hidden) > 1 else size
     rng = np.random.default_rng(seed)
     speed = np.clip(600 + _lag(_held(n, rng, 0, 1300), 2.0) + _lag(rng.normal(0, 30, n), 1.0), 550, 2000)
     torque = np.clip(112 + _lag(_held(n, rng, -100, 1500), 0.6) + _lag(rng.normal(0, 60, n), 0.5), -150, 1700)
@@ -72,17 +75,17 @@ def make(effect: str | None = None, n: int = 8000, seed: int = 0, noise: float =
         a = int(start * n)
         regen[a:a + int(240 / TS)] = 1.0
     coolant = 85 + 3 * np.sin(2 * np.pi * t / 900)
-    if effect == "cold_engine":
+    if "cold_engine" in hidden:
         coolant = 85 - 60 * np.exp(-t / 600)
-    indicated = torque + (J * domega if effect == "inertia" else 0.0)
+    indicated = torque + (J * domega if "inertia" in hidden else 0.0)
     clean = TRUE.y0 + lfilter(TRUE.B[0], TRUE.F[0], speed - 600) + lfilter(TRUE.B[1], TRUE.F[1], indicated - 112)
-    if effect == "dpf_regeneration":
+    if "dpf_regeneration" in hidden:
         clean = clean * (1 + (0.11 if size is None else size) * regen)
-    if effect == "cold_engine":
+    if "cold_engine" in hidden:
         clean = clean + (0.04 if size is None else size) * np.maximum(80 - coolant, 0)
     e = rng.normal(0, noise / 1.3, n)
     y = clean + lfilter(TRUE.C, TRUE.D, e)
-    if effect == "fuel_delay":
+    if "fuel_delay" in hidden:
         y = spline_shift(y, delay_s / TS, order=3, mode="nearest")
     walk = lambda s: np.cumsum(rng.normal(0, s, n))  # noqa: E731
     extra = {
@@ -100,7 +103,7 @@ def make(effect: str | None = None, n: int = 8000, seed: int = 0, noise: float =
         "XX.UnknownSignal": walk(1.0),
         "XX.UnknownState": np.floor(_held(n, rng, 0, 3, (5, 60))),
     }
-    if effect == "unlisted":
+    if "unlisted" in hidden:
         y = y + (1.5 if size is None else size) * (extra["XX.UnknownState"] == 2)
     return Dataset(Ts=TS, t=t, u=np.column_stack([speed, torque]), y=y, input_names=("EEC1.EngSpeed", "EngTorque"),
                    input_units=("rpm", "Nm"), output_name="LFE1.EngFuelRate", output_unit="L/h",
@@ -147,11 +150,12 @@ def _records(cfg):
 
 
 @functools.lru_cache(maxsize=None)
-def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitude: float | None = None,
-              routes_of: str | None = None, truth: str = "diesel_p320"):
+def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float = 1200.0,
+              magnitude: float | None = None, routes_of: str | None = None, truth: str = "diesel_p320"):
     """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
-    hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS)
-    on the routes the trips of effect `routes_of` (default: `effect`) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, two for ambient air, on days seed,
+    hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS;
+    a tuple of ids hides them all) on the routes the trips of effect `routes_of` (default: `effect`, the first of
+    them) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, two for ambient air, on days seed,
     seed + SECOND_TRIP_SEED; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
     arrays of several trips are concatenated, the summary is the first trip's; cached. `truth`: the engine's
     fuel truth (the paper's diesel model, or "map": the VECTO 325 kW engine's map, sim.mapfuel)."""
@@ -160,8 +164,9 @@ def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitu
     from fuelid.sim.effects import ALL_EFFECTS
     from fuelid.sim.trip import TripConfig
 
-    routes = ALL_EFFECT_TRIPS[routes_of or effect] if routes_of or effect else ({"cycle": "mixed"},)
-    effects = ((effect, ALL_EFFECTS[effect].default if magnitude is None else magnitude),) if effect else ()
+    names = effect if isinstance(effect, tuple) else (effect,) if effect else ()
+    routes = ALL_EFFECT_TRIPS[routes_of or names[0]] if routes_of or names else ({"cycle": "mixed"},)
+    effects = tuple((e, ALL_EFFECTS[e].default if magnitude is None else magnitude) for e in names)
     records, trips = [], []
     for j, route in enumerate(routes):
         recs, trip = _records(TripConfig(truth=truth, duration_s=duration_s, seed=seed + j * SECOND_TRIP_SEED,
@@ -173,6 +178,13 @@ def simulated(effect: str | None, seed: int, duration_s: float = 1200.0, magnitu
         ds = build_dataset(records)
     arrays = {k: np.concatenate([t.truth[k] for t in trips]) for k in trips[0].truth}
     return ds, arrays, trips[0].summary
+
+
+def first_trip(ds, break_s: float = 600.0):
+    """ds up to its first break of the log of at least break_s [s]: the first trip of a set (`simulated`)."""
+    k = int(np.flatnonzero(np.diff(ds.t) >= break_s)[0]) + 1
+    return dataclasses.replace(ds, t=ds.t[:k], u=ds.u[:k], y=ds.y[:k], valid=ds.valid[:k], cycle=ds.cycle[:k],
+                               extra={name: x[:k] for name, x in ds.extra.items()})
 
 
 def identify(ds, structure: Structure = PAPER, effects=(), defined=()) -> PolyModel:

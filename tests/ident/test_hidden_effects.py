@@ -16,8 +16,12 @@ import numpy as np
 import pytest
 
 from fuelid.ident import diagnosis as dg
+from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis.entries import ENTRIES
+from fuelid.ident.diagnosis.verification import MIN_IDENTIFIABILITY, identifiability
 from fuelid.ident.fueldelay import DELAY_REFERENCE
 from fuelid.ident.identify import estimate_fuel_delay
+from fuelid.ident.modelrun import run_model
 from tests.ident import hidden
 
 FLOOR_TOLERANCE = 1.05
@@ -106,3 +110,46 @@ def test_fuel_signal_lag_on_real_driving_logs(name, real_log, tmp_path):
     lag = estimate_fuel_delay(ds, ds.u, DELAY_REFERENCE)["best_s"]
     print(f"{name}: fuel-signal lag {lag:.2f} s")
     assert 0.0 < lag < 3.0
+
+
+@pytest.mark.parametrize("first", ["gear_shift", "overrun_cutoff"])
+def test_two_hidden_effects_are_both_named(first):
+    """A DPF regeneration hidden with a weaker effect on the weaker one's route: forward selection re-tests every
+    candidate on the model refitted with the regeneration and names the second too (on the model as it is, the
+    second lowers the held-out error by only 1.1–1.2 %, short of the 2 % needed, and was not named before)."""
+    pair = (first, "dpf_regeneration")
+    out, _, _ = diagnosed(pair, 3000)
+    found = [r for r in out["candidates"] if r["significant"]]
+    assert [r["effect"] for r in found] == ["dpf_regeneration", first], out["verdict"]
+    assert all(r["recommended"] for r in found)
+    second = found[1]["conditional"]
+    assert second["given"] == ["dpf_regeneration"] and second["rmse_drop_percent"] >= 2.0, second
+    assert out["verdict"].startswith("Missing effects (2)")
+    assert all(f"add effect {e}" in out["verdict"] for e in pair)
+
+
+def test_ambient_air_is_recommended_only_where_it_carries_over_to_another_trip():
+    """Two trips in different weather: ambient air found, and fitted on either trip it lowers the other's error
+    (leave-one-trip-out). The first trip alone: its air density hardly varies, so its scaling of the fuel is
+    barely told apart from the model's own gains and is not recommended."""
+    out, _, _ = diagnosed("ambient", 2004)
+    top = out["candidates"][0]
+    assert top["effect"] == "ambient" and top["recommended"], out["verdict"]
+    trips = top["verification"]["trips"]
+    assert len(trips["rmse_with"]) == 2 and min(trips["rmse_drop_percent"]) > 0, trips
+    assert top["verification"]["identifiable"]
+
+    ds, _, _ = hidden.simulated("ambient", 2004)
+    one = hidden.first_trip(ds)
+    model = hidden.identify(one)
+    alone = dg.diagnose(model, one)
+    row = next(r for r in alone.candidates if r.effect == "ambient")
+    assert not row.recommended and not row.significant
+    share = {}
+    for name, d in (("one", one), ("two", ds)):
+        m = hidden.identify(d)
+        run = dg.run_gradients(run_model(m, d))
+        c = dg.rank_candidates(m, d, run, [fx.EFFECTS["ambient"]])[0]
+        share[name] = identifiability(run, *ENTRIES["scales_fuel"].varying_column(c, run))
+    print(share)
+    assert share["one"] < MIN_IDENTIFIABILITY <= share["two"], share

@@ -3,7 +3,6 @@ waits for the network with backoff, and deletes a local file only after the serv
 import json
 import time
 
-from fuelid.logger.mcap_log import read_messages
 from fuelid.logger.upload import UploadQueue
 from tests.fleet.conftest import Server, make_mcap
 

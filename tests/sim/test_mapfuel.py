@@ -11,7 +11,7 @@ from fuelid.logger.readers import read_frames
 from fuelid.logger.recorder import Recorder
 from fuelid.sim import mapfuel, route
 from fuelid.sim.drive import DRIVE, simulate_drive
-from fuelid.sim.trip import TripConfig, write
+from fuelid.sim.trip import write
 from fuelid.sim.vecto import read_engine
 from fuelid.sim.vehicle import Truck
 

@@ -12,7 +12,7 @@ The package follows the loop, each module using only those before it:
     candidate     Candidate, a candidate effect as a typed record, and what its tests found
     entries       how an effect enters the model (additive, scales the fuel, a torque, a shift): its columns,
                   tests and verification, one class per kind
-    ranking       the candidates' tests, Holm, verification, the conditional check: `diagnose` → Diagnosis
+    ranking       the candidates' tests, Holm, verification, forward selection: `diagnose` → Diagnosis
 """
 from fuelid.ident.diagnosis.candidate import Candidate, confirmed_effects
 from fuelid.ident.diagnosis.ranking import Diagnosis, diagnose, rank_candidates

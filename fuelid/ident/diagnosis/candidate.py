@@ -10,7 +10,8 @@ from fuelid.ident import effects as fx
 
 JSON_FIELDS = ("effect", "spec", "name", "form", "signals", "spns", "statistic", "df", "p_value", "log10_p",
                "testable", "tests", "estimated_drop_percent", "size", "explanation", "physics", "p_holm",
-               "test_significant", "significant", "rmse_drop_percent", "verification", "conditional", "explained_by")
+               "test_significant", "significant", "recommended", "rmse_drop_percent", "verification", "conditional",
+               "explained_by")
 UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "statistic", "df", "p_value",
                    "significant", "test_significant", "estimated_drop_percent", "explanation", "rmse_drop_percent",
                    "verification", "conditional", "explained_by")
@@ -57,6 +58,7 @@ class Candidate:
     p_holm: float | None = None
     test_significant: bool = False
     significant: bool = False
+    recommended: bool = False
     rmse_drop_percent: float | None = None
     verification: dict | None = None
     conditional: dict | None = None
@@ -75,6 +77,8 @@ class Candidate:
 
 
 def confirmed_effects(candidates: list[dict]) -> list[str]:
-    """The effects a diagnosis (its JSON `candidates`) confirmed as missing, strongest first, as
-    `fuelid identify --effect` and identify_model take them (a fuel delay with the shift found: fuel_delay=0.36)."""
-    return [c.get("spec", c["effect"]) for c in candidates if c["significant"]]
+    """The effects a diagnosis (its JSON `candidates`) recommends adding: named as missing and verified on
+    held-out data, and on held-out trips when it had several (`recommended`; a result without that field
+    recommends none), in the order found, as `fuelid identify --effect` and identify_model take them (a fuel
+    delay with the shift found: fuel_delay=0.36)."""
+    return [c.get("spec", c["effect"]) for c in candidates if c.get("recommended") is True]

@@ -21,7 +21,8 @@ from fuelid.ident.diagnosis.delay import reference_fit, shift_test, verify_shift
 from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain, signals_text, static_gain
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import lagged, level_test, one_blas_thread, score_test
-from fuelid.ident.diagnosis.verification import verify
+from fuelid.ident.diagnosis.verification import (MIN_IDENTIFIABILITY, identifiability, leave_one_trip_out,
+                                                 trip_groups, verify)
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
 
@@ -74,28 +75,54 @@ class Additive:
         its first column x (for a regime: the mean change on minus off)."""
         return c.x[:, 0]
 
-    def verify(self, c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray) -> dict:
-        """verify() the candidate against the model as it is (with its torque-path column when its regressor is a
-        torque); its explanation re-made from the refit's β."""
-        effect, X, Xy = c.definition, c.w, c.x
-        through_torque = (self.also_through_torque and effect.form == "input"
-                          and c.reg.units == (ds.input_units[1],))
-        if through_torque:
-            X, Xy = (np.column_stack(p) for p in zip((X, Xy), torque_path_columns(model, run, c.reg.x[:, 0])))
+    def refit_columns(self, c: Candidate, model: PolyModel, ds, run: Run) -> tuple[np.ndarray, np.ndarray]:
+        """The columns a refit adds for the candidate, stacked like run.r: (in the w domain, in the fuel domain);
+        a regressor in the model's torque unit also through the model's torque path."""
+        if self.through_torque(c, ds):
+            return tuple(np.column_stack(p) for p in zip((c.w, c.x), torque_path_columns(model, run, c.reg.x[:, 0])))
+        return c.w, c.x
+
+    def through_torque(self, c: Candidate, ds) -> bool:
+        return self.also_through_torque and c.definition.form == "input" and c.reg.units == (ds.input_units[1],)
+
+    def verify(self, c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray,
+               X_given: np.ndarray | None = None) -> dict:
+        """verify() the candidate against the model as it is, or, given the verified columns X_given of effects
+        accepted before it (w domain), against the model refitted with them; its explanation re-made from the
+        refit's β."""
+        X, Xy = self.refit_columns(c, model, ds, run)
+        c.X = X  # for the refits on top of it
+        given = np.zeros((run.r.size, 0)) if X_given is None else X_given
+        X = np.column_stack([given, X])
         v, beta, change = verify(run, X, model, ds, base, base_ysim)
-        c.X = X  # for the conditional check on top of the candidates accepted before it
+        beta = beta[given.shape[1]:]
         # does the fuel rise or fall with the effect? The covariance of the change adding it makes to the held-out
         # fuel (its own part and the model's re-fitted gains and offset together) with its direction regressor
         x0 = self.direction_regressor(c, run)
         v["direction"] = int(np.sign((change - change.mean()) @ (x0 - x0.mean())))
+        v["identifiability"] = identifiability(run, *self.varying_column(c, run))
+        v["identifiable"] = bool(v["identifiability"] >= MIN_IDENTIFIABILITY)
+        groups = trip_groups(ds, run)
+        if len(groups) > 1:  # the refit fitted on the other trips, scored on each one
+            without, with_ = leave_one_trip_out(model, run, given, groups), leave_one_trip_out(model, run, X, groups)
+            n = np.array([g.size for g in groups])
+            pooled = [np.sqrt(n @ np.square(e) / n.sum()) for e in (without, with_)]
+            v["trips"] = {"rmse_without": without, "rmse_with": with_,
+                          "rmse_drop_percent": [100.0 * (1.0 - b / a) for a, b in zip(without, with_)],
+                          "pooled_rmse_drop_percent": float(100.0 * (1.0 - pooled[1] / pooled[0]))}
         if v["rmse_drop_percent"] > 0:  # the held-out-checked refit measures it better
-            n_lagged = c.x.shape[1]
-            gains = beta[:n_lagged].reshape(len(effect.lags), -1).sum(axis=0)
-            if through_torque:
+            effect = c.definition
+            gains = beta[:c.x.shape[1]].reshape(len(effect.lags), -1).sum(axis=0)
+            if self.through_torque(c, ds):
                 gains = gains + beta[-1] * static_gain(model, 1)
             c.explanation, c.size = explain(self, effect, c.reg, contribution_on_grid(effect.form, Xy, beta, run),
                                             gains, [model], at_operating_point(ds, model), run)
         return v
+
+    def varying_column(self, c: Candidate, run: Run) -> tuple[np.ndarray, np.ndarray]:
+        """(the part of the decisive column its signal's variation makes, the decisive column) in the fuel domain,
+        stacked like run.r: whether the effect is identifiable (verification.identifiability). For x, x itself."""
+        return c.x[:, 0], c.x[:, 0]
 
     def relevance(self, v: dict) -> float:
         """The held-out RMS error drop [%] that decides a verification."""
@@ -108,12 +135,17 @@ class Additive:
 
 class ScalesFuel(Additive):
     """y (1 + m x): a regeneration's post-injection, enrichment when cold or in thin air, no injection at all on
-    overrun. Tested on x and x·ŷ; its direction judged on x·ŷ."""
+    overrun. Tested on x and x·ŷ; its direction and identifiability judged on x·ŷ."""
 
     def regressors(self, reg, run, ds):
         x = reg.x[:, 0]
         return fx.Regressors(np.column_stack([x, x * run.ysim]), (reg.names[0], f"{reg.names[0]} x model fuel"),
                              (reg.units[0], f"{reg.units[0]}.{ds.output_unit}"))
+
+    def varying_column(self, c, run):
+        # x·ŷ with x constant is the model's own fuel scaled: what identifies m is (x − x̄)·ŷ
+        x, fuel = c.x[:, 0], run.ysim[run.index]
+        return (x - x.mean()) * fuel, x * fuel
 
     def direction_regressor(self, c, run):
         # x·ŷ: air density is nearly constant within a trip, and a trip's fuel level is not told apart from its
@@ -163,7 +195,7 @@ class Shift(Additive):
         reg = fx.Regressors(grid[:, None], ("d/dt reference model's fuel",), (f"{ds.output_unit}/s",))
         return Evidence(reg, x, {"reference_model_shift": test}, left, test.coef, ref)
 
-    def verify(self, c, model, ds, run, base, base_ysim):
+    def verify(self, c, model, ds, run, base, base_ysim, X_given=None):
         v = verify_shift(c.ref, model, ds, run, base)
         tau = v["reference"]["delay_s"]
         c.spec = f"{c.effect}={tau:.2f}"

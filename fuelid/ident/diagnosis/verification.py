@@ -31,6 +31,17 @@
    adding it makes to the held-out simulated fuel covaries with the effect's first regressor x with that sign,
    or with x·ŷ for an effect that scales the fuel (Effect.enters == "scales_fuel": air density is nearly constant within
    a trip, and a trip's fuel level is not told apart from its estimated initial state).
+   Blocks within one trip do not test what matters for a signal that is nearly constant per trip (an ambient
+   condition): whether the effect carries over to another day. So, when the data hold several trips (the run's
+   segments grouped at breaks of the log of at least TRIP_BREAK_S, `trip_groups`: other files, other days), the
+   refit is also scored leaving one trip out at a time (`leave_one_trip_out`: fitted by least squares on the other
+   trips, minimum norm, so a direction they do not determine stays at 0), and a candidate is confirmed only if the
+   RMS error over the held-out trips (pooled) does not rise with it. And a candidate whose coefficient these data cannot determine is
+   reported as not identifiable from these data instead of confirmed (`identifiability` below 1/√10, a variance
+   inflation factor above 10): the share of its decisive column (x; x·ŷ for an effect that scales the fuel) that
+   the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after projecting out an offset and the segments'
+   initial states. An effect that scales the fuel with x nearly constant is a change of the model's own gains;
+   a signal that moves only with the trip's start is told apart from its initial state by nothing.
    Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
    refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
    since a refit of the 30+ parameters on half the data adds its own noise to the comparison. A full refit is
@@ -44,11 +55,14 @@ from scipy.linalg import lstsq, svd
 from scipy.signal import lfilter
 
 from fuelid.ident.diagnosis.run import Run
-from fuelid.ident.diagnosis.statistics import one_blas_thread
+from fuelid.ident.diagnosis.statistics import nuisance_basis, one_blas_thread
 from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import cycle_fuel_error, error_table
 
 BLOCK_S = 60.0  # [s] the blocks left out one at a time when scoring the linearised refit
+TRIP_BREAK_S = 600.0  # [s] a break of the log at least this long starts another trip (an engine-off stop, another
+#   file, another day): the engine has cooled and the weather and load may differ
+MIN_IDENTIFIABILITY = 1.0 / np.sqrt(10.0)  # share of a column not explained by the nuisance columns: VIF ≤ 10
 BUFFER_S = 15.0  # [s] also left out of the fit on either side of the scored block (h-block cross-validation):
 #   about twice the slowest time constant of the simulated noise H (≈ 9 s), past which the errors decorrelate
 
@@ -83,12 +97,66 @@ def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S
         Q = np.column_stack([run.QG_blocks, U[:, sig > 1e-4]])  # the same rank rule as the tests
         err = block_cv(run.r, Q, block, round(buffer_s / model.Ts))
         beta = lstsq(Xt, run.r, cond=1e-10, check_finite=False)[0] if X.shape[1] else np.zeros(0)
-    if model.A.size > 1:  # the step is linear in w = A·(simulation error): back through 1/A, segment by segment
-        ends = np.cumsum(run.lens)
-        err = np.concatenate([lfilter([1.0], model.A, err[a:b]) for a, b in zip(ends - run.lens, ends)])
+    err = _through_1_over_A(model, run, err)  # the step is linear in w = A·(simulation error)
     ysim = np.full(len(run.y), np.nan)
     ysim[run.index] = run.y[run.index] - err
     return {"ysim": ysim, "y": run.y, "beta": beta}
+
+
+def trip_groups(ds, run: Run, break_s: float = TRIP_BREAK_S) -> list[np.ndarray]:
+    """Positions in the stacked run (run.r) of each trip: the run's segments, grouped where the log breaks for at
+    least break_s [s]."""
+    ends = np.cumsum(run.lens)
+    groups, current = [], []
+    for k, seg in enumerate(run.segs):
+        if current and ds.t[seg.start] - ds.t[run.segs[k - 1].stop - 1] >= break_s:
+            groups.append(np.concatenate(current))
+            current = []
+        current.append(np.arange(ends[k] - run.lens[k], ends[k]))
+    return groups + [np.concatenate(current)] if current else groups
+
+
+def trip_cv(r: np.ndarray, Z: np.ndarray, groups) -> np.ndarray:
+    """Leave-one-trip-out errors of the least-squares fit of r (N) on the columns Z (N × p): on each group g of
+    positions, r − Z c_(−g), c_(−g) the minimum-norm fit on the samples outside g (columns scaled to unit norm
+    there; one that is zero there gets 0)."""
+    out = r.copy()
+    for g in groups:
+        fit = np.ones(r.size, bool)
+        fit[g] = False
+        norms = np.linalg.norm(Z[fit], axis=0)
+        scale = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
+        coef = lstsq(Z[fit] * scale, r[fit], cond=1e-8, check_finite=False)[0] * scale
+        out[g] = r[g] - Z[g] @ coef
+    return out
+
+
+def leave_one_trip_out(model: PolyModel, run: Run, X: np.ndarray, groups) -> list[float]:
+    """RMS simulation error [output unit] on each trip of `groups` (trip_groups) of the linearised refit with the
+    extra columns X (w domain, stacked like run.r), fitted on the other trips."""
+    with one_blas_thread():
+        err = trip_cv(run.r, np.column_stack([run.QG_blocks, X]), groups)
+    err = _through_1_over_A(model, run, err)
+    return [float(np.sqrt(np.mean(err[g] ** 2))) for g in groups]
+
+
+def identifiability(run: Run, varying: np.ndarray, column: np.ndarray) -> float:
+    """How much of an effect's decisive column (fuel domain, stacked like run.r) its signal's variation determines:
+    ‖M varying‖ / ‖column − mean‖, M projecting out an offset and the segments' initial states (run.QG's free
+    responses), `varying` the column made of the signal's deviation from its mean (module docstring, 4; with
+    A = 1, as in a Box-Jenkins model, the same in the w domain)."""
+    n_initial = run.QG.shape[1] - run.QG_blocks.shape[1]
+    Z = nuisance_basis(np.column_stack([np.ones(varying.size), run.QG[:, :n_initial]]))
+    left = varying - Z @ (Z.T @ varying)
+    return float(np.linalg.norm(left) / max(np.linalg.norm(column - column.mean()), 1e-300))
+
+
+def _through_1_over_A(model: PolyModel, run: Run, err: np.ndarray) -> np.ndarray:
+    """Errors in w = A·(simulation error) back to simulation errors, segment by segment (the identity when A = 1)."""
+    if model.A.size == 1:
+        return err
+    ends = np.cumsum(run.lens)
+    return np.concatenate([lfilter([1.0], model.A, err[a:b]) for a, b in zip(ends - run.lens, ends)])
 
 
 def held_out_scores(cv: dict, ds) -> dict:
