@@ -43,7 +43,7 @@ def test_report_command_writes_one_offline_page(loop, capsys):
     assert truck and len(truck) == 17  # the simulator's VIN, from the MCAP metadata
     assert "<title>Urban trip</title>" in page and f"<td>{truck}</td>" in page
     assert re.search(r"after\.json: RMS error fell from \d+\.\d\d to \d+\.\d\d L/h; cycle fuel error from "
-                     r"\d+\.\d\d % to \d+\.\d\d %", page)
+                     r"[+-]\d+\.\d\d % to [+-]\d+\.\d\d %", page)
     assert "dpf_regeneration" in page and "DPF active regeneration" in page
     assert "<script src" not in page and "<link" not in page  # one file: scripts and styles inline
 
@@ -124,7 +124,7 @@ def test_report_renders_in_headless_chromium(loop, tmp_path):
     assert seen["console"] == [] and seen["requested"] == []
     plots = re.findall(r'<div id="(fig-[\w-]+)" class="plotly-graph-div js-plotly-plot"', seen["dom"])
     assert plots == ["fig-time", "fig-residual", "fig-autocorr", "fig-crosscorr0", "fig-crosscorr1", "fig-map_bias",
-                     "fig-map_rms"]  # plotly.js drew every figure (it adds js-plotly-plot)
+                     "fig-map_rms", "fig-effect0"]  # plotly.js drew every figure (it adds js-plotly-plot)
     assert seen["dom"].count('class="main-svg"') >= 2 * len(plots)
 
     img = np.asarray(Image.open(seen["png"]).convert("RGB")).astype(int)
