@@ -63,15 +63,17 @@ def test_with_nothing_hidden_no_candidate_is_significant(seed, routes_of):
     assert out["verdict"].startswith("No significant candidate")
 
 
-def test_on_the_map_engine_the_first_answer_is_the_engines_own_curvature():
+def test_on_the_map_engine_the_diagnosis_names_the_engines_own_curvature():
     """The VECTO 325 kW map engine with nothing hidden: the paper's LTI model is a plane through a curved map, and
     the diagnosis names the curvature (fuel growing with speed × torque) first, far above anything a hidden
     effect explains on the paper engine — right physics, but not a hidden effect (README, On a real engine map:
     a false alarm by the paper engine's definition)."""
     out, _, _ = diagnosed(None, 11, truth="map")
-    top = out["candidates"][0]
-    assert top["effect"] == "power_nonlinearity" and top["significant"], out["verdict"]
-    assert top["rmse_drop_percent"] >= 40.0, top
+    named = [c for c in out["candidates"] if c["significant"]]
+    curvature = next((c for c in named if c["effect"] == "power_nonlinearity"), None)
+    assert curvature is not None, out["verdict"]
+    assert curvature["rmse_drop_percent"] >= 40.0, curvature  # the largest held-out drop of all it names
+    assert curvature["rmse_drop_percent"] == max(c["rmse_drop_percent"] or 0.0 for c in named), out["verdict"]
 
 
 def test_hidden_inertia_is_found_within_20_percent_of_its_J():

@@ -105,12 +105,15 @@ def test_paper_orders_converge_stable(paper, n, seed):
     assert fit_percent(y0, simulate(est, u)) >= 99
 
 
-@pytest.mark.xfail(strict=True, reason="known local minimum: the initialisation puts a root of F1 on the "
-                   "stability bound and LM stops there at V = 4.917 (4.869 when started from the truth)")
-def test_paper_orders_local_minimum_on_short_data(paper):
+def test_paper_orders_on_short_data_stop_in_a_known_local_minimum(paper):
+    """A known weakness, asserted so that a fix shows: on 4,000 samples the initialisation puts a root of F1 on
+    the stability bound and LM stops there (V = 4.917, whether the stopping rule then calls it a constrained
+    minimum or not converged), above the minimum the fit started from the truth reaches (V = 4.869)."""
     truth = true_model(paper)
     u, y, _ = paper_data(truth, n=4000, seed=0)
-    assert fit_quiet(u, y, paper.structure).info["converged"]
+    default, from_truth = fit_quiet(u, y, paper.structure), fit_quiet(u, y, paper.structure, init=truth)
+    assert from_truth.info["converged"]
+    assert default.info["loss_V"] > 1.005 * from_truth.info["loss_V"]
 
 
 def test_start_does_not_depend_on_max_iter():
