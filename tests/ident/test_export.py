@@ -1,7 +1,6 @@
 """ident.export: the MATLAB script and the .mat file give back polynomials that simulate exactly as fuelid does."""
 import re
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,12 +8,9 @@ from scipy.io import loadmat
 from scipy.signal import lfilter
 
 from fuelid.ident.export import matlab_script, write_mat
-from fuelid.ident.modelfile import load_paper_model
+from fuelid.ident.modelfile import PAPER_MODELS, load_paper_model
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, simulate
-
-SHARED_PAPER_MODELS = Path("/work/shared/design/paper_models.json")
-
 
 @pytest.fixture(scope="module")
 def fitted():
@@ -34,8 +30,8 @@ def fitted():
 
 def models(fitted):
     yield fitted
-    if SHARED_PAPER_MODELS.exists():  # the seed paper's diesel model, as shipped beside the repository
-        yield load_paper_model("diesel_scania_p320", SHARED_PAPER_MODELS)
+    if PAPER_MODELS.exists():  # the seed paper's diesel model, as shipped beside the repository
+        yield load_paper_model("diesel_scania_p320")
 
 
 def exported_simulation(A, B, F, u0, y0, u):
