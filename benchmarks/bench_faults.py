@@ -32,9 +32,8 @@ from fuelid.logger.readers import in_range, open_frames
 T0 = 1_700_000_000_000_000_000  # log time origin [ns]
 
 
-def write_log(path: Path, n: int = 2000) -> list:
-    """A log of `n` frames 10 ms apart (1 s of log time per chunk: ~20 chunks); the messages written."""
-    written = []
+def write_log(path: Path, n: int = 2000) -> None:
+    """A log of `n` frames 10 ms apart (1 s of log time per chunk: ~20 chunks)."""
     with McapLogWriter(path, metadata={"truck": "T1"}, fsync=False) as w:
         w.add_channel("/can/raw", RAW_SCHEMA)
         for i in range(n):
@@ -42,8 +41,6 @@ def write_log(path: Path, n: int = 2000) -> list:
             record = raw_record(can.Message(timestamp=t_ns / 1e9, arbitration_id=0x0CF00400,
                                             data=bytes([i % 256, 125, 135, 0x40, 0x1F, 0, 0, 125])))
             w.write("/can/raw", t_ns, record)
-            written.append(("/can/raw", t_ns, record))
-    return written
 
 
 def outcome(read, expected) -> str:
@@ -64,7 +61,7 @@ def plain(path: Path):
 
 def sweep_mcap(flips: int, rng: random.Random, tmp: Path) -> None:
     source = tmp / "trip.mcap"
-    written = write_log(source)
+    write_log(source)
     data = source.read_bytes()
     for label, base in (("complete", data), ("cut before footer", data[: len(data) - 200])):
         ours, theirs, kept = Counter(), Counter(), []
