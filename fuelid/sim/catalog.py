@@ -2,8 +2,11 @@
 
 Identification and validation trips after the seed paper (1.5 h identification, a different validation trip),
 a gas-truck pair with flow-meter captures, eleven 30-minute diesel drive cycles like the paper's Table I, one
-trip per physical effect (two for ambient air), and a one-minute sample for the README's quick start.
+trip per physical effect (two for ambient air), and a one-minute sample for the README's quick start; the
+identification, validation and effect trips again on the map engine (VECTO's 325 kW engine).
 """
+from dataclasses import replace
+
 from fuelid.sim.effects import ALL_EFFECTS
 from fuelid.sim.trip import TripConfig
 
@@ -68,6 +71,8 @@ def _entries() -> dict:
             label = f"{kind}_{name}_20min" + (f"_{j + 1}" if len(trips) > 1 else "")
             c[label] = TripConfig(duration_s=1200.0, seed=2000 + k + j * SECOND_TRIP_SEED,
                                   effects=((name, ALL_EFFECTS[name].default),), **extra)
+            if kind == "effect":  # the same trip on the map engine: the hidden effect on top of a real map
+                c[f"map_{label}"] = replace(c[label], truth="map")
     return c
 
 
