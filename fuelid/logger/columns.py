@@ -19,7 +19,6 @@ is unaffected, and files without them (older files, the daemon's) read through t
 from __future__ import annotations
 
 import io
-from array import array
 from dataclasses import dataclass
 from typing import Callable
 
@@ -55,31 +54,29 @@ class ColumnBlock:
 
 
 class ColumnWriter:
-    """Collects the rows of the column attachments and hands each full block to `attach(data)`."""
+    """Collects the rows of the column attachments and hands each full block to `attach(data, log_time_ns)`.
+    A row is one tuple appended to a list (a conversion writes one per message); columns are made per block."""
 
     def __init__(self, attach: Callable[[bytes, int], None]):
-        self._attach = attach  # (block data, log time [ns] of its first row)
+        self._attach = attach  # (block data, log time [ns] of its earliest row)
+        self._reset()
+
+    def _reset(self) -> None:
         self._rows = 0
-        self._j1939 = [array("q"), array("I"), array("B"), array("B"), array("B"), array("H")]
-        self._seq, self._payloads = array("I"), []
-        self._flow = [array("I"), array("q"), array("d"), array("d")]
+        self._messages: list[tuple] = []  # (seq, t_ns, pgn, sa, da, tp kind, payload)
+        self._readings: list[tuple] = []  # (seq, t_ns, flow_kg_h, volts)
 
     def add_message(self, t_ns: int, pgn: int, sa: int, da: int, tp: str | None, payload: bytes) -> None:
         """One decoded J1939 message: its log time [ns], identifier fields and the payload it decoded from."""
-        t, p, s, d, k, n = self._j1939
-        self._seq.append(self._rows)
-        t.append(t_ns), p.append(pgn), s.append(sa), d.append(da), k.append(TP_KINDS[tp]), n.append(len(payload))
-        self._payloads.append(payload)
-        self._count()
+        self._messages.append((self._rows, t_ns, pgn, sa, da, TP_KINDS[tp], payload))
+        self._rows += 1
+        if self._rows == BLOCK_ROWS:
+            self.flush()
 
     def add_flow(self, t_ns: int, flow_kg_h: float | None, volts: float | None) -> None:
         """One flow-meter reading: log time [ns], flow [kg/h] and voltage [V] (None = null)."""
-        seq, t, flow, v = self._flow
-        seq.append(self._rows), t.append(t_ns)
-        flow.append(np.nan if flow_kg_h is None else flow_kg_h), v.append(np.nan if volts is None else volts)
-        self._count()
-
-    def _count(self) -> None:
+        self._readings.append((self._rows, t_ns, np.nan if flow_kg_h is None else flow_kg_h,
+                               np.nan if volts is None else volts))
         self._rows += 1
         if self._rows == BLOCK_ROWS:
             self.flush()
@@ -88,29 +85,30 @@ class ColumnWriter:
         """Write the rows collected so far as one attachment (nothing when there are none)."""
         if not self._rows:
             return
-        t, pgn, sa, da, tp, length = (np.frombuffer(a, a.typecode) if len(a) else np.zeros(0, a.typecode)
-                                      for a in self._j1939)
-        order = np.lexsort((sa, pgn))  # stable: write order within each (pgn, sa) group
+        cols = list(zip(*self._messages)) or [()] * 7
+        seq, t, pgn, sa, da, tp = (np.array(c, dtype) for c, dtype in
+                                   zip(cols, (np.int64, np.int64, np.uint32, np.uint8, np.uint8, np.uint8)))
+        length = np.array([len(p) for p in cols[6]], np.int64)
         width = int(length.max()) if len(length) else 0
-        payload = np.full((len(order), width), 0xFF, np.uint8)
-        n = length.astype(np.int64)
-        starts = np.cumsum(n) - n
-        row = np.repeat(np.arange(len(n)), n)
-        payload[row, np.arange(len(row)) - starts[row]] = np.frombuffer(b"".join(self._payloads), np.uint8)
-        t = t[order]
-        seq = np.asarray(self._seq, np.int64)[order]
+        payload = np.full((len(length), width), 0xFF, np.uint8)
+        row = np.repeat(np.arange(len(length)), length)
+        payload[row, np.arange(len(row)) - (np.cumsum(length) - length)[row]] = np.frombuffer(b"".join(cols[6]), np.uint8)
+        order = np.lexsort((sa, pgn))  # stable: write order within each (pgn, sa) group
+        t, seq = t[order], seq[order]
         arrays = dict(zip(_J1939, (np.diff(seq, prepend=0).astype(np.int32), np.diff(t, prepend=0), pgn[order],
-                                   sa[order], da[order], tp[order], length[order], payload[order].T.copy())))
-        flow_seq, flow_t, flow, volts = (np.asarray(a, a.typecode) for a in self._flow)
-        arrays.update(zip(_FLOW, (np.diff(flow_seq.astype(np.int64), prepend=0).astype(np.int32),
-                                  np.diff(flow_t, prepend=0), flow, volts)))
+                                   sa[order], da[order], tp[order], length[order].astype(np.uint16),
+                                   payload[order].T.copy())))
+        cols = list(zip(*self._readings)) or [()] * 4
+        flow_seq, flow_t, flow, volts = (np.array(c, dtype) for c, dtype in
+                                         zip(cols, (np.int64, np.int64, np.float64, np.float64)))
+        arrays.update(zip(_FLOW, (np.diff(flow_seq, prepend=0).astype(np.int32), np.diff(flow_t, prepend=0),
+                                  flow, volts)))
         arrays["format"] = np.array(FORMAT)
         buf = io.BytesIO()
         np.savez(buf, **arrays)
-        first = [int(t.min())] if len(t) else []
-        first += [int(min(self._flow[1]))] if len(self._flow[1]) else []
-        self._attach(zstandard.ZstdCompressor(level=3).compress(buf.getvalue()), min(first))
-        self.__init__(self._attach)
+        self._attach(zstandard.ZstdCompressor(level=3).compress(buf.getvalue()),
+                     int(np.concatenate([t, flow_t]).min()))
+        self._reset()
 
 
 def read_block(data: bytes) -> ColumnBlock:
