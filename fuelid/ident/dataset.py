@@ -35,7 +35,11 @@ accessories, a few % of the reference torque). idle_rpm defaults to EC1.EngSpeed
 else 600 rpm. `u`, `y` are kept absolute; `du`, `dy` are the deviations the paper identifies on (PolyModel
 subtracts its u0, y0 itself).
 
-Reading (bounded memory). Files are read a batch of verified chunks at a time (`logger.mcap_log.read_chunks`,
+Reading (bounded memory). A file that `fuelid convert` wrote carries its decoded messages also as message
+columns (`logger.columns` attachments: the J1939 payloads with their times and source addresses, the meter
+readings): those are read instead, a block at a time, each (PGN, source address) group's payloads decoded at
+once (`Decoder.decode_columns`, the very values of the JSON records), no chunk decompressed. Other files (the
+daemon's, older ones) are read a batch of verified chunks at a time (`logger.mcap_log.read_chunks`,
 /can/raw skipped); /j1939 records laid out alike are parsed column-wise with numpy (each record's keys checked
 byte for byte, its numbers parsed as one text), any other record one by one. Each signal's samples per source
 address are reduced as they arrive to, per bin: count, sum (added in time order, as np.bincount adds) and the
@@ -570,8 +574,9 @@ class _Signals:
 
 def _read(sources, ts_ns: int, damaged: list | None, in_order: bool) -> dict[str, dict]:
     """The signals of MCAP paths and/or lists of (topic, log_time_ns, record) records, see _Signals.finish.
-    Files are read chunk batch by chunk batch (with a progress bar on a terminal). A damaged chunk of a file
-    raises FuelidError, or, when a `damaged` list is given, is skipped and appended to it."""
+    A file is read from its message columns when it has them, else from its JSON channels chunk batch by chunk
+    batch (with a progress bar on a terminal). A damaged chunk of a file read so raises FuelidError, or, when a
+    `damaged` list is given, is skipped and appended to it."""
     signals = _Signals(ts_ns, in_order)
     spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
     arrival = 0
