@@ -84,5 +84,5 @@ def _store(where: Path, key: str, ds: Dataset) -> None:
             np.savez(f, meta=np.array(json.dumps(meta)), t=ds.t, u=ds.u, y=ds.y, u0=ds.u0, valid=ds.valid,
                      cycle=ds.cycle, **{f"extra{i}": v for i, v in enumerate(ds.extra.values())})
         os.replace(tmp, where)
-    except OSError:  # a read-only folder, a full disk: no cache, the Dataset is built all the same
+    except (OSError, TypeError, ValueError):  # a read-only folder, a full disk: no cache, the Dataset is built all the same
         tmp.unlink(missing_ok=True)
