@@ -18,3 +18,10 @@ def real_log():
         return p
 
     return path
+
+
+@pytest.fixture(autouse=True)
+def no_dataset_cache(monkeypatch):
+    """Commands build their data sets afresh in tests (no cache files beside shared or checked-in recordings);
+    tests/ident/test_datacache.py turns the cache on where it tests it."""
+    monkeypatch.setenv("FUELID_DATASET_CACHE", "0")

@@ -1,8 +1,10 @@
 """fuelid dataset: MCAP recordings to a resampled identification data set (.csv or .mat) for cross-checks."""
 import sys
 import warnings
+from pathlib import Path
 
 from fuelid.errors import FuelidError
+from fuelid.ident.datacache import cache_path, cached_dataset
 from fuelid.ident.dataset import build_dataset, csv_sidecar, save_dataset
 from fuelid.output import print_json
 
@@ -20,14 +22,20 @@ def add_dataset_arguments(p):
     p.add_argument("--skip-damaged", action="store_true",
                    help="leave out chunks of a recording that fail their CRC (a gap, listed in the warnings) "
                         "instead of stopping with an error")
+    p.add_argument("--no-cache", action="store_true",
+                   help=f"build the data set again instead of reusing the one cached beside the first recording "
+                        f"({cache_path(Path('DATA.mcap')).name}, rebuilt whenever a file's content or an option "
+                        "differs; FUELID_DATASET_CACHE=0 turns it off too)")
 
 
 def build(args, paths):
-    """The Dataset of `paths` with the options of add_dataset_arguments."""
+    """The Dataset of `paths` with the options of add_dataset_arguments (cached, see ident.datacache)."""
+    options = {"Ts": args.ts or 0.3, "fuel": args.fuel, "max_gap_s": args.max_gap, "cycle_s": args.cycle,
+               "skip_damaged": args.skip_damaged}
     with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
         warnings.simplefilter("ignore", UserWarning)
-        return build_dataset(paths, Ts=args.ts or 0.3, fuel=args.fuel, max_gap_s=args.max_gap, cycle_s=args.cycle,
-                             skip_damaged=args.skip_damaged)
+        return cached_dataset(paths, options, lambda: build_dataset(paths, **options),
+                              enabled=not getattr(args, "no_cache", False))
 
 
 def build_for_models(args, paths, models):

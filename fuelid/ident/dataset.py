@@ -35,7 +35,11 @@ accessories, a few % of the reference torque). idle_rpm defaults to EC1.EngSpeed
 else 600 rpm. `u`, `y` are kept absolute; `du`, `dy` are the deviations the paper identifies on (PolyModel
 subtracts its u0, y0 itself).
 
-Reading (bounded memory). Files are read a batch of verified chunks at a time (`logger.mcap_log.read_chunks`,
+Reading (bounded memory). A file that `fuelid convert` wrote carries its decoded messages also as message
+columns (`logger.columns` attachments: the J1939 payloads with their times and source addresses, the meter
+readings): those are read instead, a block at a time, each (PGN, source address) group's payloads decoded at
+once (`Decoder.decode_columns`, the very values of the JSON records), no chunk decompressed. Other files (the
+daemon's, older ones) are read a batch of verified chunks at a time (`logger.mcap_log.read_chunks`,
 /can/raw skipped); /j1939 records laid out alike are parsed column-wise with numpy (each record's keys checked
 byte for byte, its numbers parsed as one text), any other record one by one. Each signal's samples per source
 address are reduced as they arrive to, per bin: count, sum (added in time order, as np.bincount adds) and the
@@ -61,9 +65,10 @@ from scipy.io import loadmat, savemat
 import orjson
 
 from fuelid.errors import FuelidError
+from fuelid.logger import columns as message_columns
 from fuelid.logger.decode import Decoder, signal_units
 from fuelid.logger.j1939 import DEFAULT_SOURCE_PREFERENCE, preferred_source
-from fuelid.logger.mcap_log import MAGIC, read_chunks, read_messages
+from fuelid.logger.mcap_log import MAGIC, read_attachments, read_chunks, read_messages
 from fuelid.progress import progress
 
 SPEED = "EEC1.EngSpeed"
@@ -382,6 +387,63 @@ def _found_in_chunks(data: bytes, topics: dict[int, str], first_arrival: int,
     return found, len(starts), (int(log_time.min()), int(log_time.max()))
 
 
+_J1939_KEYS = 4  # t, pgn, sa, da come before the signals in a /j1939 record
+_FLOW_KEYS = {"volts": 2, "flow_kg_h": 3}  # places in a /flowmeter record (t, device_t first)
+
+
+def _found_in_columns(block: message_columns.ColumnBlock, first_arrival: int, decoder: Decoder) -> list[_Found]:
+    """_Found of one block of message columns (logger.columns), arrival indices counted from first_arrival: the
+    payloads of each (PGN, source address) group decoded at once, exactly as the JSON records hold them."""
+    found = []
+    key = block.pgn << 8 | block.sa
+    edges = np.r_[0, np.flatnonzero(np.diff(key)) + 1, len(key)]
+    for a, b in zip(edges[:-1], edges[1:]):
+        decoded = decoder.decode_columns(int(block.pgn[a]), block.payload[a:b], block.length[a:b])
+        if decoded is None:
+            raise ValueError(f"PGN {int(block.pgn[a])} is not in the DBC")
+        name, values = decoded
+        t, arrival = block.t_ns[a:b], first_arrival + block.seq[a:b]
+        for j, (signal, v) in enumerate(values.items()):
+            keep = ~np.isnan(v)
+            if keep.any():
+                found.append(_Found((int(arrival[np.argmax(keep)]), _J1939_KEYS + j), f"{name}.{signal}",
+                                    int(block.sa[a]), t[keep], v[keep]))
+    for signal, place in _FLOW_KEYS.items():
+        v = block.flow_kg_h if signal == "flow_kg_h" else block.volts
+        keep = ~np.isnan(v)
+        if keep.any():
+            found.append(_Found((first_arrival + int(block.flow_seq[np.argmax(keep)]), place), f"flowmeter.{signal}",
+                                None, block.flow_t_ns[keep], v[keep]))
+    return found
+
+
+def _read_columns(path: Path, topics: list[str], signals: _Signals, arrival: int) -> tuple[int, tuple | None] | None:
+    """Add the samples of a file's message columns to `signals` (arrival indices from `arrival`): how many
+    messages they held and their (first, last) log time [ns]; None when the file has none (read its JSON)."""
+    found = read_attachments(path, message_columns.NAME)
+    if found is None:
+        return None
+    counts, blocks = found
+    decoder, rows, first, last = Decoder(), 0, None, None
+    for data in blocks:
+        try:
+            block = message_columns.read_block(data)
+            signals.add(_found_in_columns(block, arrival + rows, decoder))
+        except ValueError as exc:
+            raise FuelidError(f"{path}: damaged {message_columns.NAME} attachment ({exc}); `fuelid recover` "
+                              "keeps every intact chunk") from None
+        rows += block.rows
+        t = np.concatenate([block.t_ns, block.flow_t_ns])
+        if len(t):
+            first = int(t.min()) if first is None else min(first, int(t.min()))
+            last = int(t.max()) if last is None else max(last, int(t.max()))
+    messages = sum(counts.get(topic, 0) for topic in topics)
+    if rows != messages:
+        raise FuelidError(f"{path}: its {message_columns.NAME} attachments hold {rows} messages, its channels "
+                          f"{messages}: not written together; `fuelid recover` rewrites the file without them")
+    return rows, (first, last)
+
+
 class _OutOfOrder(Exception):
     """Samples of a signal came earlier than ones already binned: their bins must be summed in time order."""
 
@@ -512,8 +574,9 @@ class _Signals:
 
 def _read(sources, ts_ns: int, damaged: list | None, in_order: bool) -> dict[str, dict]:
     """The signals of MCAP paths and/or lists of (topic, log_time_ns, record) records, see _Signals.finish.
-    Files are read chunk batch by chunk batch (with a progress bar on a terminal). A damaged chunk of a file
-    raises FuelidError, or, when a `damaged` list is given, is skipped and appended to it."""
+    A file is read from its message columns when it has them, else from its JSON channels chunk batch by chunk
+    batch (with a progress bar on a terminal). A damaged chunk of a file read so raises FuelidError, or, when a
+    `damaged` list is given, is skipped and appended to it."""
     signals = _Signals(ts_ns, in_order)
     spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
     arrival = 0
@@ -523,32 +586,43 @@ def _read(sources, ts_ns: int, damaged: list | None, in_order: bool) -> dict[str
             signals.add(_found_in_records(src, arrival + np.arange(len(src))))
             arrival += len(src)
             continue
-        first = last = None
-        layouts: dict[str, _Layout] = {}
-        batch, size = [], 0
-        chunks = progress(read_chunks(src, topics, damaged=damaged), desc=src.name, unit="chunk")
-        ids: dict[int, str] = {}
-        for new_ids, data in itertools.chain(chunks, [(None, None)]):
-            if data is not None:
-                ids = new_ids
-                batch.append(data)
-                size += len(data)
-                if size < _BATCH_BYTES:
-                    continue
-            if batch:
-                found, count, span = _found_in_chunks(b"".join(batch), ids, arrival, layouts)
-                signals.add(found)
-                arrival += count
-                if span is not None:
-                    first = span[0] if first is None else min(first, span[0])
-                    last = span[1] if last is None else max(last, span[1])
-            batch, size = [], 0
+        count, (first, last) = (_read_columns(src, topics, signals, arrival)
+                                or _read_json(src, topics, signals, arrival, damaged))
+        arrival += count
         for other, (a, b) in spans.items():
             if first is not None and a is not None and first <= b and a <= last:
                 raise FuelidError(f"{src} and {other} overlap in time: they are not parts of one recording; "
                                   "give them to separate runs")
         spans[src] = (first, last)
     return signals.finish()
+
+
+def _read_json(src: Path, topics: list[str], signals: _Signals, arrival: int,
+               damaged: list | None) -> tuple[int, tuple | None]:
+    """Add the samples of a file's JSON channels to `signals`, a batch of chunks at a time (with a progress bar
+    on a terminal), arrival indices from `arrival`: how many messages there were and their (first, last) log
+    time [ns]. Damaged chunks as in `_read`."""
+    count, first, last = 0, None, None
+    layouts: dict[str, _Layout] = {}
+    batch, size = [], 0
+    chunks = progress(read_chunks(src, topics, damaged=damaged), desc=src.name, unit="chunk")
+    ids: dict[int, str] = {}
+    for new_ids, data in itertools.chain(chunks, [(None, None)]):
+        if data is not None:
+            ids = new_ids
+            batch.append(data)
+            size += len(data)
+            if size < _BATCH_BYTES:
+                continue
+        if batch:
+            found, n, span = _found_in_chunks(b"".join(batch), ids, arrival + count, layouts)
+            signals.add(found)
+            count += n
+            if span is not None:
+                first = span[0] if first is None else min(first, span[0])
+                last = span[1] if last is None else max(last, span[1])
+        batch, size = [], 0
+    return count, (first, last)
 
 
 def _sources(sources) -> list:
@@ -598,6 +672,12 @@ def _resample(s: _Binned, k_rows, k0, Ts, hold, mean):
     if mean:
         out[np.searchsorted(k_rows, bins)] = s.means()
     return out
+
+
+def _union(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.union1d of two increasing arrays without repeats: timsort merges the two runs in one linear pass."""
+    both = np.sort(np.concatenate([a, b]), kind="stable")
+    return both[np.r_[True, both[1:] != both[:-1]]] if len(both) else both
 
 
 def _lasting(mask: np.ndarray, n: int) -> np.ndarray:
@@ -677,7 +757,7 @@ def build_dataset(
     k0 = min(s.t_min for s in chosen.values()) // ts_ns  # bins start at multiples of Ts
     occupied = np.zeros(0, np.int64)
     for s in chosen.values():  # one signal's bins at a time
-        occupied = np.union1d(occupied, s.bins() - k0)
+        occupied = _union(occupied, s.bins() - k0)
     span = int(np.ceil(max_gap_s / Ts)) + 2  # hold bins + one invalid row after a gap
     k_rows = np.unique((occupied[:, None] + np.arange(span)).ravel())
     k_rows = k_rows[k_rows <= occupied[-1]]  # nothing held past the end of the data

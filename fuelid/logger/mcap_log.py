@@ -27,11 +27,12 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Footer, McapRecord, Message, Metadata, Schema, Statistics
+from mcap.records import Attachment, Channel, Chunk, Footer, McapRecord, Message, Metadata, Schema, Statistics
 from mcap.writer import CompressionType, Writer
 
 from fuelid import __version__
 from fuelid.errors import FuelidError
+from fuelid.logger import columns as message_columns
 from fuelid.logger.durable import fsync_path
 
 METADATA_NAME = "fuelid"
@@ -141,6 +142,8 @@ class McapLogWriter:
     Built on the Foxglove SDK's MCAP writer (Rust) rather than the pure-Python `mcap` Writer, which
     caps at ~120,000 messages/s on one core, too slow for the logger's decode + write budget.
     `metadata` is the `fuelid` metadata record (truck, dbc_sha256, source, ...; logger_version is added).
+    `columns`: also write the messages as `logger.columns` attachments (`self.columns` collects them; a
+    conversion's choice: a block is written only when full or at `close()`).
     """
 
     def __init__(
@@ -152,6 +155,7 @@ class McapLogWriter:
         chunk_size: int = 1 << 20,
         message_indexes: bool = True,
         fsync: bool = True,
+        columns: bool = False,
     ):
         import foxglove  # imported here: loading the SDK takes a moment and readers do not need it
         from foxglove.mcap import MCAPCompression, MCAPWriteOptions
@@ -177,7 +181,12 @@ class McapLogWriter:
         self._log_due_ns: int | None = None  # set by the first message after a flush
         self._wall_due_ns = time.monotonic_ns() + self._flush_ns
         self._closed = False
+        self.columns = message_columns.ColumnWriter(self._attach_columns) if columns else None
         self.set_metadata({})
+
+    def _attach_columns(self, data: bytes, log_time_ns: int) -> None:
+        self._writer.attach(log_time=log_time_ns, create_time=time.time_ns(), name=message_columns.NAME,
+                            media_type=message_columns.MEDIA_TYPE, data=data)
 
     def add_channel(self, topic: str, schema: dict) -> None:
         """Register `topic` with a jsonschema `schema` (named by its "title", else the topic)."""
@@ -241,6 +250,8 @@ class McapLogWriter:
         if self._closed:
             return
         self._closed = True
+        if self.columns is not None:
+            self.columns.flush()
         self._channels.clear()  # a write after close raises KeyError instead of vanishing without a sink
         self._writer.close()
         if self._fsync:
@@ -581,6 +592,36 @@ def read_messages(path: str | Path, topics: Iterable[str] | str | None = None, *
             yield topic, log_time, orjson.loads(data)
         except orjson.JSONDecodeError as exc:
             raise FuelidError(f"{path}: a message on {topic} at {log_time} ns is not JSON ({exc})") from exc
+
+
+def read_attachments(path: str | Path, name: str) -> tuple[dict[str, int], list[bytes]] | None:
+    """(messages per topic, the data of every attachment named `name` in file order) of a complete file whose
+    summary CRC vouches for its index and statistics and that has such attachments; None for any other file.
+    An attachment failing its CRC raises FuelidError naming its bytes. The counts are the summary's."""
+    f, reader = _open(path)
+    with f:
+        if reader is None:
+            return None
+        summary = reader.get_summary()
+        indexes = sorted((a for a in summary.attachment_indexes if a.name == name), key=lambda a: a.offset)
+        if not indexes or summary.statistics is None:
+            return None
+        counts = {c.topic: summary.statistics.channel_message_counts.get(i, 0) for i, c in summary.channels.items()}
+        blocks = []
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+            for a in indexes:
+                start, end = a.offset, a.offset + a.length
+                try:
+                    if buf[start] != Opcode.ATTACHMENT or end > len(buf):
+                        raise ValueError("no attachment record there")
+                    record = Attachment.read(ReadDataStream(io.BytesIO(buf[start + 9:end])))
+                    if struct.unpack_from("<I", buf, end - 4)[0] not in (0, zlib.crc32(buf[start + 9:end - 4])):
+                        raise ValueError("CRC mismatch")
+                except (ValueError, struct.error, McapError, UnicodeDecodeError, EOFError) as exc:
+                    raise FuelidError(f"{path}: damaged attachment {name} at bytes {start}-{end} ({exc}); "
+                                      "`fuelid recover` keeps every intact chunk") from None
+                blocks.append(record.data)
+        return counts, blocks
 
 
 def damaged_chunks(path: str | Path) -> list[DamagedChunk]:

@@ -30,12 +30,13 @@ def open_writer(path, *, truck: str = "unknown", source: str = "", live: bool = 
 
     live (the daemon, which a power cut may stop): one-second chunks with message indexes, synced to disk
     every second of wall time. Otherwise (a conversion, which can be run again): big chunks, no message
-    indexes, no sync; less than half the bytes (README, Logging and converting)."""
+    indexes, no sync, and the decoded messages also as column attachments (logger.columns) that the dataset
+    reads without JSON; less than half the bytes (README, Logging and converting)."""
     metadata = {"truck": truck, "logger_version": __version__, "dbc_sha256": dbc_sha256(), "source": source}
     if live:
         return McapLogWriter(path, metadata=metadata)
     return McapLogWriter(path, metadata=metadata, chunk_flush_s=None, chunk_size=CONVERT_CHUNK_BYTES,
-                         message_indexes=False, fsync=False)
+                         message_indexes=False, fsync=False, columns=True)
 
 
 @dataclass
@@ -111,14 +112,18 @@ class Recorder(can.Listener):
             stats.standard_frames += not (msg.is_error_frame or msg.is_remote_frame)
             return
         for session in self.reassembler.feed(msg):
-            self._record(self.decoder.decode_payload(session.t, session.pgn, session.sa, session.da, session.payload, tp=session.kind))
-        self._record(self.decoder.decode(msg))
+            self._record(self.decoder.decode_payload(session.t, session.pgn, session.sa, session.da, session.payload, tp=session.kind),
+                         session.payload)
+        self._record(self.decoder.decode(msg), msg.data)
 
-    def _record(self, decoded) -> None:
+    def _record(self, decoded, payload: bytes) -> None:
         if decoded is None:
             return
         self.stats.messages[decoded.name, decoded.sa, tuple(decoded.invalid.items())] += 1
-        self._write(f"/j1939/{decoded.name}", message_schema(decoded.name), int(decoded.t * 1e9), decoded.to_record())
+        t_ns = int(decoded.t * 1e9)
+        self._write(f"/j1939/{decoded.name}", message_schema(decoded.name), t_ns, decoded.to_record())
+        if self.writer.columns is not None:
+            self.writer.columns.add_message(t_ns, decoded.pgn, decoded.sa, decoded.da, decoded.tp, bytes(payload))
         vin = decoded.values.get("VIN") if decoded.name == "VI" else None
         if vin and vin != self.vin:
             self.vin = vin
@@ -126,4 +131,7 @@ class Recorder(can.Listener):
 
     def on_flow_reading(self, reading: FlowReading) -> None:
         self.stats.flow_readings[reading.status] += 1
-        self._write("/flowmeter", FLOWMETER_SCHEMA, int(reading.t * 1e9), reading.to_record())
+        t_ns = int(reading.t * 1e9)
+        self._write("/flowmeter", FLOWMETER_SCHEMA, t_ns, reading.to_record())
+        if self.writer.columns is not None:
+            self.writer.columns.add_flow(t_ns, reading.flow_kg_h, reading.volts)
