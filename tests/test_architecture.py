@@ -53,14 +53,6 @@ def lazy_allowed(target: str) -> bool:
     return target in LAZY_IMPORTS or target.split(".")[0] in LAZY_IMPORTS
 
 
-# Function-level imports inside fuelid.ident that the split of effects/validation/diagnosis (issue 14, items 3-5)
-# removes. TEMPORARY: the merge of that work empties this set; nothing may be added to it.
-PENDING_IDENT_SPLIT: set[tuple[str, str]] = set()
-
-# Modules with an `except (FuelidError, ValueError)` left because ident.diagnosis raises ValueError for data too
-# short for its tests. TEMPORARY: emptied when the diagnosis split raises fuelid.errors.InputError there.
-PENDING_DIAGNOSIS_ERRORS: set[str] = set()
-
 
 def module_name(path: Path) -> str:
     parts = path.relative_to(ROOT).with_suffix("").parts
@@ -191,7 +183,7 @@ def test_nothing_below_the_cli_imports_the_cli():
 
 def test_imports_inside_functions_are_only_optional_or_heavy_dependencies():
     bad = [where(m, t, line) for m, t, line in edges(lazy=True)
-           if not lazy_allowed(t) and (m, t) not in PENDING_IDENT_SPLIT]
+           if not lazy_allowed(t)]
     assert not bad, ("an import inside a function is only for an optional or heavy dependency "
                      f"({', '.join(sorted(LAZY_IMPORTS))}); move these to the top of the file:\n" + "\n".join(bad))
 
@@ -237,7 +229,7 @@ def test_no_import_cycles():
     graph: dict[str, set[str]] = {m: set() for m in GRAPH}
     for m, t, _ in edges():
         # a package's own __init__ importing from it is no cycle; neither is a pending ident edge, until merged
-        if t in GRAPH and not m.startswith(t + ".") and (m, t) not in PENDING_IDENT_SPLIT:
+        if t in GRAPH and not m.startswith(t + "."):
             graph[m].add(t)
     found = cycles(graph)
     detail = ["  " + " <-> ".join(c) + ": " + "; ".join(where(m, t, line) for m, t, line in edges()
@@ -269,15 +261,9 @@ def test_domain_errors_are_caught_as_one_family():
         for node in ast.walk(tree):
             if isinstance(node, ast.ExceptHandler) and isinstance(node.type, ast.Tuple):
                 names = {getattr(e, "id", getattr(e, "attr", None)) for e in node.type.elts}
-                if "ValueError" in names and names & family and module not in PENDING_DIAGNOSIS_ERRORS:
+                if "ValueError" in names and names & family:
                     bad.append(f"{module.replace('.', '/')}.py:{node.lineno}")
     assert not bad, "except (FuelidError, ValueError): make the code below raise the family:\n" + "\n".join(bad)
-
-
-@pytest.mark.parametrize("pair", sorted(PENDING_IDENT_SPLIT))
-def test_pending_ident_split_lists_only_imports_that_exist(pair):
-    """An entry whose import is gone must leave the list, so it ends empty once the split is merged."""
-    assert pair in {(m, t) for m, t, _ in edges(lazy=True)}, f"{pair} is no longer imported: remove it"
 
 
 def test_the_wheel_installs_one_import_name(tmp_path):
