@@ -1,11 +1,13 @@
 """Fleet refit of N simulated trucks on a Dask LocalCluster with 1 and with 2 worker processes, in one run.
 
     .venv/bin/python benchmarks/bench_fleet_refit.py [--trucks 10] [--minutes 30 60] [--workers 1 2] [--repeat 1]
-                                                     [--json]
+                                                     [--week HOURS] [--json]
 
 Data: N diesel trucks from the simulator (seeds 200…, cycles mixed / motorway / urban / rural in turn, trip
 lengths spread evenly over --minutes), converted to MCAP by `fuelid convert`; generated once into
-benchmarks/.cache/fleet/ (git-ignored) and reused. Each truck's job is fleet.jobs.identify_truck with the
+benchmarks/.cache/fleet/ (git-ignored) and reused. With --week HOURS (a truck-week: 70) each truck instead has HOURS of recordings: the shipped 1.5 h trip's
+decoded messages in 1.5 h files shifted in time, as benchmarks/bench_dataset.py builds them (its
+`long_recording`, same cache); every truck reads the same files, so the trucks differ only in name. Each truck's job is fleet.jobs.identify_truck with the
 paper's orders: dataset, PEM, diagnosis with verification refits, model.json, diagnosis.json, report.html.
 For each worker count a fresh fleet.jobs.JobRunner is started (start-up and the per-worker imports are timed
 apart) and `refit_all` runs every truck; the refit wall time is what counts (the fastest of --repeat). The
@@ -31,11 +33,14 @@ sys.path.insert(0, str(REPO))
 from fuelid.fleet.jobs import JobRunner  # noqa: E402
 from fuelid.cli import main as fuelid  # noqa: E402
 
+sys.path.insert(0, str(REPO / "benchmarks"))
+from bench_dataset import converted_trip, long_recording  # noqa: E402  (the truck-week's files)
+
 CYCLES = ("mixed", "motorway", "urban", "rural")
 
 
 def trucks(n: int, minutes: tuple[float, float], cache: Path) -> list[dict]:
-    """The n simulated trucks' MCAP files in cache (made when missing): [{truck, mcap, minutes, bytes}]."""
+    """The n simulated trucks' MCAP files in cache (made when missing): [{truck, mcap_paths, minutes, bytes}]."""
     from fuelid.sim.trip import TripConfig, simulate, write
 
     cache.mkdir(parents=True, exist_ok=True)
@@ -58,8 +63,16 @@ def trucks(n: int, minutes: tuple[float, float], cache: Path) -> list[dict]:
                     sys.stdout = stdout
             tmp.rename(mcap)
             print(f"generated {mcap.name} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
-        out.append({"truck": name, "mcap": str(mcap), "minutes": round(length), "bytes": mcap.stat().st_size})
+        out.append({"truck": name, "mcap_paths": [str(mcap)], "minutes": round(length), "bytes": mcap.stat().st_size})
     return out
+
+
+def truck_weeks(n: int, hours: float) -> list[dict]:
+    """n trucks with `hours` of recordings each (the same shifted files): [{truck, mcap_paths, minutes, bytes}]."""
+    files = long_recording(converted_trip(), hours)
+    size = sum(f.stat().st_size for f in files)
+    return [{"truck": f"week{i}", "mcap_paths": [str(f) for f in files], "minutes": 90 * len(files), "bytes": size}
+            for i in range(n)]
 
 
 def peak_rss_mb() -> float:
@@ -78,7 +91,7 @@ def refit(fleet: list[dict], workers: int, work: Path, orders: str, spin_n: int)
     t0 = time.perf_counter()
     with JobRunner(n_workers=workers) as runner:
         t_start = time.perf_counter() - t0
-        tasks = [{"truck": t["truck"], "mcap_paths": [t["mcap"]], "out_dir": str(work / f"{workers}w" / t["truck"]),
+        tasks = [{"truck": t["truck"], "mcap_paths": t["mcap_paths"], "out_dir": str(work / f"{workers}w" / t["truck"]),
                   "orders": orders} for t in fleet]
         t1 = time.perf_counter()
         results = runner.refit_all(tasks)
@@ -107,10 +120,13 @@ def main():
     ap.add_argument("--repeat", type=int, default=1, help="refits per worker count; the fastest counts")
     ap.add_argument("--spin", type=int, default=20_000_000, help="loop length of each control task (about 1 CPU s)")
     ap.add_argument("--cache", default=str(REPO / "benchmarks" / ".cache" / "fleet"))
+    ap.add_argument("--week", type=float, default=0.0, metavar="HOURS",
+                    help="give each truck HOURS of recordings (a truck-week: 70) made from the shipped trip")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
-    fleet = trucks(args.trucks, tuple(args.minutes), Path(args.cache))
+    fleet = (truck_weeks(args.trucks, args.week) if args.week else
+             trucks(args.trucks, tuple(args.minutes), Path(args.cache)))
     hours = sum(t["minutes"] for t in fleet) / 60
     load_before = os.getloadavg()
     best = {}

@@ -28,6 +28,7 @@ COMMANDS = {
     "export": "export a model.json for MATLAB: a script rebuilding it as an idpoly (--to matlab) or a .mat file "
               "(--to mat)",
     "online": "run the online BJ estimator (recursive prediction error or Kalman) over MCAP recordings",
+    "warmup": "compile and cache the online estimators' numba kernels (run once after install, e.g. in an image)",
     "serve": "run the fleet server: truck uploads, per-truck model registry, identification jobs on Dask",
     "token": "create, list or revoke fleet API tokens (--data-dir/--database-url offline, else via --server)",
     "upload": "upload MCAP files to the fleet server (resumes cut uploads; idempotent by sha256)",

@@ -319,24 +319,25 @@ def _hannan_rissanen(w, nc: int, nd: int, starts=(0,)):
 
 
 def _noise_model(w, nc: int, nd: int, *, starts=(0,), max_iter: int, tol: float):
-    """C/D of the ARMA model D w = C e: Hannan–Rissanen, refined by the same LM (a PEM with no inputs)."""
+    """(C, D, LM iterations) of the ARMA model D w = C e: Hannan–Rissanen, refined by the same LM (a PEM with
+    no inputs)."""
     if nc == 0 and nd == 0:
-        return np.ones(1), np.ones(1)
+        return np.ones(1), np.ones(1), 0
     C, D = _hannan_rissanen(w, nc, nd, starts)
     arma = Structure(nb=(), nf=(), nk=(), nc=nc, nd=nd)
-    theta = levenberg_marquardt(np.r_[C[1:], D[1:]], arma, np.zeros((w.size, 0)), w, starts=starts,
-                                max_iter=max_iter, tol=tol)[0]
-    return np.r_[1.0, theta[:nc]], np.r_[1.0, theta[nc:]]
+    fit = levenberg_marquardt(np.r_[C[1:], D[1:]], arma, np.zeros((w.size, 0)), w, starts=starts,
+                              max_iter=max_iter, tol=tol)
+    return np.r_[1.0, fit.theta[:nc]], np.r_[1.0, fit.theta[nc:]], fit.iterations
 
 
 def _input_model(u, y, s: Structure, *, starts=(0,), max_iter: int, tol: float):
-    """(A, [B_i], [F_i]) for `initial_estimate`: least-squares ARX when there is no F_i or there is an A;
+    """(A, [B_i], [F_i], OE LM iterations) for `initial_estimate`: least-squares ARX when there is no F_i or there is an A;
     for OE/BJ a high-order ARX, its per-input responses reduced to B_i/F_i by Steiglitz–McBride, then the
     OE model B_i/F_i refined by LM (consistent whatever the noise colour)."""
     m = u.shape[1]
     if not any(s.nf) or s.na > 0:
         A, B = _arx_ls(u, y, s.na, s.nb, s.nk, starts)
-        return A, B, [np.r_[1.0, np.zeros(nf)] for nf in s.nf]
+        return A, B, [np.r_[1.0, np.zeros(nf)] for nf in s.nf], 0
     n = max(HIGH_ORDER_ARX, *(k + b + f for k, b, f in zip(s.nk, s.nb, s.nf)))
     Ah, Bh = _arx_ls(u, y, n, (n + 1,) * m, (0,) * m, starts)
     Ahs = stabilize(Ah)
@@ -346,8 +347,9 @@ def _input_model(u, y, s: Structure, *, starts=(0,), max_iter: int, tol: float):
     theta = np.concatenate([b[k:] for (b, _), k in zip(fits, s.nk)] + [f[1:] for _, f in fits])
     uf = _restarted(lambda p: lfilter(Ah, [1.0], p, axis=0), u, starts)
     yf = _restarted(lambda p: lfilter(Ah, [1.0], p), y, starts)
-    g = from_theta(levenberg_marquardt(theta, oe, uf, yf, starts=starts, max_iter=max_iter, tol=tol)[0], oe, 1.0)
-    return g.A, g.B, g.F
+    fit = levenberg_marquardt(theta, oe, uf, yf, starts=starts, max_iter=max_iter, tol=tol)
+    g = from_theta(fit.theta, oe, 1.0)
+    return g.A, g.B, g.F, fit.iterations
 
 
 def _drop_warmup(x: np.ndarray, starts, n0: int):
@@ -356,17 +358,26 @@ def _drop_warmup(x: np.ndarray, starts, n0: int):
     return x[_used(len(x), starts, n0)], tuple(int(a) for a in np.cumsum(np.r_[0, lengths[lengths > 0]])[:-1])
 
 
+class InitialEstimate(NamedTuple):
+    """θ₀ from `initial_estimate` and the LM iterations its OE and ARMA fits took (0: no such fit)."""
+
+    theta: np.ndarray
+    oe_iterations: int
+    arma_iterations: int
+
+
 def initial_estimate(u, y, s: Structure, *, starts=(0,), max_iter: int = INIT_MAX_ITER,
-                     tol: float = 1e-7) -> np.ndarray:
+                     tol: float = 1e-7) -> InitialEstimate:
     """θ₀ for `pem` from deviation data (segments beginning at `starts`): the input part (`_input_model`), then
     the noise model C/D fitted to the residual w = A y − Σ B_i/F_i u_i (`_noise_model`)."""
-    A, B, F = _input_model(u, y, s, starts=starts, max_iter=max_iter, tol=tol)
+    A, B, F, oe_iterations = _input_model(u, y, s, starts=starts, max_iter=max_iter, tol=tol)
     g = PolyModel(A=A, B=B, F=F, C=[1.0], D=[1.0], Ts=1.0, nk=s.nk)
     w = (_restarted(lambda p: lfilter(A, [1.0], p), y, starts)
          - _restarted(lambda p: input_responses(g, p), u, starts).sum(axis=1))
     w, w_starts = _drop_warmup(w, starts, s.n_start)
-    C, D = _noise_model(w, s.nc, s.nd, starts=w_starts, max_iter=max_iter, tol=tol)
-    return np.concatenate([A[1:]] + [b[k:] for b, k in zip(B, s.nk)] + [f[1:] for f in F] + [C[1:], D[1:]])
+    C, D, arma_iterations = _noise_model(w, s.nc, s.nd, starts=w_starts, max_iter=max_iter, tol=tol)
+    theta = np.concatenate([A[1:]] + [b[k:] for b, k in zip(B, s.nk)] + [f[1:] for f in F] + [C[1:], D[1:]])
+    return InitialEstimate(theta, oe_iterations, arma_iterations)
 
 
 def at_stability_bound(model: PolyModel) -> list[str]:
@@ -424,7 +435,9 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
     `levenberg_marquardt` for the final fit (the initialisation's own fits stop at INIT_MAX_ITER). Warns (and records in info['warnings']) on a near pole–zero cancellation closer
     than cancel_tol, when LM stops without converging, and when it converged on a flat loss.
     info records converged, stop_reason (a key of STOP_REASONS), iterations, loss_history (V per iteration)
-    and gauss_newton_step_se, the length √(δᵀP⁻¹δ) of the Gauss–Newton step still left at θ̂ [standard errors].
+    and gauss_newton_step_se, the length √(δᵀP⁻¹δ) of the Gauss–Newton step still left at θ̂ [standard errors];
+    initialisation_iterations ({output_error, arma}: the LM iterations of the initialisation's fits, 0 with init)
+    and initialisation_time_s [s], the wall time up to the final fit.
     Names and units of the signals are set afterwards with dataclasses.replace.
     """
     t_start = time.perf_counter()
@@ -442,9 +455,10 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
     if init is not None and init.structure != s:
         raise ValueError(f"init has structure {init.structure}, expected {s}")
     with threadpool_limits(1, "blas") if threadpool_limits else contextlib.nullcontext():
-        theta0 = (init.theta if init is not None else
-                  initial_estimate(du, dy, s, starts=starts, tol=tol))
-        fit = levenberg_marquardt(theta0, s, du, dy, starts=starts, max_iter=max_iter, tol=tol, ftol=ftol)
+        start = (InitialEstimate(init.theta, 0, 0) if init is not None else
+                 initial_estimate(du, dy, s, starts=starts, tol=tol))
+        t_init = time.perf_counter()
+        fit = levenberg_marquardt(start.theta, s, du, dy, starts=starts, max_iter=max_iter, tol=tol, ftol=ftol)
         scale, Q, ell, g = _scaled_normal_equations(fit.psi, fit.eps, _used(dy.size, starts, s.n_start))
 
     V = fit.V
@@ -475,6 +489,8 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
                               "samples of each excluded from V",
         "segments": len(starts),
         "iterations": fit.iterations,
+        "initialisation_iterations": {"output_error": start.oe_iterations, "arma": start.arma_iterations},
+        "initialisation_time_s": t_init - t_start,
         "converged": fit.converged,
         "stop_reason": fit.reason,
         "stopping": {"max_iter": max_iter, "tol": tol, "ftol": ftol},

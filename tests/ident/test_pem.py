@@ -123,6 +123,8 @@ def test_start_does_not_depend_on_max_iter():
     s = SEG_TRUTH.structure
     short, full = fit_quiet(u, y, s, max_iter=1), fit_quiet(u, y, s)
     assert short.info["loss_history"][0] == full.info["loss_history"][0]
+    assert short.info["initialisation_iterations"] == full.info["initialisation_iterations"]
+    assert full.info["initialisation_iterations"]["output_error"] > 0 < full.info["initialisation_iterations"]["arma"]
     assert full.info["converged"] and full.info["loss_V"] <= short.info["loss_V"]
 
 
@@ -135,6 +137,7 @@ def test_not_converging_is_said():
         est = pem(u, y, SEG_TRUTH.structure, 1.0, init=start, max_iter=1)
     assert not est.info["converged"] and est.info["stop_reason"] == "max_iterations"
     assert est.info["gauss_newton_step_se"] > 1
+    assert est.info["initialisation_iterations"] == {"output_error": 0, "arma": 0}  # started from `start`
 
 
 def test_stabilize_reflects_roots():
