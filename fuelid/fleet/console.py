@@ -234,25 +234,33 @@ def _alerts(truck: str, latest: dict, fields: dict, new_effect: bool) -> list[Al
     return alerts
 
 
-def _fleet_query() -> sa.Select:
+def _fleet_query(named_trucks: bool = False) -> sa.Select:
     """One row per truck, by name: everything its fleet row is computed from. Its files' count, recorded time,
     last upload and time range; its number of versions; the latest version's id, number, creation time, model,
     named effect and metrics (as JSON text: compared as is, parsed only for a row computed again); the first
-    version's model; and whether an earlier version named the latest one's effect."""
+    version's model; and whether an earlier version named the latest one's effect. With `named_trucks`, only
+    the trucks in the list parameter `trucks` (and only their files and versions are read)."""
     f, m = db.files, db.models
-    files = sa.select(f.c.truck, sa.func.count().label("files"),
-                      sa.func.coalesce(sa.func.sum(f.c.end_ns - f.c.start_ns), 0).label("recorded_ns"),
-                      sa.func.max(f.c.uploaded_unix_s).label("last_upload"), sa.func.min(f.c.start_ns).label("start_ns"),
-                      sa.func.max(f.c.end_ns).label("end_ns")).group_by(f.c.truck).subquery()
-    span = sa.select(m.c.truck, sa.func.min(m.c.version).label("first"), sa.func.max(m.c.version).label("latest"),
-                     sa.func.count().label("versions")).group_by(m.c.truck).subquery()
+    trucks = sa.bindparam("trucks", expanding=True)
+
+    def only(q: sa.Select, column) -> sa.Select:
+        return q.where(column.in_(trucks)) if named_trucks else q
+
+    files = only(sa.select(f.c.truck, sa.func.count().label("files"),
+                           sa.func.coalesce(sa.func.sum(f.c.end_ns - f.c.start_ns), 0).label("recorded_ns"),
+                           sa.func.max(f.c.uploaded_unix_s).label("last_upload"),
+                           sa.func.min(f.c.start_ns).label("start_ns"), sa.func.max(f.c.end_ns).label("end_ns")),
+                 f.c.truck).group_by(f.c.truck).subquery()
+    span = only(sa.select(m.c.truck, sa.func.min(m.c.version).label("first"),
+                          sa.func.max(m.c.version).label("latest"), sa.func.count().label("versions")),
+                m.c.truck).group_by(m.c.truck).subquery()
     latest, first, earlier = m.alias("latest"), m.alias("first"), m.alias("earlier")
     # looked for only when the latest version names an effect (most do not: a search per truck saved)
     named_before = sa.case((latest.c.top_effect.is_(None), sa.false()), else_=sa.exists().where(
         earlier.c.truck == latest.c.truck, earlier.c.top_effect == latest.c.top_effect,
         earlier.c.version < latest.c.version))
     t = db.trucks.c.truck
-    return (sa.select(t, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns, files.c.end_ns,
+    return only(sa.select(t, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns, files.c.end_ns,
                       span.c.versions, latest.c.id.label("latest_id"), latest.c.version.label("latest_version"),
                       latest.c.created_unix_s.label("latest_created_unix_s"),
                       latest.c.model_sha256.label("latest_sha256"), latest.c.top_effect,
@@ -260,15 +268,32 @@ def _fleet_query() -> sa.Select:
                       named_before.label("named_before"))
             .select_from(db.trucks.outerjoin(files, files.c.truck == t).outerjoin(span, span.c.truck == t)
                          .outerjoin(latest, (latest.c.truck == t) & (latest.c.version == span.c.latest))
-                         .outerjoin(first, (first.c.truck == t) & (first.c.version == span.c.first)))
-            .order_by(t))
+                         .outerjoin(first, (first.c.truck == t) & (first.c.version == span.c.first))),
+                t).order_by(t)
 
 
-FLEET_QUERY = _fleet_query()
-# whether the registry changed since a view was computed (rows are inserted or deleted, never updated)
+FLEET_QUERY, FLEET_QUERY_OF = _fleet_query(), _fleet_query(named_trucks=True)
+MAX_NAMED = 500  # more changed trucks than this: all are read (bounded IN lists)
+# Whether the registry changed since a view was computed (rows are inserted or deleted, never updated): counts
+# and newest of trucks (created), files (uploaded) and model versions (id).
 FINGERPRINT = sa.select(*(sa.select(agg).scalar_subquery() for agg in (
-    sa.func.count(db.trucks.c.truck), sa.func.count(db.files.c.sha256), sa.func.max(db.files.c.uploaded_unix_s),
-    sa.func.count(db.models.c.id), sa.func.max(db.models.c.id))))
+    sa.func.count(db.trucks.c.truck), sa.func.max(db.trucks.c.created_unix_s), sa.func.count(db.files.c.sha256),
+    sa.func.max(db.files.c.uploaded_unix_s), sa.func.count(db.models.c.id), sa.func.max(db.models.c.id))))
+NEW_VERSIONS = sa.select(db.models.c.truck).where(db.models.c.id > sa.bindparam("after_id"))
+NEW_FILES = sa.select(db.files.c.truck).where(db.files.c.uploaded_unix_s > sa.bindparam("after_unix_s"))
+
+
+def trucks_added_to(conn, before: tuple, now: tuple) -> set[str] | None:
+    """The trucks given model versions or files since the registry's FINGERPRINT was `before`, when those new
+    rows account for every change up to `now`; None when they do not — a truck added or deleted, a version or
+    file deleted, a row committed after one with a newer id or upload time — and every truck must be read."""
+    trucks0, created0, files0, uploaded0, models0, id0 = before
+    trucks1, created1, files1, _, models1, _ = now
+    versions = conn.execute(NEW_VERSIONS, {"after_id": id0 or 0}).scalars().all()
+    files = conn.execute(NEW_FILES, {"after_unix_s": uploaded0 or 0.0}).scalars().all()
+    if (trucks1, created1) != (trucks0, created0) or files1 != files0 + len(files) or models1 != models0 + len(versions):
+        return None
+    return set(versions) | set(files)
 
 
 def truck_summary(r, cache: ModelCache, points, threshold: float) -> TruckSummary:
@@ -298,9 +323,10 @@ def truck_summary(r, cache: ModelCache, points, threshold: float) -> TruckSummar
 class FleetView:
     """The fleet summary at one choice of reference points and threshold, brought up to date by what changed:
     each truck's row is kept with the FLEET_QUERY row it was computed from (its inputs) and computed again only
-    when those differ — a new, deleted or replaced version, new files, another first model — so a new model
-    version costs one truck's row, the fleet median and the response's JSON. A truck gone from the registry
-    is gone from the view: memory is one row per truck (its inputs, its summary) and the last response."""
+    when those differ — a new, deleted or replaced version, new files, another first model. When the registry
+    only gained versions or files, only their trucks are read (trucks_added_to), so a new model version costs
+    one truck's read and row, the fleet median and the response's JSON. A truck gone from the registry is gone
+    from the view: memory is one row per truck (its inputs, its summary) and the last response."""
 
     def __init__(self, points: tuple[ReferencePoint, ...], threshold: float):
         self.points, self.threshold = points, threshold
@@ -310,8 +336,13 @@ class FleetView:
         self.alerts: list[Alert] = []
 
     def refresh(self, conn, cache: ModelCache, fingerprint: tuple) -> None:
-        rows = {}
-        for r in conn.execute(FLEET_QUERY):
+        """Bring the view up to the registry whose FINGERPRINT is `fingerprint`."""
+        added = None if self.fingerprint is None else trucks_added_to(conn, self.fingerprint, fingerprint)
+        if added is None or len(added) > MAX_NAMED:
+            result, rows = conn.execute(FLEET_QUERY), {}
+        else:  # the other trucks' rows stand as they are
+            result, rows = conn.execute(FLEET_QUERY_OF, {"trucks": sorted(added)}), dict(self.rows)
+        for r in result:
             inputs, kept = tuple(r), self.rows.get(r.truck)
             rows[r.truck] = kept if kept is not None and kept[0] == inputs else (
                 inputs, truck_summary(r._mapping, cache, self.points, self.threshold))

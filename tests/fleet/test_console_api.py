@@ -108,6 +108,21 @@ def test_a_new_version_changes_that_truck_row_and_the_alerts(fleet, computed):
             assert {**row, "vs_fleet_percent": None} == {**before[name], "vs_fleet_percent": None}
 
 
+def test_new_files_show_however_they_were_committed(fleet, computed):
+    client, engine = fleet
+    assert by_truck(client)["FLEET-003"]["files"] == 2
+    computed.clear()
+    db.add_file(engine, sha256="ab" * 32, truck="FLEET-003", size_bytes=10, start_ns=0, end_ns=3600 * 10**9,
+                messages=1)
+    f = by_truck(client)["FLEET-003"]
+    assert f["files"] == 3 and f["data_hours"] == pytest.approx(11.0) and computed == ["FLEET-003"]
+    with engine.begin() as conn:  # a file whose upload time is older than the newest seen (committed late)
+        conn.execute(db.files.insert().values(sha256="cd" * 32, truck="FLEET-004", size_bytes=1, messages=1,
+                                              start_ns=0, end_ns=3600 * 10**9, uploaded_unix_s=1.0))
+    f = by_truck(client)["FLEET-004"]
+    assert f["files"] == 3 and f["data_hours"] == pytest.approx(11.0)
+
+
 def test_a_new_effect_alerts_once(fleet):
     client, engine = fleet
     store = client.app.state.store
@@ -156,19 +171,46 @@ def test_deleted_versions_and_trucks_leave_the_view(fleet):
     assert "DRIFT-1" not in by_truck(client) and alerts_of(client) == []
 
 
+def fingerprint(conn) -> tuple:
+    return tuple(conn.execute(console.FINGERPRINT).one())
+
+
+def test_only_trucks_with_new_rows_are_read_again(fleet):
+    client, engine = fleet
+    store = client.app.state.store
+    with engine.connect() as conn:
+        before = fingerprint(conn)
+    db.add_model(engine, truck="FLEET-000", job_id=None, metrics={}, **store_version(store, "FLEET-000",
+                                                                                     engine_model(1.0)))
+    db.add_file(engine, sha256="ab" * 32, truck="FLEET-003", size_bytes=10, start_ns=0, end_ns=10**9, messages=1)
+    with engine.connect() as conn:
+        assert console.trucks_added_to(conn, before, fingerprint(conn)) == {"FLEET-000", "FLEET-003"}
+    for change in [  # what new rows do not account for: every truck is read again
+            db.models.delete().where((db.models.c.truck == "FLEET-001") & (db.models.c.version == 2)),
+            db.files.insert().values(sha256="cd" * 32, truck="FLEET-001", size_bytes=1, messages=1,
+                                     uploaded_unix_s=1.0),  # committed late with an old upload time
+            db.trucks.insert().values(truck="NEW-1", created_unix_s=2e9)]:
+        with engine.connect() as conn:
+            before = fingerprint(conn)
+        with engine.begin() as conn:
+            conn.execute(change)
+        with engine.connect() as conn:
+            assert console.trucks_added_to(conn, before, fingerprint(conn)) is None
+
+
 def test_a_view_holds_one_row_per_truck(fleet):
     client, engine = fleet
     view = console.FleetView(console.DEFAULT_POINTS, 5.0)
     cache = console.ModelCache(client.app.state.store)
     with engine.connect() as conn:
-        view.refresh(conn, cache, fingerprint=(1,))
+        view.refresh(conn, cache, fingerprint(conn))
     assert sorted(view.rows) == ["DRIFT-1", "FLEET-000", "FLEET-001", "FLEET-002", "FLEET-003", "FLEET-004"]
     with engine.begin() as conn:
         conn.execute(db.models.delete().where(db.models.c.truck == "FLEET-004"))
         conn.execute(db.files.delete().where(db.files.c.truck == "FLEET-004"))
         conn.execute(db.trucks.delete().where(db.trucks.c.truck == "FLEET-004"))
     with engine.connect() as conn:
-        view.refresh(conn, cache, fingerprint=(2,))
+        view.refresh(conn, cache, fingerprint(conn))
     assert sorted(view.rows) == ["DRIFT-1", "FLEET-000", "FLEET-001", "FLEET-002", "FLEET-003"]
 
 
