@@ -24,6 +24,7 @@ from fastapi import APIRouter, Depends, FastAPI, HTTPException, Path as PathPara
 from fastapi.responses import FileResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
+from pydantic_core import to_json
 
 from fuelid.fleet import auth, db
 from fuelid.fleet.drift import DEFAULT_POINTS, Drift, ReferencePoint, SteadyFuel, drift, fleet_median, \
@@ -320,18 +321,35 @@ def truck_summary(r, cache: ModelCache, points, threshold: float) -> TruckSummar
     return TruckSummary.model_validate(row)
 
 
+@dataclass(frozen=True)
+class KeptRow:
+    """A truck's row of a fleet view: the FLEET_QUERY row it was computed from, its steady fuel S [unit] (for
+    the fleet median), its alerts, and its TruckSummary as JSON without vs_fleet_percent (which moves with the
+    median, so it is written into each response)."""
+
+    inputs: tuple
+    steady_fuel: float | None
+    alerts: list[Alert]
+    json: bytes
+
+    @classmethod
+    def of(cls, inputs: tuple, summary: TruckSummary) -> "KeptRow":
+        return cls(inputs, summary.steady_fuel, summary.alerts,
+                   summary.model_dump_json(exclude={"vs_fleet_percent"}).encode())
+
+
 class FleetView:
     """The fleet summary at one choice of reference points and threshold, brought up to date by what changed:
     each truck's row is kept with the FLEET_QUERY row it was computed from (its inputs) and computed again only
     when those differ — a new, deleted or replaced version, new files, another first model. When the registry
     only gained versions or files, only their trucks are read (trucks_added_to), so a new model version costs
-    one truck's read and row, the fleet median and the response's JSON. A truck gone from the registry is gone
-    from the view: memory is one row per truck (its inputs, its summary) and the last response."""
+    one truck's read and row, the fleet median, and the response joined from the rows' JSON. A truck gone
+    from the registry is gone from the view: memory is one KeptRow per truck and the last response."""
 
     def __init__(self, points: tuple[ReferencePoint, ...], threshold: float):
         self.points, self.threshold = points, threshold
         self.fingerprint: tuple | None = None
-        self.rows: dict[str, tuple[tuple, TruckSummary]] = {}  # truck -> (inputs, summary)
+        self.rows: dict[str, KeptRow] = {}
         self.body = b""  # the FleetSummary as JSON, served as is
         self.alerts: list[Alert] = []
 
@@ -344,16 +362,17 @@ class FleetView:
             result, rows = conn.execute(FLEET_QUERY_OF, {"trucks": sorted(added)}), dict(self.rows)
         for r in result:
             inputs, kept = tuple(r), self.rows.get(r.truck)
-            rows[r.truck] = kept if kept is not None and kept[0] == inputs else (
+            rows[r.truck] = kept if kept is not None and kept.inputs == inputs else KeptRow.of(
                 inputs, truck_summary(r._mapping, cache, self.points, self.threshold))
-        trucks = [summary for _, summary in rows.values()]
-        median = fleet_median([t.steady_fuel for t in trucks if t.steady_fuel is not None])
-        for t in trucks:
-            t.vs_fleet_percent = None if t.steady_fuel is None else versus_median(t.steady_fuel, median)
-        # built from validated rows: no second validation of every row
-        self.body = FleetSummary.model_construct(points=[str(p) for p in self.points], threshold_percent=self.threshold,
-                                                 fleet_median_steady_fuel=median, trucks=trucks).model_dump_json().encode()
-        self.rows, self.alerts, self.fingerprint = rows, [a for t in trucks for a in t.alerts], fingerprint
+        median = fleet_median([k.steady_fuel for k in rows.values() if k.steady_fuel is not None])
+        head = FleetSummary.model_construct(points=[str(p) for p in self.points], threshold_percent=self.threshold,
+                                            fleet_median_steady_fuel=median, trucks=[]).model_dump_json().encode()
+        assert head.endswith(b'"trucks":[]}')
+        trucks = b",".join(b'{"vs_fleet_percent":' + to_json(
+            None if k.steady_fuel is None else versus_median(k.steady_fuel, median)) + b"," + k.json[1:]
+            for k in rows.values())
+        self.body = head[:-2] + trucks + b"]}"
+        self.rows, self.alerts, self.fingerprint = rows, [a for k in rows.values() for a in k.alerts], fingerprint
 
 
 def truck_history(engine: sa.Engine, cache: ModelCache, truck: str, points, threshold: float) -> dict:
