@@ -1,6 +1,7 @@
-"""The console's API in-process (FastAPI TestClient, stand-in job runner): fleet summary with drift of a known
-size against each truck's first model and the fleet median, alerts, truck history, report links, the page's
-security headers, and roles."""
+"""The console's API in-process (FastAPI TestClient, stand-in job runner), on SQLite and PostgreSQL: fleet
+summary with drift of a known size against each truck's first model and the fleet median, alerts, how the
+fleet view keeps up with new and deleted rows, truck history, report links, the page's security headers, and
+roles."""
 import statistics
 
 import pytest
@@ -18,8 +19,9 @@ K = G1 * 600 + G2 * 1200
 
 
 @pytest.fixture
-def fleet(tmp_path):
-    app = create_app(Settings(data_dir=tmp_path / "data", refit_after_s=None), runner_factory=FakeRunner)
+def fleet(tmp_path, database):
+    app = create_app(Settings(data_dir=tmp_path / "data", database_url=database, refit_after_s=None),
+                     runner_factory=FakeRunner)
     engine, store = app.state.engine, app.state.store
     simulated_fleet(engine, store, trucks=5, versions=3, drifting={"DRIFT-1": 0.08}, new_effect="FLEET-002")
     with TestClient(app) as client:
