@@ -6,9 +6,10 @@ Measures on loopback: GET /api/v1/fleet (drift of every truck: its first and lat
 fuel and its covariance-based error at the default points, fleet median, alerts) cold — the first request after
 start, which parses 2 × trucks model files —, after a new model version (that truck's row read and computed
 again, the fleet median and the response redone; parsed models are kept by sha256), after a new truck's
-first file (every truck read again, their rows kept) and with the registry unchanged (the response kept), medians of --repeat, next to the registry's plain GET /api/v1/trucks; the
-server's resident memory before and after; and in Debian's headless chromium (Playwright) the time from
-sign-in to the fleet table drawn with every truck, and a re-sort by drift. Limits: API under 200 ms, page
+first file (every truck read again, their rows kept) and with the registry unchanged (the response kept),
+medians of --repeat, next to the registry's plain GET /api/v1/trucks; the server's resident memory before
+and after; and in Debian's headless chromium (Playwright) the time from sign-in to the fleet table drawn
+with every truck (the --repeat new ones too), and a re-sort by drift. Limits: API under 200 ms, page
 under 1 s. Server, browser and this script share the machine's cores.
 """
 from __future__ import annotations

@@ -261,16 +261,15 @@ def _fleet_query(named_trucks: bool = False) -> sa.Select:
         earlier.c.truck == latest.c.truck, earlier.c.top_effect == latest.c.top_effect,
         earlier.c.version < latest.c.version))
     t = db.trucks.c.truck
-    return only(sa.select(t, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns, files.c.end_ns,
-                      span.c.versions, latest.c.id.label("latest_id"), latest.c.version.label("latest_version"),
-                      latest.c.created_unix_s.label("latest_created_unix_s"),
-                      latest.c.model_sha256.label("latest_sha256"), latest.c.top_effect,
-                      sa.cast(latest.c.metrics, sa.Text).label("metrics"), first.c.model_sha256.label("first_sha256"),
-                      named_before.label("named_before"))
-            .select_from(db.trucks.outerjoin(files, files.c.truck == t).outerjoin(span, span.c.truck == t)
-                         .outerjoin(latest, (latest.c.truck == t) & (latest.c.version == span.c.latest))
-                         .outerjoin(first, (first.c.truck == t) & (first.c.version == span.c.first))),
-                t).order_by(t)
+    columns = (t, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns, files.c.end_ns,
+               span.c.versions, latest.c.id.label("latest_id"), latest.c.version.label("latest_version"),
+               latest.c.created_unix_s.label("latest_created_unix_s"), latest.c.model_sha256.label("latest_sha256"),
+               latest.c.top_effect, sa.cast(latest.c.metrics, sa.Text).label("metrics"),
+               first.c.model_sha256.label("first_sha256"), named_before.label("named_before"))
+    joined = (db.trucks.outerjoin(files, files.c.truck == t).outerjoin(span, span.c.truck == t)
+              .outerjoin(latest, (latest.c.truck == t) & (latest.c.version == span.c.latest))
+              .outerjoin(first, (first.c.truck == t) & (first.c.version == span.c.first)))
+    return only(sa.select(*columns).select_from(joined), t).order_by(t)
 
 
 FLEET_QUERY, FLEET_QUERY_OF = _fleet_query(), _fleet_query(named_trucks=True)
@@ -292,7 +291,8 @@ def trucks_added_to(conn, before: tuple, now: tuple) -> set[str] | None:
     trucks1, created1, files1, _, models1, _ = now
     versions = conn.execute(NEW_VERSIONS, {"after_id": id0 or 0}).scalars().all()
     files = conn.execute(NEW_FILES, {"after_unix_s": uploaded0 or 0.0}).scalars().all()
-    if (trucks1, created1) != (trucks0, created0) or files1 != files0 + len(files) or models1 != models0 + len(versions):
+    if (trucks1, created1) != (trucks0, created0) or (files1, models1) != (files0 + len(files),
+                                                                          models0 + len(versions)):
         return None
     return set(versions) | set(files)
 
