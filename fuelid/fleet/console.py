@@ -236,7 +236,7 @@ def _alerts(truck: str, latest: dict, fields: dict, new_effect: bool) -> list[Al
 
 
 def _fleet_query(named_trucks: bool = False) -> sa.Select:
-    """One row per truck, by name: everything its fleet row is computed from. Its files' count, recorded time,
+    """One row per truck: everything its fleet row is computed from. Its files' count, recorded time,
     last upload and time range; its number of versions; the latest version's id, number, creation time, model,
     named effect and metrics (as JSON text: compared as is, parsed only for a row computed again); the first
     version's model; and whether an earlier version named the latest one's effect. With `named_trucks`, only
@@ -269,7 +269,7 @@ def _fleet_query(named_trucks: bool = False) -> sa.Select:
     joined = (db.trucks.outerjoin(files, files.c.truck == t).outerjoin(span, span.c.truck == t)
               .outerjoin(latest, (latest.c.truck == t) & (latest.c.version == span.c.latest))
               .outerjoin(first, (first.c.truck == t) & (first.c.version == span.c.first)))
-    return only(sa.select(*columns).select_from(joined), t).order_by(t)
+    return only(sa.select(*columns).select_from(joined), t)
 
 
 FLEET_QUERY, FLEET_QUERY_OF = _fleet_query(), _fleet_query(named_trucks=True)
@@ -279,22 +279,24 @@ MAX_NAMED = 500  # more changed trucks than this: all are read (bounded IN lists
 FINGERPRINT = sa.select(*(sa.select(agg).scalar_subquery() for agg in (
     sa.func.count(db.trucks.c.truck), sa.func.max(db.trucks.c.created_unix_s), sa.func.count(db.files.c.sha256),
     sa.func.max(db.files.c.uploaded_unix_s), sa.func.count(db.models.c.id), sa.func.max(db.models.c.id))))
-NEW_VERSIONS = sa.select(db.models.c.truck).where(db.models.c.id > sa.bindparam("after_id"))
-NEW_FILES = sa.select(db.files.c.truck).where(db.files.c.uploaded_unix_s > sa.bindparam("after_unix_s"))
+# the trucks of rows newer than a fingerprint's: trucks created, files uploaded, versions added
+NEW_ROWS = (sa.select(db.trucks.c.truck).where(db.trucks.c.created_unix_s > sa.bindparam("after")),
+            sa.select(db.files.c.truck).where(db.files.c.uploaded_unix_s > sa.bindparam("after")),
+            sa.select(db.models.c.truck).where(db.models.c.id > sa.bindparam("after")))
 
 
 def trucks_added_to(conn, before: tuple, now: tuple) -> set[str] | None:
-    """The trucks given model versions or files since the registry's FINGERPRINT was `before`, when those new
-    rows account for every change up to `now`; None when they do not — a truck added or deleted, a version or
-    file deleted, a row committed after one with a newer id or upload time — and every truck must be read."""
-    trucks0, created0, files0, uploaded0, models0, id0 = before
-    trucks1, created1, files1, _, models1, _ = now
-    versions = conn.execute(NEW_VERSIONS, {"after_id": id0 or 0}).scalars().all()
-    files = conn.execute(NEW_FILES, {"after_unix_s": uploaded0 or 0.0}).scalars().all()
-    if (trucks1, created1) != (trucks0, created0) or (files1, models1) != (files0 + len(files),
-                                                                          models0 + len(versions)):
-        return None
-    return set(versions) | set(files)
+    """The trucks that are new or were given files or model versions since the registry's FINGERPRINT was
+    `before`, when those new rows account for every change of the counts up to `now`; None when they do not
+    — a truck, file or version deleted, a row committed after one with a newer time or id — and every truck
+    must be read."""
+    trucks: set[str] = set()
+    for query, count0, newest0, count1 in zip(NEW_ROWS, before[::2], before[1::2], now[::2]):
+        names = conn.execute(query, {"after": newest0 or 0}).scalars().all()
+        if count1 != count0 + len(names):
+            return None
+        trucks.update(names)
+    return trucks
 
 
 def truck_summary(r, cache: ModelCache, points, threshold: float) -> TruckSummary:
@@ -342,7 +344,7 @@ class FleetView:
     """The fleet summary at one choice of reference points and threshold, brought up to date by what changed:
     each truck's row is kept with the FLEET_QUERY row it was computed from (its inputs) and computed again only
     when those differ — a new, deleted or replaced version, new files, another first model. When the registry
-    only gained versions or files, only their trucks are read (trucks_added_to), so a new model version costs
+    only gained trucks, files or versions, only their trucks are read (trucks_added_to), so a new model version costs
     one truck's read and row, the fleet median, and the response joined from the rows' JSON. A truck gone
     from the registry is gone from the view: memory is one KeptRow per truck and the last response."""
 
@@ -364,6 +366,7 @@ class FleetView:
             inputs, kept = tuple(r), self.rows.get(r.truck)
             rows[r.truck] = kept if kept is not None and kept.inputs == inputs else KeptRow.of(
                 inputs, truck_summary(r._mapping, cache, self.points, self.threshold))
+        rows = dict(sorted(rows.items()))  # by name, in Python: the same order on every database
         median = fleet_median([k.steady_fuel for k in rows.values() if k.steady_fuel is not None])
         head = FleetSummary.model_construct(points=[str(p) for p in self.points], threshold_percent=self.threshold,
                                             fleet_median_steady_fuel=median, trucks=[]).model_dump_json().encode()

@@ -110,14 +110,16 @@ def test_a_new_version_changes_that_truck_row_and_the_alerts(fleet, computed):
             assert {**row, "vs_fleet_percent": None} == {**before[name], "vs_fleet_percent": None}
 
 
-def test_new_files_show_however_they_were_committed(fleet, computed):
+def test_new_trucks_and_files_show_however_they_were_committed(fleet, computed):
     client, engine = fleet
     assert by_truck(client)["FLEET-003"]["files"] == 2
     computed.clear()
-    db.add_file(engine, sha256="ab" * 32, truck="FLEET-003", size_bytes=10, start_ns=0, end_ns=3600 * 10**9,
-                messages=1)
-    f = by_truck(client)["FLEET-003"]
-    assert f["files"] == 3 and f["data_hours"] == pytest.approx(11.0) and computed == ["FLEET-003"]
+    for sha, truck in [("ab", "FLEET-003"), ("ef", "A-NEW")]:
+        db.add_file(engine, sha256=sha * 32, truck=truck, size_bytes=10, start_ns=0, end_ns=3600 * 10**9, messages=1)
+    trucks = by_truck(client)
+    assert trucks["FLEET-003"]["files"] == 3 and trucks["FLEET-003"]["data_hours"] == pytest.approx(11.0)
+    assert trucks["A-NEW"]["note"] == "no model yet" and list(trucks)[0] == "A-NEW"  # by name
+    assert sorted(computed) == ["A-NEW", "FLEET-003"]
     with engine.begin() as conn:  # a file whose upload time is older than the newest seen (committed late)
         conn.execute(db.files.insert().values(sha256="cd" * 32, truck="FLEET-004", size_bytes=1, messages=1,
                                               start_ns=0, end_ns=3600 * 10**9, uploaded_unix_s=1.0))
@@ -185,13 +187,14 @@ def test_only_trucks_with_new_rows_are_read_again(fleet):
     db.add_model(engine, truck="FLEET-000", job_id=None, metrics={}, **store_version(store, "FLEET-000",
                                                                                      engine_model(1.0)))
     db.add_file(engine, sha256="ab" * 32, truck="FLEET-003", size_bytes=10, start_ns=0, end_ns=10**9, messages=1)
+    db.add_file(engine, sha256="ef" * 32, truck="NEW-1", size_bytes=10, start_ns=0, end_ns=10**9, messages=1)
     with engine.connect() as conn:
-        assert console.trucks_added_to(conn, before, fingerprint(conn)) == {"FLEET-000", "FLEET-003"}
+        assert console.trucks_added_to(conn, before, fingerprint(conn)) == {"FLEET-000", "FLEET-003", "NEW-1"}
     for change in [  # what new rows do not account for: every truck is read again
             db.models.delete().where((db.models.c.truck == "FLEET-001") & (db.models.c.version == 2)),
             db.files.insert().values(sha256="cd" * 32, truck="FLEET-001", size_bytes=1, messages=1,
                                      uploaded_unix_s=1.0),  # committed late with an old upload time
-            db.trucks.insert().values(truck="NEW-1", created_unix_s=2e9)]:
+            db.trucks.insert().values(truck="NEW-2", created_unix_s=1.0)]:
         with engine.connect() as conn:
             before = fingerprint(conn)
         with engine.begin() as conn:
