@@ -9,9 +9,12 @@ with the token in a URL, and served sandboxed (an opaque origin: its scripts can
 """
 from __future__ import annotations
 
+import json
 import math
 import secrets
+import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Callable
@@ -21,6 +24,7 @@ from fastapi import APIRouter, Depends, FastAPI, HTTPException, Path as PathPara
 from fastapi.responses import FileResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field
+from pydantic_core import to_json
 
 from fuelid.fleet import auth, db
 from fuelid.fleet.drift import DEFAULT_POINTS, Drift, ReferencePoint, SteadyFuel, drift, fleet_median, \
@@ -38,6 +42,7 @@ REPORT_CSP = ("default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe
               "img-src data: blob:; font-src data:; base-uri 'none'; form-action 'none'; "
               "sandbox allow-scripts allow-downloads allow-popups")
 REPORT_LINK_S = 120.0
+MAX_VIEWS = 8  # choices of reference points and threshold whose fleet view is kept
 
 
 @dataclass(frozen=True)
@@ -146,25 +151,12 @@ class ReportLink(BaseModel):
 
 class ModelCache:
     """Parsed model.json files and their steady fuel at given points, by sha256 (content-addressed: never
-    stale), and model versions' metrics by row id (a models row is never changed). Bounded: each table is
-    emptied when full, so a long-running server's memory stays flat."""
+    stale). Bounded: each table is emptied when full, so a long-running server's memory stays flat."""
 
     def __init__(self, store: BlobStore, max_models: int = 4096, max_steady: int = 65536):
         self.store, self.max_models, self.max_steady = store, max_models, max_steady
         self._models: dict[str, PolyModel | str] = {}
         self._steady: dict[tuple, dict[str, SteadyFuel | str]] = {}  # points -> sha256 -> steady fuel
-        self._metrics: dict[int, dict] = {}
-
-    def metrics(self, conn, ids: list[int]) -> dict[int, dict]:
-        """_metrics of the models rows `ids` (read from the database only for rows not seen before)."""
-        missing = [i for i in ids if i not in self._metrics]
-        if len(self._metrics) + len(missing) > self.max_steady:
-            self._metrics.clear()
-            missing = ids
-        for k in range(0, len(missing), 500):  # bounded IN lists
-            q = sa.select(db.models.c.id, db.models.c.metrics).where(db.models.c.id.in_(missing[k:k + 500]))
-            self._metrics.update((i, _metrics(m or {})) for i, m in conn.execute(q))
-        return {i: self._metrics[i] for i in ids}
 
     def model(self, sha256: str) -> PolyModel | str:
         """The model, or why it cannot be read (one line)."""
@@ -243,61 +235,147 @@ def _alerts(truck: str, latest: dict, fields: dict, new_effect: bool) -> list[Al
     return alerts
 
 
-def fleet_summary(engine: sa.Engine, cache: ModelCache, points, threshold: float) -> tuple[list[dict], float | None]:
-    """Per truck: files, data hours, last upload, latest version with metrics, effects, drift and alerts; and the
-    fleet median of the latest steady-state fuel."""
+def _fleet_query(named_trucks: bool = False) -> sa.Select:
+    """One row per truck: everything its fleet row is computed from. Its files' count, recorded time,
+    last upload and time range; its number of versions; the latest version's id, number, creation time, model,
+    named effect and metrics (as JSON text: compared as is, parsed only for a row computed again); the first
+    version's model; and whether an earlier version named the latest one's effect. With `named_trucks`, only
+    the trucks in the list parameter `trucks` (and only their files and versions are read)."""
     f, m = db.files, db.models
-    files = sa.select(f.c.truck, sa.func.count().label("files"),
-                      sa.func.coalesce(sa.func.sum(f.c.end_ns - f.c.start_ns), 0).label("recorded_ns"),
-                      sa.func.max(f.c.uploaded_unix_s).label("last_upload"), sa.func.min(f.c.start_ns).label("start_ns"),
-                      sa.func.max(f.c.end_ns).label("end_ns")).group_by(f.c.truck).subquery()
-    span = sa.select(m.c.truck, sa.func.min(m.c.version).label("first"), sa.func.max(m.c.version).label("latest"),
-                     sa.func.count().label("versions")).group_by(m.c.truck).subquery()
-    # the first version naming each effect: the latest version's effect is new when that is the latest version
-    named = sa.select(m.c.truck, m.c.top_effect, sa.func.min(m.c.version).label("since")).where(
-        m.c.top_effect.is_not(None)).group_by(m.c.truck, m.c.top_effect)
-    firsts = sa.select(m.c.truck, m.c.model_sha256).join(
-        span, (span.c.truck == m.c.truck) & (m.c.version == span.c.first))
-    latests = sa.select(m.c.truck, m.c.id, m.c.version, m.c.created_unix_s, m.c.model_sha256, m.c.top_effect
-                        ).join(span, (span.c.truck == m.c.truck) & (m.c.version == span.c.latest))
-    q = (sa.select(db.trucks.c.truck, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns,
-                   files.c.end_ns, span.c.versions)
-         .select_from(db.trucks.outerjoin(files, files.c.truck == db.trucks.c.truck)
-                      .outerjoin(span, span.c.truck == db.trucks.c.truck))
-         .order_by(db.trucks.c.truck))
-    with engine.connect() as conn:
-        trucks = conn.execute(q).mappings().all()
-        first_sha = dict(conn.execute(firsts).tuples().all())
-        latest_of = {r["truck"]: r for r in conn.execute(latests).mappings()}
-        since = {(r.truck, r.top_effect): r.since for r in conn.execute(named)}
-        metrics_of = cache.metrics(conn, [r["id"] for r in latest_of.values()])
-    steady = cache.steady_at(points)
-    out = []
-    for t in trucks:
-        latest = latest_of.get(t["truck"])
-        hours = float(t["recorded_ns"] or 0) / 3.6e12  # float: PostgreSQL sums bigints as numeric (Decimal)
-        row = {"truck": t["truck"], "files": t["files"] or 0, "data_hours": hours,
-               "last_upload_unix_s": t["last_upload"], "start_ns": t["start_ns"], "end_ns": t["end_ns"],
-               "versions": t["versions"] or 0, "latest_version": None, "latest_created_unix_s": None,
-               "fit_percent": None, "cycle_fuel_error_percent": None, "unit": None, "top_effect": None,
-               "effects": [], "vs_fleet_percent": None, "alerts": [], "note": "no model yet"}
-        if latest is not None:
-            current = steady(latest["model_sha256"])
-            reference = steady(first_sha[t["truck"]]) if t["versions"] > 1 else None
-            fields = _drift_fields(current, reference, threshold)
-            new = latest["top_effect"] is not None and since.get((t["truck"], latest["top_effect"])) == latest["version"]
-            metrics = metrics_of[latest["id"]]
-            row.update(fields, latest_version=latest["version"], latest_created_unix_s=latest["created_unix_s"],
-                       fit_percent=metrics["fit_percent"], cycle_fuel_error_percent=metrics["cycle_fuel_error_percent"],
-                       unit=metrics["unit"] or (current.unit if isinstance(current, SteadyFuel) else None),
-                       top_effect=latest["top_effect"], effects=cache.effects(latest["model_sha256"]),
-                       alerts=_alerts(t["truck"], latest, fields, new))
-        out.append(row)
-    median = fleet_median([r["steady_fuel"] for r in out if r.get("steady_fuel") is not None])
-    for r in out:
-        if r.get("steady_fuel") is not None:
-            r["vs_fleet_percent"] = versus_median(r["steady_fuel"], median)
-    return out, median
+    trucks = sa.bindparam("trucks", expanding=True)
+
+    def only(q: sa.Select, column) -> sa.Select:
+        return q.where(column.in_(trucks)) if named_trucks else q
+
+    files = only(sa.select(f.c.truck, sa.func.count().label("files"),
+                           sa.func.coalesce(sa.func.sum(f.c.end_ns - f.c.start_ns), 0).label("recorded_ns"),
+                           sa.func.max(f.c.uploaded_unix_s).label("last_upload"),
+                           sa.func.min(f.c.start_ns).label("start_ns"), sa.func.max(f.c.end_ns).label("end_ns")),
+                 f.c.truck).group_by(f.c.truck).subquery()
+    span = only(sa.select(m.c.truck, sa.func.min(m.c.version).label("first"),
+                          sa.func.max(m.c.version).label("latest"), sa.func.count().label("versions")),
+                m.c.truck).group_by(m.c.truck).subquery()
+    latest, first, earlier = m.alias("latest"), m.alias("first"), m.alias("earlier")
+    # looked for only when the latest version names an effect (most do not: a search per truck saved)
+    named_before = sa.case((latest.c.top_effect.is_(None), sa.false()), else_=sa.exists().where(
+        earlier.c.truck == latest.c.truck, earlier.c.top_effect == latest.c.top_effect,
+        earlier.c.version < latest.c.version))
+    t = db.trucks.c.truck
+    columns = (t, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns, files.c.end_ns,
+               span.c.versions, latest.c.id.label("latest_id"), latest.c.version.label("latest_version"),
+               latest.c.created_unix_s.label("latest_created_unix_s"), latest.c.model_sha256.label("latest_sha256"),
+               latest.c.top_effect, sa.cast(latest.c.metrics, sa.Text).label("metrics"),
+               first.c.model_sha256.label("first_sha256"), named_before.label("named_before"))
+    joined = (db.trucks.outerjoin(files, files.c.truck == t).outerjoin(span, span.c.truck == t)
+              .outerjoin(latest, (latest.c.truck == t) & (latest.c.version == span.c.latest))
+              .outerjoin(first, (first.c.truck == t) & (first.c.version == span.c.first)))
+    return only(sa.select(*columns).select_from(joined), t)
+
+
+FLEET_QUERY, FLEET_QUERY_OF = _fleet_query(), _fleet_query(named_trucks=True)
+MAX_NAMED = 500  # more changed trucks than this: all are read (bounded IN lists)
+# Whether the registry changed since a view was computed (rows are inserted or deleted, never updated): counts
+# and newest of trucks (created), files (uploaded) and model versions (id).
+FINGERPRINT = sa.select(*(sa.select(agg).scalar_subquery() for agg in (
+    sa.func.count(db.trucks.c.truck), sa.func.max(db.trucks.c.created_unix_s), sa.func.count(db.files.c.sha256),
+    sa.func.max(db.files.c.uploaded_unix_s), sa.func.count(db.models.c.id), sa.func.max(db.models.c.id))))
+# the trucks of rows newer than a fingerprint's: trucks created, files uploaded, versions added
+NEW_ROWS = (sa.select(db.trucks.c.truck).where(db.trucks.c.created_unix_s > sa.bindparam("after")),
+            sa.select(db.files.c.truck).where(db.files.c.uploaded_unix_s > sa.bindparam("after")),
+            sa.select(db.models.c.truck).where(db.models.c.id > sa.bindparam("after")))
+
+
+def trucks_added_to(conn, before: tuple, now: tuple) -> set[str] | None:
+    """The trucks that are new or were given files or model versions since the registry's FINGERPRINT was
+    `before`, when those new rows account for every change of the counts up to `now`; None when they do not
+    — a truck, file or version deleted, a row committed after one with a newer time or id — and every truck
+    must be read."""
+    trucks: set[str] = set()
+    for query, count0, newest0, count1 in zip(NEW_ROWS, before[::2], before[1::2], now[::2]):
+        names = conn.execute(query, {"after": newest0 or 0}).scalars().all()
+        if count1 != count0 + len(names):
+            return None
+        trucks.update(names)
+    return trucks
+
+
+def truck_summary(r, cache: ModelCache, points, threshold: float) -> TruckSummary:
+    """The fleet row of one truck from its row `r` of FLEET_QUERY (a mapping): files, data hours, last upload,
+    latest version with metrics, effects, drift and alerts; vs_fleet_percent is left to the fleet median."""
+    hours = float(r["recorded_ns"] or 0) / 3.6e12  # float: PostgreSQL sums bigints as numeric (Decimal)
+    row = {"truck": r["truck"], "files": r["files"] or 0, "data_hours": hours, "last_upload_unix_s": r["last_upload"],
+           "start_ns": r["start_ns"], "end_ns": r["end_ns"], "versions": r["versions"] or 0, "latest_version": None,
+           "latest_created_unix_s": None, "fit_percent": None, "cycle_fuel_error_percent": None, "unit": None,
+           "top_effect": None, "effects": [], "vs_fleet_percent": None, "alerts": [], "note": "no model yet"}
+    if r["latest_id"] is not None:
+        steady = cache.steady_at(points)
+        current = steady(r["latest_sha256"])
+        reference = steady(r["first_sha256"]) if r["versions"] > 1 else None
+        fields = _drift_fields(current, reference, threshold)
+        latest = {"version": r["latest_version"], "top_effect": r["top_effect"]}
+        new = r["top_effect"] is not None and not r["named_before"]
+        metrics = _metrics(json.loads(r["metrics"] or "{}"))
+        row.update(fields, latest_version=r["latest_version"], latest_created_unix_s=r["latest_created_unix_s"],
+                   fit_percent=metrics["fit_percent"], cycle_fuel_error_percent=metrics["cycle_fuel_error_percent"],
+                   unit=metrics["unit"] or (current.unit if isinstance(current, SteadyFuel) else None),
+                   top_effect=r["top_effect"], effects=cache.effects(r["latest_sha256"]),
+                   alerts=_alerts(r["truck"], latest, fields, new))
+    return TruckSummary.model_validate(row)
+
+
+@dataclass(frozen=True)
+class KeptRow:
+    """A truck's row of a fleet view: the FLEET_QUERY row it was computed from, its steady fuel S [unit] (for
+    the fleet median), its alerts, and its TruckSummary as JSON without vs_fleet_percent (which moves with the
+    median, so it is written into each response)."""
+
+    inputs: tuple
+    steady_fuel: float | None
+    alerts: list[Alert]
+    json: bytes
+
+    @classmethod
+    def of(cls, inputs: tuple, summary: TruckSummary) -> "KeptRow":
+        return cls(inputs, summary.steady_fuel, summary.alerts,
+                   summary.model_dump_json(exclude={"vs_fleet_percent"}).encode())
+
+
+class FleetView:
+    """The fleet summary at one choice of reference points and threshold, brought up to date by what changed:
+    each truck's row is kept with the FLEET_QUERY row it was computed from (its inputs) and computed again only
+    when those differ — a new, deleted or replaced version, new files, another first model. When the registry
+    only gained trucks, files or versions, only their trucks are read (trucks_added_to), so a new model version costs
+    one truck's read and row, the fleet median, and the response joined from the rows' JSON. A truck gone
+    from the registry is gone from the view: memory is one KeptRow per truck and the last response."""
+
+    def __init__(self, points: tuple[ReferencePoint, ...], threshold: float):
+        self.points, self.threshold = points, threshold
+        self.fingerprint: tuple | None = None
+        self.rows: dict[str, KeptRow] = {}
+        self.body = b""  # the FleetSummary as JSON, served as is
+        self.alerts: list[Alert] = []
+
+    def refresh(self, conn, cache: ModelCache, fingerprint: tuple) -> None:
+        """Bring the view up to the registry whose FINGERPRINT is `fingerprint`."""
+        added = None if self.fingerprint is None else trucks_added_to(conn, self.fingerprint, fingerprint)
+        if added is None or len(added) > MAX_NAMED:
+            result, rows = conn.execute(FLEET_QUERY), {}
+        else:  # the other trucks' rows stand as they are
+            result, rows = conn.execute(FLEET_QUERY_OF, {"trucks": sorted(added)}), dict(self.rows)
+        for r in result:
+            inputs, kept = tuple(r), self.rows.get(r.truck)
+            rows[r.truck] = kept if kept is not None and kept.inputs == inputs else KeptRow.of(
+                inputs, truck_summary(r._mapping, cache, self.points, self.threshold))
+        rows = dict(sorted(rows.items()))  # by name, in Python: the same order on every database
+        median = fleet_median([k.steady_fuel for k in rows.values() if k.steady_fuel is not None])
+        head = FleetSummary.model_construct(points=[str(p) for p in self.points], threshold_percent=self.threshold,
+                                            fleet_median_steady_fuel=median, trucks=[]).model_dump_json().encode()
+        assert head.endswith(b'"trucks":[]}')
+        trucks = b",".join(b'{"vs_fleet_percent":' + to_json(
+            None if k.steady_fuel is None else versus_median(k.steady_fuel, median)) + b"," + k.json[1:]
+            for k in rows.values())
+        self.body = head[:-2] + trucks + b"]}"
+        self.rows, self.alerts, self.fingerprint = rows, [a for k in rows.values() for a in k.alerts], fingerprint
 
 
 def truck_history(engine: sa.Engine, cache: ModelCache, truck: str, points, threshold: float) -> dict:
@@ -340,39 +418,37 @@ def router(engine: sa.Engine, store: BlobStore, settings: ConsoleSettings, reade
         except ValueError as exc:
             raise HTTPException(422, str(exc)) from None
 
-    summaries: dict[tuple, FleetSummary] = {}  # (registry fingerprint, points, threshold) -> summary
+    views: OrderedDict[tuple, FleetView] = OrderedDict()  # (points, threshold) -> view, least recently used first
+    views_lock = threading.Lock()  # one refresh at a time: a concurrent request waits for its result
 
-    def summary(points: str | None, threshold: float | None) -> FleetSummary:
-        """The fleet summary, computed again only when the registry changed: rows are only ever inserted, so
-        the counts and newest ids of trucks, files and models tell whether anything did."""
-        pts, thr = chosen(points, threshold)
-        with engine.connect() as conn:
-            fingerprint = tuple(conn.execute(sa.select(
-                sa.select(sa.func.count()).select_from(db.trucks).scalar_subquery(),
-                sa.select(sa.func.count()).select_from(db.files).scalar_subquery(),
-                sa.select(sa.func.max(db.files.c.uploaded_unix_s)).scalar_subquery(),
-                sa.select(sa.func.max(db.models.c.id)).scalar_subquery())).one())
-        key = (fingerprint, pts, thr)
-        if key not in summaries:
-            rows, median = fleet_summary(engine, cache, pts, thr)
-            if len(summaries) >= 16:
-                summaries.clear()
-            summaries[key] = FleetSummary(points=[str(p) for p in pts], threshold_percent=thr,
-                                          fleet_median_steady_fuel=median, trucks=rows)
-        return summaries[key]
+    def view(points: str | None, threshold: float | None) -> FleetView:
+        """The fleet view at these points and threshold, refreshed only when the registry changed: rows are
+        inserted or deleted, never updated, so the counts and newest ids of trucks, files and model versions
+        tell whether anything did."""
+        key = chosen(points, threshold)
+        with views_lock:
+            v = views.pop(key, None) or FleetView(*key)
+            views[key] = v
+            if len(views) > MAX_VIEWS:
+                views.popitem(last=False)
+            with engine.connect() as conn:
+                fingerprint = tuple(conn.execute(FINGERPRINT).one())
+                if fingerprint != v.fingerprint:
+                    v.refresh(conn, cache, fingerprint)
+            return v
 
     @api.get("/api/v1/fleet", response_model=FleetSummary, responses=errors, tags=["console"])
     def fleet(points: Points = None, threshold: Threshold = None, _=Depends(reader)):
         """Every truck with data hours, last upload, latest version's fit and cycle error, effects, steady-state
         fuel at the reference points, drift since its first model (± standard error), against the fleet median,
         and alerts."""
-        return Response(summary(points, threshold).model_dump_json(), media_type="application/json")
+        return Response(view(points, threshold).body, media_type="application/json")
 
     @api.get("/api/v1/alerts", response_model=list[Alert], responses=errors, tags=["console"])
     def alerts(points: Points = None, threshold: Threshold = None, _=Depends(reader)):
         """Trucks whose steady-state fuel drifted beyond the threshold and 2σ, or whose diagnosis names a new
         effect."""
-        return [a for t in summary(points, threshold).trucks for a in t.alerts]
+        return view(points, threshold).alerts
 
     @api.get("/api/v1/trucks/{truck}/history", response_model=TruckHistory,
              responses={**errors, **not_found}, tags=["console"])
