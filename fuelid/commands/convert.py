@@ -5,6 +5,7 @@ from pathlib import Path
 
 from fuelid.errors import FuelidError
 from fuelid.logger.flowmeter import Calibration, capture_readings
+from fuelid.logger.frame_block import FrameBlock
 from fuelid.logger.readers import one_timeline, open_frames
 from fuelid.logger.recorder import Recorder, open_writer
 from fuelid.output import print_json
@@ -38,22 +39,18 @@ def run(args) -> int:
 
     sources = [open_frames(p) for p in inputs]
     warnings: list[str] = []
-    # One time-ordered stream of (time [s], kind, item): CAN frames of each input, then meter readings merged in.
-    frames = ((msg.timestamp, 0, msg) for msg in one_timeline(sources, warnings))
-    streams = [frames]
-    calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
-    if args.flowmeter:
-        streams.append((r.t, 1, r) for r in capture_readings(args.flowmeter, calibration))
-
     writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), live=False)
     recorder = Recorder(writer)
     try:
-        merged = heapq.merge(*streams, key=lambda e: e[0]) if len(streams) > 1 else frames
-        for _, kind, item in progress(merged, desc="convert", unit="msg"):
-            if kind == 0:
-                recorder.on_message_received(item)
-            else:
-                recorder.on_flow_reading(item)
+        if args.flowmeter:
+            calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
+            _record_merged(recorder, sources, capture_readings(args.flowmeter, calibration), warnings)
+        else:  # candump -L lines in blocks of columns, other formats frame by frame
+            for item in progress(one_timeline(sources, warnings, blocks=True), desc="convert", unit="part"):
+                if isinstance(item, FrameBlock):
+                    recorder.on_block(item)
+                else:
+                    recorder.on_message_received(item)
         recorder.reassembler.expire(math.inf)  # transport sessions still open at the end of the input time out
     finally:
         writer.close()
@@ -78,6 +75,17 @@ def run(args) -> int:
                           "identifiers, as OBD-II and other non-J1939 buses use): not a truck's FMS/J1939 recording; "
                           "no output written: --raw-only keeps the frames in /can/raw")
     return 0
+
+
+def _record_merged(recorder: Recorder, sources, readings, warnings: list[str]) -> None:
+    """The frames and the meter readings into `recorder` in one time-ordered stream of (time [s], kind, item)."""
+    frames = ((msg.timestamp, 0, msg) for msg in one_timeline(sources, warnings))
+    merged = heapq.merge(frames, ((r.t, 1, r) for r in readings), key=lambda e: e[0])
+    for _, kind, item in progress(merged, desc="convert", unit="msg"):
+        if kind == 0:
+            recorder.on_message_received(item)
+        else:
+            recorder.on_flow_reading(item)
 
 
 def conversion_summary(recorder, sources, output: Path, warnings: list[str], kept: bool = True) -> dict:

@@ -8,12 +8,15 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import can
+import numpy as np
 
 from fuelid import __version__
 from fuelid.dbc import FMS_DBC
 from fuelid.logger.decode import Decoder, message_schema
 from fuelid.logger.flowmeter import FlowReading
-from fuelid.logger.mcap_log import FLOWMETER_SCHEMA, RAW_SCHEMA, McapLogWriter, raw_record
+from fuelid.logger.frame_block import FrameBlock
+from fuelid.logger.json_rows import number_texts
+from fuelid.logger.mcap_log import FLOWMETER_SCHEMA, RAW_SCHEMA, McapLogWriter, raw_record, raw_records
 from fuelid.logger.tp import TransportReassembler
 
 
@@ -113,6 +116,46 @@ class Recorder(can.Listener):
         for session in self.reassembler.feed(msg):
             self._record(self.decoder.decode_payload(session.t, session.pgn, session.sa, session.da, session.payload, tp=session.kind))
         self._record(self.decoder.decode(msg))
+
+    def on_block(self, block: FrameBlock) -> None:
+        """`on_message_received` of every frame of `block`, in order, with the same messages written and the
+        same counts, done column by column: frames of transport-protocol sessions and VI go frame by frame."""
+        by_frame = self.reassembler.takes(block.can_id) | self.decoder.frame_by_frame(block.can_id)
+        plain_rows = np.flatnonzero(~by_frame)
+        plain = block.rows(~by_frame) if len(plain_rows) < len(block) else block
+        t_texts = number_texts(plain.t.tolist())
+        raw, raw_offsets = raw_records(plain, t_texts)
+        decoded = self.decoder.decode_block(plain, t_texts)
+        self.stats.frames += len(plain)
+        for rows in decoded:
+            for (sa, nulls), n in rows.messages.items():
+                self.stats.messages[rows.name, sa, nulls] += n
+        # message k of the block goes out in the order of `order` (2 × frame for /can/raw, + 1 for the decoded)
+        topics = ["/can/raw"] + [f"/j1939/{rows.name}" for rows in decoded]
+        schemas = [RAW_SCHEMA] + [message_schema(rows.name) for rows in decoded]
+        order = np.concatenate([2 * plain_rows] + [2 * plain_rows[rows.rows] + 1 for rows in decoded])
+        topic = np.concatenate([np.full(len(plain), 0)] + [np.full(len(rows.rows), k) for k, rows in enumerate(decoded, 1)])
+        shift = np.cumsum([0, len(raw)] + [len(rows.data) for rows in decoded])
+        start = np.concatenate([raw_offsets[:-1]] + [rows.offsets[:-1] + shift[k] for k, rows in enumerate(decoded, 1)])
+        end = np.concatenate([raw_offsets[1:]] + [rows.offsets[1:] + shift[k] for k, rows in enumerate(decoded, 1)])
+        log_time = (plain.t * 1e9).astype(np.int64)
+        log_time = np.concatenate([log_time] + [log_time[rows.rows] for rows in decoded])
+        sort = np.argsort(order, kind="stable")
+        order, topic, start, end, log_time = order[sort], topic[sort], start[sort], end[sort], log_time[sort]
+        present, first = np.unique(topic, return_index=True)
+        for k in present[np.argsort(first)].tolist():  # channels in the order of their first message
+            if topics[k] not in self._topics:
+                self.writer.add_channel(topics[k], schemas[k])
+                self._topics.add(topics[k])
+        data = b"".join([raw] + [rows.data for rows in decoded])
+        done = 0
+        for row in [*np.flatnonzero(by_frame).tolist(), len(block)]:
+            upto = int(np.searchsorted(order, 2 * row))
+            self.writer.write_many(topics, topic[done:upto].tolist(), data, start[done:upto].tolist(),
+                                   end[done:upto].tolist(), log_time[done:upto].tolist())
+            done = upto
+            if row < len(block):
+                self.on_message_received(block.message(row))
 
     def _record(self, decoded) -> None:
         if decoded is None:
