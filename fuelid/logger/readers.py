@@ -138,7 +138,7 @@ class _TextBlocks:
     (newlines made universal as text mode does, a cut last line withheld with its number in `cut`), as bytes.
     `position` counts the lines given. Read with read1, whose failure loses nothing read before it."""
 
-    PIECE_BYTES = 1 << 20
+    PIECE_BYTES = 4 << 20
 
     def __init__(self, f: IO[bytes]):
         self._f = f
@@ -147,8 +147,19 @@ class _TextBlocks:
 
     def __iter__(self) -> Iterator[bytes]:
         pending = b""
-        while piece := self._f.read1(self.PIECE_BYTES):
-            data = pending + piece
+        while True:
+            pieces = [pending]
+            try:
+                while sum(map(len, pieces)) < self.PIECE_BYTES and (piece := self._f.read1(self.PIECE_BYTES)):
+                    pieces.append(piece)
+            except BaseException:  # the lines read before the failure are given first
+                lines, _ = self._split(b"".join(pieces))
+                if lines:
+                    yield lines
+                raise
+            if len(pieces) == 1:
+                break
+            data = b"".join(pieces)
             held = data.endswith(b"\r")  # may be the first half of a \r\n
             lines, pending = self._split(data[:-1] if held else data)
             pending += b"\r" if held else b""
