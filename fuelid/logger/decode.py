@@ -152,7 +152,8 @@ _SMALL_INTS = text_matrix([b"%d" % i for i in range(256)])
 
 def _value_text(scale, offset):
     def text(r: int) -> bytes:
-        return orjson.dumps(r * scale + offset)  # as `Decoder._decode` computes it, int or float alike
+        # as `Decoder._decode` computes it, int or float alike; copied, orjson's bytes keep a 4 kB buffer
+        return bytes(memoryview(orjson.dumps(r * scale + offset)))
     return text
 
 

@@ -138,7 +138,7 @@ class _TextBlocks:
     (newlines made universal as text mode does, a cut last line withheld with its number in `cut`), as bytes.
     `position` counts the lines given. Read with read1, whose failure loses nothing read before it."""
 
-    PIECE_BYTES = 4 << 20
+    PIECE_BYTES = 1 << 20
 
     def __init__(self, f: IO[bytes]):
         self._f = f
