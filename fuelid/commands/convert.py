@@ -1,7 +1,8 @@
 """fuelid convert: recorded CAN logs (and a flow-meter capture) to MCAP, through the daemon's own decode path."""
-import heapq
 import math
 from pathlib import Path
+
+import numpy as np
 
 from fuelid.errors import FuelidError
 from fuelid.logger.flowmeter import Calibration, capture_readings
@@ -41,16 +42,12 @@ def run(args) -> int:
     warnings: list[str] = []
     writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), live=False)
     recorder = Recorder(writer)
+    readings = ()
+    if args.flowmeter:
+        calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
+        readings = capture_readings(args.flowmeter, calibration)
     try:
-        if args.flowmeter:
-            calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
-            _record_merged(recorder, sources, capture_readings(args.flowmeter, calibration), warnings)
-        else:  # candump -L lines in blocks of columns, other formats frame by frame
-            for item in progress(one_timeline(sources, warnings, blocks=True), desc="convert", unit="part"):
-                if isinstance(item, FrameBlock):
-                    recorder.on_block(item)
-                else:
-                    recorder.on_message_received(item)
+        _record(recorder, progress(one_timeline(sources, warnings, blocks=True), desc="convert", unit="part"), readings)
         recorder.reassembler.expire(math.inf)  # transport sessions still open at the end of the input time out
     finally:
         writer.close()
@@ -77,15 +74,27 @@ def run(args) -> int:
     return 0
 
 
-def _record_merged(recorder: Recorder, sources, readings, warnings: list[str]) -> None:
-    """The frames and the meter readings into `recorder` in one time-ordered stream of (time [s], kind, item)."""
-    frames = ((msg.timestamp, 0, msg) for msg in one_timeline(sources, warnings))
-    merged = heapq.merge(frames, ((r.t, 1, r) for r in readings), key=lambda e: e[0])
-    for _, kind, item in progress(merged, desc="convert", unit="msg"):
-        if kind == 0:
-            recorder.on_message_received(item)
+def _record(recorder: Recorder, items, readings) -> None:
+    """The frames (FrameBlocks and single frames, in order) and the meter readings into `recorder`, merged by
+    time as heapq.merge orders them: a reading goes just before the first frame later than it."""
+    readings = iter(readings)
+    head = next(readings, None)
+    for item in items:
+        if isinstance(item, FrameBlock):
+            before, row = [], 0
+            while head is not None and (later := np.flatnonzero(item.t[row:] > head.t)).size:
+                row += int(later[0])
+                before.append((row, head))
+                head = next(readings, None)
+            recorder.on_block(item, before)
         else:
-            recorder.on_flow_reading(item)
+            while head is not None and head.t < item.timestamp:
+                recorder.on_flow_reading(head)
+                head = next(readings, None)
+            recorder.on_message_received(item)
+    while head is not None:
+        recorder.on_flow_reading(head)
+        head = next(readings, None)
 
 
 def conversion_summary(recorder, sources, output: Path, warnings: list[str], kept: bool = True) -> dict:

@@ -117,9 +117,10 @@ class Recorder(can.Listener):
             self._record(self.decoder.decode_payload(session.t, session.pgn, session.sa, session.da, session.payload, tp=session.kind))
         self._record(self.decoder.decode(msg))
 
-    def on_block(self, block: FrameBlock) -> None:
+    def on_block(self, block: FrameBlock, readings: list[tuple[int, FlowReading]] = ()) -> None:
         """`on_message_received` of every frame of `block`, in order, with the same messages written and the
-        same counts, done column by column: frames of transport-protocol sessions and VI go frame by frame."""
+        same counts, done column by column: frames of transport-protocol sessions and VI go frame by frame.
+        `readings`: (frame, reading) for `on_flow_reading` just before that frame (len(block): after the last)."""
         by_frame = self.reassembler.takes(block.can_id) | self.decoder.frame_by_frame(block.can_id)
         plain_rows = np.flatnonzero(~by_frame)
         plain = block.rows(~by_frame) if len(plain_rows) < len(block) else block
@@ -148,13 +149,18 @@ class Recorder(can.Listener):
                 self.writer.add_channel(topics[k], schemas[k])
                 self._topics.add(topics[k])
         data = b"".join([raw] + [rows.data for rows in decoded])
+        # the messages up to each frame that goes frame by frame, or reading, then that one
+        events = sorted([(row, 0, k) for k, (row, _) in enumerate(readings)]
+                        + [(row, 1, 0) for row in np.flatnonzero(by_frame).tolist()])
         done = 0
-        for row in [*np.flatnonzero(by_frame).tolist(), len(block)]:
+        for row, kind, k in [*events, (len(block), 1, 0)]:
             upto = int(np.searchsorted(order, 2 * row))
             self.writer.write_many(topics, topic[done:upto].tolist(), data, start[done:upto].tolist(),
                                    end[done:upto].tolist(), log_time[done:upto].tolist())
             done = upto
-            if row < len(block):
+            if kind == 0:
+                self.on_flow_reading(readings[k][1])
+            elif row < len(block):
                 self.on_message_received(block.message(row))
 
     def _record(self, decoded) -> None:
