@@ -226,3 +226,26 @@ def test_a_converted_file_is_less_than_half_a_live_log_of_the_same_frames(tmp_pa
     assert list(read_messages(out)) == list(read_messages(live))
     assert _plain_reader_messages(out) == _plain_reader_messages(live)
     assert out.stat().st_size < 0.5 * live.stat().st_size
+
+
+def test_meter_readings_go_where_a_merge_by_time_of_single_frames_puts_them(tmp_path, capsys):
+    """Readings between frames, at a frame's time (after it) and after the last frame, among candump blocks."""
+    import heapq
+    from fuelid.logger.flowmeter import capture_readings
+
+    log = _candump(tmp_path / "a.log", n=3000)
+    capture = tmp_path / "m.flow"
+    with CaptureWriter(capture) as meter:
+        for k in range(0, 3100, 7):
+            meter.write(1_700_000_000.0 + k * 0.01 + (0.003 if k % 2 else 0), b"%.3f" % (k % 10))
+    out = tmp_path / "blocks.mcap"
+    assert convert(capsys, log, "-o", out, "--flowmeter", capture)[0] == 0
+    reference = tmp_path / "merged.mcap"
+    writer = open_writer(reference, live=False)
+    recorder = Recorder(writer)
+    frames = ((m.timestamp, 0, m) for m in read_frames(log))
+    for _, kind, item in heapq.merge(frames, ((r.t, 1, r) for r in capture_readings(capture)), key=lambda e: e[0]):
+        recorder.on_message_received(item) if kind == 0 else recorder.on_flow_reading(item)
+    writer.close()
+    assert _plain_reader_messages(out) == _plain_reader_messages(reference)
+    assert sum(topic == "/flowmeter" for topic, _, _ in _plain_reader_messages(out)) == len(range(0, 3100, 7))

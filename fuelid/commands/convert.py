@@ -1,10 +1,12 @@
 """fuelid convert: recorded CAN logs (and a flow-meter capture) to MCAP, through the daemon's own decode path."""
-import heapq
 import math
 from pathlib import Path
 
+import numpy as np
+
 from fuelid.errors import FuelidError
 from fuelid.logger.flowmeter import Calibration, capture_readings
+from fuelid.logger.frame_block import FrameBlock
 from fuelid.logger.readers import one_timeline, open_frames
 from fuelid.logger.recorder import Recorder, open_writer
 from fuelid.output import print_json
@@ -38,22 +40,14 @@ def run(args) -> int:
 
     sources = [open_frames(p) for p in inputs]
     warnings: list[str] = []
-    # One time-ordered stream of (time [s], kind, item): CAN frames of each input, then meter readings merged in.
-    frames = ((msg.timestamp, 0, msg) for msg in one_timeline(sources, warnings))
-    streams = [frames]
-    calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
-    if args.flowmeter:
-        streams.append((r.t, 1, r) for r in capture_readings(args.flowmeter, calibration))
-
     writer = open_writer(output, truck=args.truck, source=" ".join(str(p) for p in inputs), live=False)
     recorder = Recorder(writer)
+    readings = ()
+    if args.flowmeter:
+        calibration = Calibration(gain_kg_h_per_v=args.flow_gain, offset_kg_h=args.flow_offset)
+        readings = capture_readings(args.flowmeter, calibration)
     try:
-        merged = heapq.merge(*streams, key=lambda e: e[0]) if len(streams) > 1 else frames
-        for _, kind, item in progress(merged, desc="convert", unit="msg"):
-            if kind == 0:
-                recorder.on_message_received(item)
-            else:
-                recorder.on_flow_reading(item)
+        _record(recorder, progress(one_timeline(sources, warnings, blocks=True), desc="convert", unit="part"), readings)
         recorder.reassembler.expire(math.inf)  # transport sessions still open at the end of the input time out
     finally:
         writer.close()
@@ -78,6 +72,29 @@ def run(args) -> int:
                           "identifiers, as OBD-II and other non-J1939 buses use): not a truck's FMS/J1939 recording; "
                           "no output written: --raw-only keeps the frames in /can/raw")
     return 0
+
+
+def _record(recorder: Recorder, items, readings) -> None:
+    """The frames (FrameBlocks and single frames, in order) and the meter readings into `recorder`, merged by
+    time as heapq.merge orders them: a reading goes just before the first frame later than it."""
+    readings = iter(readings)
+    head = next(readings, None)
+    for item in items:
+        if isinstance(item, FrameBlock):
+            before, row = [], 0
+            while head is not None and (later := np.flatnonzero(item.t[row:] > head.t)).size:
+                row += int(later[0])
+                before.append((row, head))
+                head = next(readings, None)
+            recorder.on_block(item, before)
+        else:
+            while head is not None and head.t < item.timestamp:
+                recorder.on_flow_reading(head)
+                head = next(readings, None)
+            recorder.on_message_received(item)
+    while head is not None:
+        recorder.on_flow_reading(head)
+        head = next(readings, None)
 
 
 def conversion_summary(recorder, sources, output: Path, warnings: list[str], kept: bool = True) -> dict:

@@ -22,18 +22,22 @@ Such values decode to ``None`` with their status in `Decoded.invalid`. A signal 
 to hold (DLC below the signal's last byte) is ``None`` with status ``"missing"``; the frame is counted
 in `DecodeStats.short_frames` and its complete signals still decode. Nothing here raises on bus data.
 """
+from collections import Counter
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import can
-import numpy as np
 import cantools
+import numpy as np
+import orjson
 
 from fuelid.dbc import FMS_DBC
 from fuelid.errors import FuelidError
+from fuelid.logger.frame_block import FrameBlock
 from fuelid.logger.j1939 import parse_id
+from fuelid.logger.json_rows import Field, records, text_matrix, texts_by_value
 
 INVALID_STATUSES = ("not_available", "error", "reserved", "missing")
 """Why a signal is null: J1939 not-available or error indicator, a reserved raw value, or a frame too
@@ -128,6 +132,31 @@ def _compile(sig: cantools.database.Signal) -> tuple:
             valid_max, error_min, na_min, states)
 
 
+@dataclass
+class DecodedRows:
+    """The messages of one DBC message decoded from many frames (`Decoder.decode_block`), serialised."""
+
+    name: str
+    rows: np.ndarray
+    """The frames of the block they came from."""
+    data: bytes
+    offsets: np.ndarray
+    """Message k is data[offsets[k] : offsets[k + 1]], the JSON of its `Decoded.to_record()`, byte for byte."""
+    messages: Counter
+    """(source address, ((null signal, status), ...)) -> messages, as `RecorderStats.messages` counts them."""
+
+
+_STATUS_CODES = {None: 0, **{status: code for code, status in enumerate(INVALID_STATUSES, 1)}}
+_SMALL_INTS = text_matrix([b"%d" % i for i in range(256)])
+
+
+def _value_text(scale, offset):
+    def text(r: int) -> bytes:
+        # as `Decoder._decode` computes it, int or float alike; copied, orjson's bytes keep a 4 kB buffer
+        return bytes(memoryview(orjson.dumps(r * scale + offset)))
+    return text
+
+
 class Decoder:
     """Decodes J1939 frames and transport-protocol payloads with the messages of a DBC.
 
@@ -144,6 +173,7 @@ class Decoder:
         self.stats = DecodeStats()
         self._by_pgn: dict[int, tuple[str, list[tuple], int]] = {}
         self._ids: dict[int, tuple] = {}
+        self._texts: dict[tuple[str, str], dict[int, bytes]] = {}  # (message, signal) -> raw value -> JSON
         for m in self.db.messages:
             signals = [_compile(s) for s in m.signals]
             need = max((s[5] for s in signals), default=0)
@@ -220,6 +250,73 @@ class Decoder:
             ok &= length >= end_byte
             values[sig] = np.where(ok, raw.astype(float) * float(scale) + float(offset), np.nan)
         return name, values
+
+    def frame_by_frame(self, can_id: np.ndarray) -> np.ndarray:
+        """Which of the 29-bit identifiers `can_id` `decode_block` leaves to `decode`: VI's (a VIN, not signals)."""
+        pgn = can_id >> 8 & 0x3FFFF
+        pgn = np.where((pgn >> 8 & 0xFF) < 240, pgn & 0x3FF00, pgn)
+        return np.isin(pgn, [p for p, (name, _, _) in self._by_pgn.items() if name == VI_NAME])
+
+    def decode_block(self, block: FrameBlock, t_texts: np.ndarray) -> list[DecodedRows]:
+        """`decode` of every frame of `block` (none of them for `frame_by_frame`), column by column: the
+        records and the counts are those of decoding each frame. `t_texts`: the JSON text of each time."""
+        stats = self.stats
+        stats.frames += len(block)
+        ids, id_of_row = np.unique(block.can_id, return_inverse=True)
+        id_of_row = id_of_row.ravel()
+        parsed = [parse_id(i) for i in ids.tolist()]
+        pgns = np.array([p.pgn for p in parsed])
+        known = np.isin(pgns, list(self._by_pgn))
+        stats.unknown_pgn += int(np.count_nonzero(~known[id_of_row]))
+        decoded = []
+        for pgn in np.unique(pgns[known]).tolist():
+            rows = np.flatnonzero((pgns == pgn)[id_of_row])
+            ident = id_of_row[rows]
+            sa = np.array([p.sa for p in parsed])[ident]
+            da = np.array([p.da for p in parsed])[ident]
+            decoded.append(self._decode_rows(self._by_pgn[pgn], pgn, rows, block, t_texts[rows], sa, da))
+        return decoded
+
+    def _decode_rows(self, entry: tuple, pgn: int, rows: np.ndarray, block: FrameBlock, t_texts: np.ndarray,
+                     sa: np.ndarray, da: np.ndarray) -> DecodedRows:
+        name, signals, need = entry
+        stats = self.stats
+        stats.decoded += len(rows)
+        payload = block.data[rows].view("<u8").ravel()
+        size = block.dlc[rows]
+        stats.short_frames += int(np.count_nonzero(size < need))
+        fields: list[Field] = [b'{"t":', t_texts, b',"pgn":%d,"sa":' % pgn, _SMALL_INTS[sa], b',"da":', _SMALL_INTS[da]]
+        invalid: list[Field] = []
+        earlier = np.zeros(len(rows), bool)  # a null signal before this one: its status needs a comma first
+        key = sa.astype(np.int64)  # source address and every signal's status, in base 5
+        for sig, shift, mask, scale, offset, end_byte, valid_max, error_min, na_min, states in signals:
+            r = payload >> np.uint64(shift) & np.uint64(mask)
+            if states is not None:
+                status = np.array([_STATUS_CODES[s] for s in states], np.int64)[r]
+            else:
+                status = np.select([r <= valid_max, r >= na_min, r >= error_min], [0, 1, 2], 3)
+            status[size < end_byte] = _STATUS_CODES["missing"]
+            cache = self._texts.setdefault((name, sig), {-1: b"null"})
+            values = texts_by_value(np.where(status == 0, r.astype(np.int64), -1), cache, _value_text(scale, offset))
+            fields += [b',%s:' % orjson.dumps(sig), values]
+            texts = [b""] * 2 + [b'%s%s:"%s"' % (comma, orjson.dumps(sig), s.encode())
+                                 for s in INVALID_STATUSES for comma in (b"", b",")]
+            invalid.append(text_matrix(texts)[status * 2 + earlier])
+            earlier |= status != 0
+            for code, count in enumerate(np.bincount(status, minlength=5)[1:].tolist(), 1):
+                stats.invalid[INVALID_STATUSES[code - 1]] += count
+            key = key * 5 + status
+        data, offsets = records(fields + [b',"invalid":{'] + invalid + [b"}}"], len(rows))
+        messages: Counter = Counter()
+        names = [s[0] for s in signals]
+        for k, count in zip(*(a.tolist() for a in np.unique(key, return_counts=True))):
+            codes = []
+            for _ in names:
+                k, code = divmod(k, 5)
+                codes.append(code)
+            nulls = tuple((n, INVALID_STATUSES[c - 1]) for n, c in zip(names, reversed(codes)) if c)
+            messages[k, nulls] += count
+        return DecodedRows(name, rows, data, offsets, messages)
 
     def _decode(self, entry: tuple, t: float, pgn: int, sa: int, da: int, payload: bytes,
                 tp: str | None) -> Decoded:

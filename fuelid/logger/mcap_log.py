@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Callable, Iterable, Iterator
 
+import numpy as np
 import orjson
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -34,6 +35,8 @@ from fuelid import __version__
 from fuelid.errors import FuelidError
 from fuelid.logger import columns as message_columns
 from fuelid.logger.durable import fsync_path
+from fuelid.logger.frame_block import FrameBlock
+from fuelid.logger.json_rows import records, text_matrix
 
 METADATA_NAME = "fuelid"
 MAGIC = b"\x89MCAP0\r\n"
@@ -83,6 +86,25 @@ def raw_record(msg) -> dict:
         "remote": msg.is_remote_frame,
         "channel": msg.channel,
     }
+
+
+_HEX_DIGITS = np.frombuffer(b"0123456789abcdef", np.uint8)
+
+
+def raw_records(block: FrameBlock, t_texts: np.ndarray) -> tuple[bytes, np.ndarray]:
+    """The `/can/raw` messages of `block`, byte for byte what `raw_record` gives for each frame, serialised:
+    (all of them, one after another, their n + 1 offsets). `t_texts`: the JSON text of each receive time."""
+    n = len(block)
+    digits = np.empty((n, 16), np.uint8)
+    digits[:, 0::2] = _HEX_DIGITS[block.data >> 4]
+    digits[:, 1::2] = _HEX_DIGITS[block.data & 15]
+    digits[np.arange(16) >= 2 * block.dlc[:, None]] = 0
+    ids, id_of_row = np.unique(block.can_id, return_inverse=True)
+    channels = text_matrix([orjson.dumps(c) for c in block.channels])
+    return records([b'{"t":', t_texts, b',"id":', text_matrix([b"%d" % i for i in ids.tolist()])[id_of_row.ravel()],
+                    b',"extended":true,"dlc":', (block.dlc + ord("0")).astype(np.uint8)[:, None],
+                    b',"data":"', digits, b'","error":false,"remote":false,"channel":', channels[block.channel],
+                    b"}"], n)
 
 
 class _SinkErrors(logging.Filter):
@@ -206,7 +228,11 @@ class McapLogWriter:
     def write(self, topic: str, log_time_ns: int, record: dict) -> None:
         """Write one message; `log_time_ns` is the receive time [ns]. A failed write raises OSError (errno
         ENOSPC for a full disk), and so does every write after it: the file is broken from there on."""
-        self._channels[topic][1](orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY), log_time_ns, None)
+        self.write_json(topic, log_time_ns, orjson.dumps(record, option=orjson.OPT_SERIALIZE_NUMPY))
+
+    def write_json(self, topic: str, log_time_ns: int, data: bytes) -> None:
+        """`write` of a message already serialised to JSON."""
+        self._channels[topic][1](data, log_time_ns, None)
         failure = _SINK_ERRORS.take()
         if failure is not None:
             raise failure
@@ -218,6 +244,21 @@ class McapLogWriter:
             self._close_chunk()
         if time.monotonic_ns() >= self._wall_due_ns:
             self.flush()
+
+    def write_many(self, topics: list[str], topic: list[int], data: bytes, start: list[int], end: list[int],
+                   log_time_ns: list[int]) -> None:
+        """`write_json` of many messages: message k is data[start[k] : end[k]] on topics[topic[k]] at
+        log_time_ns[k]. Without timed chunks (a conversion) a failed write raises after the last message."""
+        if self._timed:
+            for k, a, b, t in zip(topic, start, end, log_time_ns):
+                self.write_json(topics[k], t, data[a:b])
+            return
+        logs = [self._channels[t][1] for t in topics]
+        for k, a, b, t in zip(topic, start, end, log_time_ns):
+            logs[k](data[a:b], t, None)
+        failure = _SINK_ERRORS.take()
+        if failure is not None:
+            raise failure
 
     def set_metadata(self, metadata: dict) -> None:
         """Update keys of the `fuelid` metadata (e.g. truck = VIN when first seen) and write the whole

@@ -37,6 +37,7 @@ from typing import IO
 import can
 
 from fuelid.errors import FuelidError
+from fuelid.logger.frame_block import FrameBlock, candump_l_items
 
 _CAN_ERR_FLAG = 0x20000000  # SocketCAN marks error frames in the identifier
 _SNIFF_BYTES = 1 << 16
@@ -126,6 +127,62 @@ class _Lines:
         self._f.close()
 
     def __enter__(self) -> "_Lines":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class _TextBlocks:
+    """The complete lines of a binary file in big pieces, for `candump_l_items`: the same lines `_Lines` gives
+    (newlines made universal as text mode does, a cut last line withheld with its number in `cut`), as bytes.
+    `position` counts the lines given. Read with read1, whose failure loses nothing read before it."""
+
+    PIECE_BYTES = 1 << 20
+
+    def __init__(self, f: IO[bytes]):
+        self._f = f
+        self.position = 0
+        self.cut: int | None = None
+
+    def __iter__(self) -> Iterator[bytes]:
+        pending = b""
+        while True:
+            pieces = [pending]
+            try:
+                while sum(map(len, pieces)) < self.PIECE_BYTES and (piece := self._f.read1(self.PIECE_BYTES)):
+                    pieces.append(piece)
+            except BaseException:  # the lines read before the failure are given first
+                lines, _ = self._split(b"".join(pieces))
+                if lines:
+                    yield lines
+                raise
+            if len(pieces) == 1:
+                break
+            data = b"".join(pieces)
+            held = data.endswith(b"\r")  # may be the first half of a \r\n
+            lines, pending = self._split(data[:-1] if held else data)
+            pending += b"\r" if held else b""
+            if lines:
+                yield lines
+        lines, pending = self._split(pending)
+        if lines:
+            yield lines
+        if pending.decode("latin-1").strip():
+            self.cut = self.position + 1
+
+    def _split(self, data: bytes) -> tuple[bytes, bytes]:
+        """(the complete lines of `data`, counted, the rest)."""
+        if b"\r" in data:
+            data = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        cut = data.rfind(b"\n") + 1
+        self.position += data.count(b"\n", 0, cut)
+        return data[:cut], data[cut:]
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> "_TextBlocks":
         return self
 
     def __exit__(self, *exc) -> None:
@@ -223,6 +280,17 @@ def _read_candump(source: "FrameSource", parse: Callable[[str], can.Message | No
                 yield msg
 
 
+def _read_candump_l_blocks(source: "FrameSource") -> Iterator[FrameBlock | can.Message]:
+    """What `_read_candump` gives for candump -L, runs of ordinary lines as FrameBlocks."""
+    with source.text_blocks() as blocks:
+        for text in blocks:
+            for item in candump_l_items(text, parse_candump_l):
+                if item is None:
+                    source.skipped += 1
+                else:
+                    yield item
+
+
 def _read_lines_with(reader_cls) -> Callable[["FrameSource"], Iterator[can.Message]]:
     def read(source: "FrameSource") -> Iterator[can.Message]:
         with source.lines() as lines:
@@ -308,7 +376,7 @@ class FrameSource:
         self.position: str | None = None
         self.error: str | None = None
         self.at_end = False  # set by a reader whose failure is the end of the data (a cut, not damage)
-        self._lines: _Lines | None = None
+        self._lines: _Lines | _TextBlocks | None = None
         try:
             with open(self.path, "rb") as f:
                 self.compressed = f.read(2) == b"\x1f\x8b"
@@ -325,13 +393,26 @@ class FrameSource:
         return self.status == "truncated"
 
     def __iter__(self) -> Iterator[can.Message]:
+        return self._checked(FORMATS[self.format].read(self))
+
+    def blocks(self) -> Iterator[can.Message | FrameBlock]:
+        """The frames as iterating gives them, runs of ordinary candump -L frames as FrameBlocks (they are all in
+        range); other formats frame by frame. The counts and the status as when iterating."""
+        if self.format != "candump-L":
+            return iter(self)
+        return self._checked(_read_candump_l_blocks(self))
+
+    def _checked(self, items: Iterator[can.Message | FrameBlock]) -> Iterator[can.Message | FrameBlock]:
         try:
-            for msg in FORMATS[self.format].read(self):
-                if not in_range(msg):
+            for item in items:
+                if isinstance(item, FrameBlock):
+                    self.frames += len(item)
+                elif not in_range(item):
                     self.skipped += 1
                     continue
-                self.frames += 1
-                yield msg
+                else:
+                    self.frames += 1
+                yield item
         except FuelidError:
             raise
         except Exception as e:  # noqa: BLE001 -- any failure inside a reader: the data ends here
@@ -367,6 +448,11 @@ class FrameSource:
         self._lines = _Lines(f)
         return self._lines
 
+    def text_blocks(self) -> _TextBlocks:
+        """The file's complete lines in big pieces of bytes (see `_TextBlocks`)."""
+        self._lines = _TextBlocks(self.binary())
+        return self._lines
+
     def binary(self) -> IO[bytes]:
         return gzip.open(self.path, "rb") if self.compressed else open(self.path, "rb")
 
@@ -386,22 +472,30 @@ RELATIVE_BEFORE_S = 1e9
 (candump -ta, a logger without a clock): they say nothing about when the recording was made."""
 
 
-def one_timeline(sources: list[FrameSource], notes: list[str]) -> Iterator[can.Message]:
-    """The frames of `sources`, one recording after another in the order given. A recording after the
-    first whose times are relative (`RELATIVE_BEFORE_S`) cannot be placed by its clock, and merging it by
-    time would interleave two trips: it is shifted to start where the previous one ended, and `notes`
-    says so, naming it."""
+def one_timeline(sources: list[FrameSource], notes: list[str], blocks: bool = False
+                 ) -> Iterator[can.Message | FrameBlock]:
+    """The frames of `sources`, one recording after another in the order given (with `blocks`, as
+    `FrameSource.blocks` gives them). A recording after the first whose times are relative
+    (`RELATIVE_BEFORE_S`) cannot be placed by its clock, and merging it by time would interleave two trips:
+    it is shifted to start where the previous one ended, and `notes` says so, naming it."""
     end = previous = None
     for source in sources:
         shift = None
-        for msg in source:
+        for item in source.blocks() if blocks else source:
+            block = isinstance(item, FrameBlock)
             if shift is None:
+                first = float(item.t[0]) if block else item.timestamp
                 shift = 0.0
-                if end is not None and msg.timestamp < RELATIVE_BEFORE_S:
-                    shift = end - msg.timestamp
+                if end is not None and first < RELATIVE_BEFORE_S:
+                    shift = end - first
                     notes.append(f"{source.path} has relative (boot-time) timestamps: placed after {previous}, "
                                  f"shifted by {shift:+.6f} s")
-            msg.timestamp += shift
-            end = msg.timestamp if end is None else max(end, msg.timestamp)
-            yield msg
+            if block:
+                item = item.shifted(shift) if shift else item
+                last = float(item.t.max())
+            else:
+                item.timestamp += shift
+                last = item.timestamp
+            end = last if end is None else max(end, last)
+            yield item
         previous = source.path

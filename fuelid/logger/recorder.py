@@ -8,12 +8,16 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import can
+import numpy as np
 
 from fuelid import __version__
 from fuelid.dbc import FMS_DBC
 from fuelid.logger.decode import Decoder, message_schema
 from fuelid.logger.flowmeter import FlowReading
-from fuelid.logger.mcap_log import FLOWMETER_SCHEMA, RAW_SCHEMA, McapLogWriter, raw_record
+from fuelid.logger.frame_block import FrameBlock
+from fuelid.logger.j1939 import GLOBAL_ADDRESS
+from fuelid.logger.json_rows import number_texts
+from fuelid.logger.mcap_log import FLOWMETER_SCHEMA, RAW_SCHEMA, McapLogWriter, raw_record, raw_records
 from fuelid.logger.tp import TransportReassembler
 
 
@@ -115,6 +119,76 @@ class Recorder(can.Listener):
             self._record(self.decoder.decode_payload(session.t, session.pgn, session.sa, session.da, session.payload, tp=session.kind),
                          session.payload)
         self._record(self.decoder.decode(msg), msg.data)
+
+    def on_block(self, block: FrameBlock, readings: list[tuple[int, FlowReading]] = ()) -> None:
+        """`on_message_received` of every frame of `block`, in order, with the same messages written and the
+        same counts, done column by column: frames of transport-protocol sessions and VI go frame by frame.
+        `readings`: (frame, reading) for `on_flow_reading` just before that frame (len(block): after the last)."""
+        by_frame = self.reassembler.takes(block.can_id) | self.decoder.frame_by_frame(block.can_id)
+        plain_rows = np.flatnonzero(~by_frame)
+        plain = block.rows(~by_frame) if len(plain_rows) < len(block) else block
+        t_texts = number_texts(plain.t.tolist())
+        raw, raw_offsets = raw_records(plain, t_texts)
+        decoded = self.decoder.decode_block(plain, t_texts)
+        self.stats.frames += len(plain)
+        for rows in decoded:
+            for (sa, nulls), n in rows.messages.items():
+                self.stats.messages[rows.name, sa, nulls] += n
+        # message k of the block goes out in the order of `order` (2 × frame for /can/raw, + 1 for the decoded)
+        topics = ["/can/raw"] + [f"/j1939/{rows.name}" for rows in decoded]
+        schemas = [RAW_SCHEMA] + [message_schema(rows.name) for rows in decoded]
+        order = np.concatenate([2 * plain_rows] + [2 * plain_rows[rows.rows] + 1 for rows in decoded])
+        topic = np.concatenate([np.full(len(plain), 0)] + [np.full(len(rows.rows), k) for k, rows in enumerate(decoded, 1)])
+        shift = np.cumsum([0, len(raw)] + [len(rows.data) for rows in decoded])
+        start = np.concatenate([raw_offsets[:-1]] + [rows.offsets[:-1] + shift[k] for k, rows in enumerate(decoded, 1)])
+        end = np.concatenate([raw_offsets[1:]] + [rows.offsets[1:] + shift[k] for k, rows in enumerate(decoded, 1)])
+        log_time = (plain.t * 1e9).astype(np.int64)
+        log_time = np.concatenate([log_time] + [log_time[rows.rows] for rows in decoded])
+        sort = np.argsort(order, kind="stable")
+        order, topic, start, end, log_time = order[sort], topic[sort], start[sort], end[sort], log_time[sort]
+        present, first = np.unique(topic, return_index=True)
+        for k in present[np.argsort(first)].tolist():  # channels in the order of their first message
+            if topics[k] not in self._topics:
+                self.writer.add_channel(topics[k], schemas[k])
+                self._topics.add(topics[k])
+        data = b"".join([raw] + [rows.data for rows in decoded])
+        # the messages up to each frame that goes frame by frame, or reading, then that one
+        events = sorted([(row, 0, k) for k, (row, _) in enumerate(readings)]
+                        + [(row, 1, 0) for row in np.flatnonzero(by_frame).tolist()])
+        add_columns = self._column_rows(block, order, topic, log_time)
+        done = 0
+        for row, kind, k in [*events, (len(block), 1, 0)]:
+            upto = int(np.searchsorted(order, 2 * row))
+            self.writer.write_many(topics, topic[done:upto].tolist(), data, start[done:upto].tolist(),
+                                   end[done:upto].tolist(), log_time[done:upto].tolist())
+            add_columns(done, upto)
+            done = upto
+            if kind == 0:
+                self.on_flow_reading(readings[k][1])
+            elif row < len(block):
+                self.on_message_received(block.message(row))
+
+    def _column_rows(self, block: FrameBlock, order: np.ndarray, topic: np.ndarray, log_time: np.ndarray):
+        """add(lo, hi): the decoded messages among the block's sorted messages lo..hi (topic > 0) into the
+        writer's message columns, as `_record` adds each one (no-op without columns)."""
+        columns = self.writer.columns
+        if columns is None:
+            return lambda lo, hi: None
+        frame = order // 2
+        can_id = block.can_id[frame]
+        pdu1 = (can_id >> 16 & 0xFF) < 240
+        pgn = np.where(pdu1, can_id >> 8 & 0x3FF00, can_id >> 8 & 0x3FFFF).tolist()
+        da = np.where(pdu1, can_id >> 8 & 0xFF, GLOBAL_ADDRESS).tolist()
+        sa = (can_id & 0xFF).tolist()
+        payloads = [bytes(block.data[f, :n]) for f, n in zip(frame.tolist(), block.dlc[frame].tolist())]
+        decoded = (topic > 0).tolist()
+        t_ns = log_time.tolist()
+
+        def add(lo: int, hi: int) -> None:
+            for i in range(lo, hi):
+                if decoded[i]:
+                    columns.add_message(t_ns[i], pgn[i], sa[i], da[i], None, payloads[i])
+        return add
 
     def _record(self, decoded, payload: bytes) -> None:
         if decoded is None:

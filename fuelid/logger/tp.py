@@ -119,6 +119,12 @@ class TransportReassembler:
             return self._data(msg.timestamp, ident.sa, ident.da, bytes(msg.data))
         return []
 
+    @staticmethod
+    def takes(can_id):
+        """Which of the 29-bit identifiers (a numpy array) `feed` does not ignore: TP.CM's and TP.DT's PDU format."""
+        pf = can_id >> 16 & 0xFF
+        return (pf == PGN_TP_CM >> 8) | (pf == PGN_TP_DT >> 8)
+
     def expire(self, t: float) -> None:
         """Drop sessions silent for longer than their timeout at time `t` [s]; ``expire(math.inf)``
         at the end of a recording counts the unfinished ones as timed out."""
