@@ -12,6 +12,7 @@ from mcap.opcode import Opcode
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
+from mcap.writer import Writer
 
 from fuelid.errors import FuelidError
 from fuelid.logger.flowmeter import parse_line
@@ -299,6 +300,20 @@ def test_both_reference_python_readers_and_fuelid_read_the_same(log):
         stream = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in NonSeekingReader(f).iter_messages()]
     assert seeking == stream == list(read_messages(path)) == written
     assert chunks_located(path)
+
+
+def test_messages_outside_chunks_are_read_by_the_scan_not_located(tmp_path):
+    """The walk of a file without a chunk index vouches only for chunked messages: others must not be skipped."""
+    path = tmp_path / "unchunked.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start()
+        channel = w.register_channel("/flowmeter", "json", w.register_schema("s", "jsonschema", b"{}"))
+        for i in range(3):
+            w.add_message(channel, T0 + i, b'{"i": %d}' % i, T0 + i)
+        w.finish()
+    assert not chunks_located(path)
+    assert [r["i"] for _, _, r in read_messages(path)] == [0, 1, 2]
 
 
 def test_compact_writing_has_no_indexes_and_chunks_by_size(tmp_path):
