@@ -1,8 +1,9 @@
 """Crash-safe MCAP logs: JSON messages with jsonschema schemas, zstd chunks closed at least once a second.
 
 `McapLogWriter` writes; `read_messages` and `read_metadata` read complete files chunk by chunk (found through
-their chunk index, or in converted files, which have none, by walking the data section) and truncated ones (power cut before `close()`) by a sequential scan that stops at the last complete chunk;
-`recover` rewrites a truncated file as a valid indexed one. Channel and record layout: docs/formats.md.
+their chunk index, or in converted files, which have none, by walking the data section) and truncated ones
+(power cut before `close()`) by a sequential scan that stops at the last complete chunk; `recover` rewrites a
+truncated file as a valid indexed one. Channel and record layout: docs/formats.md.
 """
 from __future__ import annotations
 
