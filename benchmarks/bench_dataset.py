@@ -73,7 +73,8 @@ def long_recording(trip: Path, hours: float) -> list[Path]:
         context = foxglove.Context()
         writer = foxglove.open_mcap(path.with_suffix(".part"), allow_overwrite=True, context=context,
                                     writer_options=MCAPWriteOptions(compression=MCAPCompression.Zstd, profile="",
-                                                                    chunk_size=4 << 20, emit_message_indexes=False))
+                                                                    chunk_size=4 << 20, emit_message_indexes=False,
+                                                                    emit_chunk_indexes=False))  # as convert
         channels = {t: foxglove.Channel(t, message_encoding="json", context=context) for t in sorted(topics)}
         for topic, log_time, data in messages:
             channels[topic].log(data, log_time=log_time + i * length)

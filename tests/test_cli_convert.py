@@ -7,7 +7,7 @@ from pathlib import Path
 
 import can
 import pytest
-from mcap.reader import make_reader
+from mcap.reader import NonSeekingReader, make_reader
 
 from fuelid.cli import main
 from fuelid.ident.dataset import build_dataset
@@ -189,19 +189,29 @@ def test_a_recording_without_j1939_traffic_is_an_error_unless_raw_frames_are_ask
 
 
 SAMPLE = Path(__file__).resolve().parents[1] / "replay_logs" / "sample_diesel_1min.log.gz"
-OLD_FILE = Path(__file__).resolve().parent / "logger" / "data" / "convert_v0.1.0.mcap"
+OLD_FILES = Path(__file__).resolve().parent / "logger" / "data"
 
 
 def _plain_reader_messages(path):
+    """The messages as mcap's SeekingReader reads them, checked against its NonSeekingReader."""
     with open(path, "rb") as f:
         reader = make_reader(f)
         assert reader.get_summary().statistics.message_count > 0
-        return [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in reader.iter_messages(log_time_order=False)]
+        seeking = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in reader.iter_messages(log_time_order=False)]
+    with open(path, "rb") as f:
+        stream = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in NonSeekingReader(f).iter_messages()]
+    assert stream == seeking
+    return seeking
 
 
-def test_a_file_converted_by_version_0_1_0_reads_as_todays_conversion(tmp_path, capsys):
-    """convert_v0.1.0.mcap: the first 800 lines of the sample trip converted by fuelid 0.1.0 (one-second
-    chunks, message indexes); today's conversion of the same lines holds the same messages."""
+# convert_v0.1.0.mcap: fuelid 0.1.0's conversion (one-second chunks, message and chunk indexes);
+# convert_chunk_index_only.mcap: the next one's (4 MB chunks, a chunk index without message indexes, which
+# @mcap/core's indexed reader refuses), written by commit fb57282
+@pytest.mark.parametrize("old_file", ["convert_v0.1.0.mcap", "convert_chunk_index_only.mcap"])
+def test_a_file_converted_by_an_earlier_version_reads_as_todays_conversion(tmp_path, capsys, old_file):
+    """Both hold the first 800 lines of the sample trip; today's conversion of the same lines holds the
+    same messages."""
+    old = OLD_FILES / old_file
     src = tmp_path / "first.log"
     with gzip.open(SAMPLE, "rt") as f:
         src.write_text("".join(itertools.islice(f, 800)))
@@ -209,9 +219,9 @@ def test_a_file_converted_by_version_0_1_0_reads_as_todays_conversion(tmp_path, 
     code, summary, _ = convert(capsys, src, "-o", out)
     assert code == 0 and summary["frames"] == 800
     today = list(read_messages(out))
-    assert len(today) == 1591 and list(read_messages(OLD_FILE)) == today
-    assert _plain_reader_messages(OLD_FILE) == _plain_reader_messages(out) == today
-    assert read_metadata(OLD_FILE)["fuelid"]["truck"] == read_metadata(out)["fuelid"]["truck"] == "YS2R4X20007105543"
+    assert len(today) == 1591 and list(read_messages(old)) == today
+    assert _plain_reader_messages(old) == _plain_reader_messages(out) == today
+    assert read_metadata(old)["fuelid"]["truck"] == read_metadata(out)["fuelid"]["truck"] == "YS2R4X20007105543"
 
 
 def test_a_converted_file_is_less_than_half_a_live_log_of_the_same_frames(tmp_path, capsys):

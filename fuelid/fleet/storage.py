@@ -17,7 +17,7 @@ from pathlib import Path
 from mcap.reader import SeekingReader
 
 from fuelid.logger.durable import fsync_path
-from fuelid.logger.mcap_log import MAGIC, METADATA_NAME, damaged_chunks
+from fuelid.logger.mcap_log import MAGIC, METADATA_NAME, chunks_located, damaged_chunks
 
 HEX64 = r"^[0-9a-f]{64}$"
 
@@ -113,10 +113,13 @@ class McapInfo:
 def inspect_mcap(path: str | Path) -> McapInfo:
     """Check an uploaded file is a complete fuelid MCAP log and read what the registry keeps.
 
-    The rule: MCAP magic at both ends, a footer and summary that mcap's reader parses with a chunk index and
-    statistics (a chunk index when it holds messages: a log of a silent bus has none), every chunk matching its CRC, and a `fuelid` metadata record naming the truck. A file cut before its footer (a power cut
-    the daemon did not recover) is refused: `fuelid recover` turns it into a complete file to upload. The
-    bytes themselves are vouched for by the sha256 the client sent and the server recomputed."""
+    The rule: MCAP magic at both ends, a footer and summary that mcap's reader parses with statistics, chunks
+    the summary locates when it holds messages (its chunk index, or for a converted file, written without one,
+    a data section matching the statistics; a log of a silent bus has no chunk) so the fleet's jobs read it
+    chunk by chunk, never by a sequential scan, every chunk matching its CRC, and a `fuelid` metadata record
+    naming the truck. A file cut before its footer (a power cut the daemon did not recover) is refused:
+    `fuelid recover` turns it into a complete file to upload. The bytes themselves are vouched for by the
+    sha256 the client sent and the server recomputed."""
     with open(path, "rb") as f:
         if f.read(len(MAGIC)) != MAGIC:
             raise UploadRefused(422, "not an MCAP file")
@@ -133,8 +136,9 @@ def inspect_mcap(path: str | Path) -> McapInfo:
             raise UploadRefused(422, f"damaged MCAP summary or metadata ({type(exc).__name__})") from exc
     if summary is None or summary.statistics is None:
         raise UploadRefused(422, "MCAP file without statistics in its summary")
-    if summary.statistics.message_count and not summary.chunk_indexes:  # empty logs (bus silent) have none
-        raise UploadRefused(422, "MCAP file with messages but no chunk index")
+    if summary.statistics.message_count and not chunks_located(path):  # empty logs (bus silent) have no chunk
+        raise UploadRefused(422, "MCAP file with messages but no chunk index, nor a data section matching its "
+                                 "statistics; run `fuelid recover` on it and upload the result")
     damaged = damaged_chunks(path)  # the sha256 vouches for the transfer, not for what the logger wrote
     if damaged:
         raise UploadRefused(422, f"damaged MCAP file: chunk at bytes {damaged[0].start}-{damaged[0].end} "

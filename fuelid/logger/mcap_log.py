@@ -1,8 +1,9 @@
 """Crash-safe MCAP logs: JSON messages with jsonschema schemas, zstd chunks closed at least once a second.
 
-`McapLogWriter` writes; `read_messages` and `read_metadata` read complete files through their index and
-truncated ones (power cut before `close()`) by a sequential scan that stops at the last complete chunk;
-`recover` rewrites a truncated file as a valid indexed one. Channel and record layout: docs/formats.md.
+`McapLogWriter` writes; `read_messages` and `read_metadata` read complete files chunk by chunk (found through
+their chunk index, or in converted files, which have none, by walking the data section) and truncated ones
+(power cut before `close()`) by a sequential scan that stops at the last complete chunk; `recover` rewrites a
+truncated file as a valid indexed one. Channel and record layout: docs/formats.md.
 """
 from __future__ import annotations
 
@@ -157,9 +158,11 @@ class McapLogWriter:
     loop to keep that bound. With `chunk_flush_s=None` chunks close at `chunk_size` only and nothing is
     flushed before `close()` (a conversion, which can be run again).
 
-    `message_indexes`: MCAP's optional per-chunk, per-channel index of every message (12 bytes each, about
-    half of a file of one-second chunks). Readers that read whole chunks (fuelid's, mcap's Python and
-    TypeScript readers) do without; it only lets a reader seek to a time inside a chunk.
+    `message_indexes`: MCAP's optional per-chunk, per-channel index of every message (16 bytes each, about
+    half of a file of one-second chunks) and the summary's chunk index with it. False writes neither: MCAP's
+    TypeScript indexed reader (@mcap/core, Foxglove) refuses a chunk index without message indexes, and
+    without a chunk index every reference reader reads the file as a stream. fuelid locates the chunks of
+    such a file by walking its top-level records (`_located_chunks`).
 
     Built on the Foxglove SDK's MCAP writer (Rust) rather than the pure-Python `mcap` Writer, which
     caps at ~120,000 messages/s on one core, too slow for the logger's decode + write budget.
@@ -192,6 +195,7 @@ class McapLogWriter:
             profile="",
             compression_threads=0,  # compress in the calling thread: the in-cab box has few cores
             emit_message_indexes=message_indexes,
+            emit_chunk_indexes=message_indexes,
         )
         self._writer = foxglove.open_mcap(
             self.path, allow_overwrite=True, context=self._context, writer_options=options
@@ -484,7 +488,7 @@ def _records_in(data: bytes) -> Iterator[McapRecord]:
 
 
 def _indexed_reader(f: IO[bytes]) -> SeekingReader | None:
-    """mcap's own reader when the file ends in a footer with a chunk index that its CRC vouches for, else None."""
+    """mcap's own reader when the file ends in a footer with a summary that its CRC vouches for, else None."""
     f.seek(-len(MAGIC), io.SEEK_END)
     if f.read(len(MAGIC)) != MAGIC:
         return None
@@ -493,8 +497,56 @@ def _indexed_reader(f: IO[bytes]) -> SeekingReader | None:
             return None
     f.seek(0)  # SeekingReader reads the leading magic from the current position
     reader = SeekingReader(f)
+    return reader if reader.get_summary() is not None else None
+
+
+@dataclass(frozen=True)
+class _ChunkSpan:
+    """Bytes [`start`, `end`) of one Chunk record; `channels`: the ids its message indexes name (None: unknown)."""
+
+    start: int
+    end: int
+    channels: frozenset[int] | None = None
+
+
+def _located_chunks(f: IO[bytes], reader: SeekingReader | None) -> list[_ChunkSpan] | None:
+    """Every chunk of a file with an intact summary, in file order: from its chunk index, or, for a file written
+    without one (`convert`), by walking the data section's top-level records by their length fields. The walk
+    counts only when it ends on the DataEnd record where the summary begins, meets no message outside a chunk
+    and finds as many chunks as the statistics say. None when neither vouches: the caller scans the file."""
+    if reader is None:
+        return None
     summary = reader.get_summary()
-    return reader if summary is not None and summary.chunk_indexes else None
+    if summary.chunk_indexes:
+        return [_ChunkSpan(c.chunk_start_offset, c.chunk_start_offset + c.chunk_length,
+                           frozenset(c.message_index_offsets) or None)
+                for c in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)]
+    if summary.statistics is None:
+        return None
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+        (data_end,) = struct.unpack_from("<Q", buf, len(buf) - len(MAGIC) - 20)  # the footer's summary start
+        pos, spans = len(MAGIC), []
+        while pos + 9 <= data_end:
+            opcode, length = _RECORD_HEAD.unpack_from(buf, pos)
+            end = pos + 9 + length
+            if opcode not in _OPCODES or opcode == Opcode.MESSAGE or end > data_end:
+                return None  # a garbled length, or messages the chunks do not hold
+            if opcode == Opcode.CHUNK:
+                spans.append(_ChunkSpan(pos, end))
+            pos = end
+            if opcode == Opcode.DATA_END:
+                break
+        else:
+            return None
+    return spans if pos == data_end and len(spans) == summary.statistics.chunk_count else None
+
+
+def chunks_located(path: str | Path) -> bool:
+    """Whether `path` is a complete file whose summary locates every chunk (see `_located_chunks`), so that it
+    reads chunk by chunk without a sequential scan; FuelidError if not MCAP."""
+    f, reader = _open(path)
+    with f:
+        return _located_chunks(f, reader) is not None
 
 
 def _open(path: str | Path) -> tuple[IO[bytes], SeekingReader | None]:
@@ -542,21 +594,18 @@ def _damage_handler(damaged: list[DamagedChunk] | None) -> Callable[[DamagedChun
     return refuse
 
 
-def _indexed_chunks(path: str | Path, f: IO[bytes], reader: SeekingReader, wanted: set[str] | None,
+def _indexed_chunks(path: str | Path, f: IO[bytes], reader: SeekingReader, chunks: list[_ChunkSpan],
+                    wanted: set[str] | None,
                     on_damage: Callable[[DamagedChunk], None]) -> Iterator[tuple[dict[int, str], bytes]]:
-    """(channel id → topic of the wanted JSON channels, verified records) of each chunk of an indexed file
-    that may hold a wanted channel, in file order."""
-    try:
-        summary = reader.get_summary()
-    except Exception as exc:  # mcap, struct and decoding errors alike: a damaged complete file
-        raise FuelidError(f"damaged MCAP file {path} ({exc}); try `fuelid recover`") from exc
-    ids = {i: c.topic for i, c in summary.channels.items()
+    """(channel id → topic of the wanted JSON channels, verified records) of each of the `chunks` that may hold a
+    wanted channel, in file order."""
+    ids = {i: c.topic for i, c in reader.get_summary().channels.items()
            if c.message_encoding == "json" and (wanted is None or c.topic in wanted)}
     with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
-        for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
-            if index.message_index_offsets and not ids.keys() & index.message_index_offsets.keys():
+        for chunk in chunks:
+            if chunk.channels is not None and not ids.keys() & chunk.channels:
                 continue  # the chunk's message index says none of the wanted channels is in it
-            start, end = index.chunk_start_offset, index.chunk_start_offset + index.chunk_length
+            start, end = chunk.start, chunk.end
             found = _verified_chunk(buf, start, min(end, len(buf)))
             if found is None or found[2] != end:
                 on_damage(DamagedChunk(Path(path), start, end, _what_is_wrong(buf, start, end)))
@@ -569,8 +618,9 @@ def _raw_messages(path: str | Path, topics: Iterable[str] | None,
     wanted = None if topics is None else set([topics] if isinstance(topics, str) else topics)
     f, reader = _open(path)
     with f:
-        if reader is not None:
-            for ids, data in _indexed_chunks(path, f, reader, wanted, on_damage):
+        chunks = _located_chunks(f, reader)
+        if chunks is not None:
+            for ids, data in _indexed_chunks(path, f, reader, chunks, wanted, on_damage):
                 yield from _chunk_messages(data, ids)
             return
         channels: dict[int, Channel] = {}
@@ -593,8 +643,9 @@ def read_chunks(path: str | Path, topics: Iterable[str], *,
     wanted, on_damage = set(topics), _damage_handler(damaged)
     f, reader = _open(path)
     with f:
-        if reader is not None:
-            yield from _indexed_chunks(path, f, reader, wanted, on_damage)
+        chunks = _located_chunks(f, reader)
+        if chunks is not None:
+            yield from _indexed_chunks(path, f, reader, chunks, wanted, on_damage)
             return
     batch, ids = [], {}
     for topic, log_time, data in _raw_messages(path, wanted, on_damage):

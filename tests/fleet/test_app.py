@@ -1,16 +1,22 @@
 """The fleet server over loopback (a real uvicorn in a subprocess): uploads, refusals, tokens, registry, jobs,
 and the `fuelid` client commands."""
+import gzip
+import itertools
 import json
 import os
 import time
+from pathlib import Path
 
 import pytest
 import sqlalchemy as sa
+from mcap.writer import Writer
 
 from fuelid.fleet import db
 from fuelid.cli import main as fuelid
 from fuelid.logger.upload import Rejected, UploadError, request, request_json, upload_file
 from tests.fleet.conftest import Server, make_mcap
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def stored_state(s: Server) -> tuple[int, list, list]:
@@ -88,6 +94,7 @@ def _truncated(path):
     ("oversized", 413, "exceeds the server's limit"),
     ("wrong_truck", 403, "the file is from truck T2, not T1"),
     ("no_truck", 422, "names no truck"),
+    ("unchunked", 422, "messages but no chunk index"),
 ])
 def test_bad_uploads_are_refused_and_nothing_is_stored(tmp_path, case, status, message):
     s = Server(tmp_path / "data", max_upload_mb=0.5).start()
@@ -102,6 +109,13 @@ def test_bad_uploads_are_refused_and_nothing_is_stored(tmp_path, case, status, m
             assert path.stat().st_size > 0.5 * 2**20
         elif case == "no_truck":
             make_mcap(path, "", messages=5)
+        elif case == "unchunked":  # messages outside chunks: readable only by a sequential scan
+            with open(path, "wb") as f:
+                w = Writer(f, use_chunking=False)
+                w.start()
+                w.add_metadata("fuelid", {"truck": "T1"})
+                w.add_message(w.register_channel("/can/raw", "json", 0), 1, b"{}", 1)
+                w.finish()
         else:
             make_mcap(path, "T2")
         with pytest.raises(Rejected) as err:
@@ -110,6 +124,20 @@ def test_bad_uploads_are_refused_and_nothing_is_stored(tmp_path, case, status, m
         assert stored_state(s) == (0, [], [])
     finally:
         s.stop()
+
+
+def test_converted_files_of_today_and_earlier_versions_are_accepted(sqlite_server, tmp_path, capsys):
+    """Today's `convert` writes no chunk index (Foxglove's indexed reader refuses one without message
+    indexes); the previous version wrote one. Both are complete, chunked files the jobs read chunk by chunk."""
+    first = tmp_path / "first.log"
+    with gzip.open(REPO / "replay_logs" / "sample_diesel_1min.log.gz", "rt") as f:
+        first.write_text("".join(itertools.islice(f, 800)))
+    converted = tmp_path / "converted.mcap"
+    assert fuelid(["convert", str(first), "-o", str(converted)]) == 0
+    token = sqlite_server.token("truck", "YS2R4X20007105543")
+    for path in (converted, REPO / "tests" / "logger" / "data" / "convert_chunk_index_only.mcap"):
+        stored = upload_file(path, sqlite_server.url, token)
+        assert stored["status"] == "stored" and stored["messages"] == 1591
 
 
 def test_an_upload_with_a_damaged_chunk_is_refused_with_422(tmp_path):

@@ -8,9 +8,11 @@ import can
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 from mcap.data_stream import ReadDataStream
-from mcap.reader import make_reader
+from mcap.opcode import Opcode
+from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
+from mcap.writer import Writer
 
 from fuelid.errors import FuelidError
 from fuelid.logger.flowmeter import parse_line
@@ -18,6 +20,7 @@ from fuelid.logger.mcap_log import (
     FLOWMETER_SCHEMA,
     RAW_SCHEMA,
     McapLogWriter,
+    chunks_located,
     damaged_chunks,
     raw_record,
     read_messages,
@@ -85,16 +88,25 @@ def test_read_messages_and_metadata_of_a_complete_file(log):
     assert meta["truck"] == VIN and json.loads(meta["source"]) == ["trip.log"] and meta["logger_version"]
 
 
+def _data_section(data: bytes) -> list[tuple[int, int, int]]:
+    """(opcode, start, end offset) of the top-level records of a complete file's data section, walked by their
+    length fields (a converted file has no chunk index)."""
+    records, pos = [], 8
+    while data[pos] != Opcode.DATA_END:
+        end = pos + 9 + int.from_bytes(data[pos + 1 : pos + 9], "little")
+        records.append((data[pos], pos, end))
+        pos = end
+    return records
+
+
 def _chunk_ends(data: bytes) -> list[tuple[int, int, int]]:
-    """(end offset, message count, start offset) of each chunk, from the complete file's index."""
-    summary = make_reader(io.BytesIO(data)).get_summary()
+    """(end offset, message count, start offset) of each chunk of a complete file."""
     ends = []
-    for index in summary.chunk_indexes:
-        body = data[index.chunk_start_offset + 9 : index.chunk_start_offset + index.chunk_length]
-        chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
-        ends.append((index.chunk_start_offset + index.chunk_length,
-                     sum(isinstance(r, Message) for r in breakup_chunk(chunk)), index.chunk_start_offset))
-    return sorted(ends)
+    for opcode, start, end in _data_section(data):
+        if opcode == Opcode.CHUNK:
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(data[start + 9 : end])))
+            ends.append((end, sum(isinstance(r, Message) for r in breakup_chunk(chunk)), start))
+    return ends
 
 
 def test_truncated_file_gives_every_complete_chunk(log, tmp_path):
@@ -279,7 +291,32 @@ def test_chunks_close_every_second_of_log_time(tmp_path):
         assert 9 <= make_reader(f).get_summary().statistics.chunk_count <= 11
 
 
-def test_compact_writing_has_no_message_indexes_and_chunks_by_size(tmp_path):
+def test_both_reference_python_readers_and_fuelid_read_the_same(log):
+    """mcap's SeekingReader reads a file without a chunk index (converted) as its NonSeekingReader does."""
+    path, written = log
+    with open(path, "rb") as f:
+        seeking = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in make_reader(f).iter_messages()]
+    with open(path, "rb") as f:
+        stream = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in NonSeekingReader(f).iter_messages()]
+    assert seeking == stream == list(read_messages(path)) == written
+    assert chunks_located(path)
+
+
+def test_messages_outside_chunks_are_read_by_the_scan_not_located(tmp_path):
+    """The walk of a file without a chunk index vouches only for chunked messages: others must not be skipped."""
+    path = tmp_path / "unchunked.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start()
+        channel = w.register_channel("/flowmeter", "json", w.register_schema("s", "jsonschema", b"{}"))
+        for i in range(3):
+            w.add_message(channel, T0 + i, b'{"i": %d}' % i, T0 + i)
+        w.finish()
+    assert not chunks_located(path)
+    assert [r["i"] for _, _, r in read_messages(path)] == [0, 1, 2]
+
+
+def test_compact_writing_has_no_indexes_and_chunks_by_size(tmp_path):
     path = tmp_path / "t.mcap"
     with McapLogWriter(path, metadata={}, chunk_flush_s=None, chunk_size=1 << 17, message_indexes=False) as w:
         w.add_channel("/can/raw", RAW_SCHEMA)
@@ -288,7 +325,9 @@ def test_compact_writing_has_no_message_indexes_and_chunks_by_size(tmp_path):
     with open(path, "rb") as f:
         summary = make_reader(f).get_summary()
     assert summary.statistics.chunk_count == 1
-    assert all(not index.message_index_offsets for index in summary.chunk_indexes)
+    # @mcap/core's indexed reader (Foxglove) refuses a chunk index without message indexes: neither is written
+    assert not summary.chunk_indexes
+    assert Opcode.MESSAGE_INDEX not in {opcode for opcode, _, _ in _data_section(path.read_bytes())}
     assert [r["t"] for _, _, r in read_messages(path)] == list(range(2000))
 
 
