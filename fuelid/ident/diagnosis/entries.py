@@ -100,10 +100,6 @@ class Additive:
         # fuel (its own part and the model's re-fitted gains and offset together) with its direction regressor
         x0 = self.direction_regressor(c, run)
         v["direction"] = int(np.sign((change - change.mean()) @ (x0 - x0.mean())))
-        # each regressor's share of the fuel the refit adds (RMS over its lags [output unit]): which term dominates
-        k = c.reg.x.shape[1]
-        part = Xy[:, :c.x.shape[1]] * beta[:c.x.shape[1]]
-        v["column_rms"] = {name: float(np.std(part[:, j::k].sum(axis=1))) for j, name in enumerate(c.reg.names)}
         v["identifiability"] = identifiability(run, *self.varying_column(c, run))
         v["identifiable"] = bool(v["identifiability"] >= MIN_IDENTIFIABILITY)
         groups = trip_groups(ds, run)

@@ -284,20 +284,22 @@ def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, b
     return full
 
 
-def _map_sentence(term: Candidate, full: Candidate | None, unit: str) -> str:
+def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | None) -> str:
     """What the diagnosis says of the engine map term: the curvature, what the linear model misses of it held
-    out, which term dominates (the product term alone, or the largest of the map's terms) and what to add."""
-    v = term.verification or {}
-    misses = "" if v.get("rmse_drop_percent") is None else \
-        f"; the linear model misses it: the held-out RMS error falls {v['rmse_drop_percent']:.0f} % with the map term"
-    if term is not full:
+    out, which term dominates (the speed × torque product's own held-out drop beside the full map's) and what to
+    add."""
+    drop = (term.verification or {}).get("rmse_drop_percent")
+    misses = "" if drop is None else f"; the linear model misses it: the held-out RMS error falls {drop:.0f} % " \
+                                     f"with the map term"
+    if term is product:
         alone = "" if full is None or full.rmse_drop_percent is None else \
-            f" (the full map term, with speed² and torque², falls {full.rmse_drop_percent:.0f} %)"
+            f" (the full map term, with its other terms, {full.rmse_drop_percent:.0f} %)"
         dominant = f"; the speed × torque product alone explains it{alone}"
+    elif product is not None and product.rmse_drop_percent is not None:
+        dominant = f"; the speed × torque product dominates ({product.rmse_drop_percent:.0f} % alone), the other " \
+                   f"terms ({', '.join(term.reg.names[1:])}) add the rest"
     else:
-        parts = sorted(v.get("column_rms", {}).items(), key=lambda kv: -kv[1])
-        dominant = "" if not parts else "; its terms, largest first: " + ", ".join(
-            f"{name} {rms:.2f} {unit} RMS" for name, rms in parts)
+        dominant = ""
     return f"the engine's fuel map is curved: efficiency varies over speed × torque, so fuel is not a plane in " \
            f"them{misses}{dominant}; a property of the engine, not a hidden effect; add effect {term.effect}"
 
@@ -362,8 +364,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     if term is not None:
         term.significant, term.role = True, ENGINE_MAP
         term.recommended = term.verification is not None and "error" not in term.verification
-        term.explanation = _map_sentence(term, next((c for c in testable if c.effect == MAP_TERM), None),
-                                         ds.output_unit)
+        term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
+                                                 for e in (MAP_TERM, PRODUCT_TERM)))
     for c in unconfirmed:
         if not c.significant:
             c.explanation += _why_not_confirmed(c, min_drop_percent)
