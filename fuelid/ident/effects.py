@@ -186,13 +186,19 @@ def _map_scales(ds) -> tuple[float, str, float, str]:
 
 
 def _engine_map(ds):
-    """The engine's own static curvature over the model's inputs: a quadratic surface in the deviations ñ, T̃
-    (`deviations`, scaled by `_map_scales`): ñ·T̃, ñ², T̃² (the plane itself is the model's own gains)."""
+    """The engine's own static curvature over its operating point: a quadratic surface in the deviations ñ, T̃
+    (`deviations`, scaled by `_map_scales`) — ñ·T̃, ñ², T̃² (the plane itself is the model's own gains) — and,
+    when the engine reports it, its relative load L = T / T_max(n) [1] (EEC2 SPN 92: the load against the
+    full-load curve, where a map's efficiency is charted)."""
     n, T = deviations(ds)
     sn, un, sT, uT = _map_scales(ds)
     n, T = n / sn, T / sT
-    return Regressors(np.column_stack([n * T, n * n, T * T]), ("speed x torque", "speed^2", "torque^2"),
-                      (f"{un}.{uT}", f"{un}2", f"{uT}2"))
+    load = _signal(ds, "EEC2.EngPercentLoadAtCurrentSpeed")
+    cols, names, units = [n * T, n * n, T * T], ["speed x torque", "speed^2", "torque^2"], \
+        [f"{un}.{uT}", f"{un}2", f"{uT}2"]
+    if load is not None:
+        cols, names, units = cols + [load / 100.0], names + ["relative load"], units + ["1"]
+    return Regressors(np.column_stack(cols), tuple(names), tuple(units))
 
 
 def _pedal_released(ds) -> np.ndarray | None:
@@ -351,8 +357,8 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "A real engine's fuel map is curved: its efficiency varies over speed and torque, so fuel is not a "
            "plane in them. The map term is a quadratic surface of the model's own inputs (ñ·T̃, ñ², T̃²); the "
            "diagnosis tests it first, as a property of the engine, before looking for hidden effects.",
-           ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque"), (190, 513), "nonlinearity", _engine_map,
-           orders=(2, 1, 0), lags=(0,)),
+           ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque", "EEC2.EngPercentLoadAtCurrentSpeed"), (190, 513, 92),
+           "nonlinearity", _engine_map, orders=(2, 1, 0), lags=(0,)),
     Effect("idle_fuelling", "idle fuelling",
            "At idle (vehicle stopped, pedal released) the idle governor fuels to hold speed against friction "
            "and auxiliaries, a different regime from driving.",
