@@ -6,10 +6,12 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    any hidden one. The map term `engine_map` (ident.effects: ñ·T̃, ñ², T̃²) is tested first, as one group (one
    test over all its columns, at α: the first test of a fixed sequence, so the hidden-effect family after it keeps
    its own α), must explain min_effect_percent and is verified like any candidate (held-out drop ≥
-   min_drop_percent). When it is confirmed it is named as the engine map term (role ENGINE_MAP) — as
-   `power_nonlinearity` when the speed × torque product alone does as well (the squares add less than
-   min_drop_percent held out) — and the hidden-effect search (5) starts from the model with it. Both map
-   candidates are left out of the hidden-effect family.
+   min_drop_percent). When it is confirmed and no other candidate, verified on the model as it is, lowers the
+   held-out error more (the map's columns would absorb part of such an effect that varies with the operating
+   point: on a linear engine hiding an inertia, they do), it is named as the engine map term (role ENGINE_MAP) —
+   as `power_nonlinearity` when the speed × torque product alone does as well (the other terms add less than
+   min_drop_percent held out) — and the hidden-effect search (5) starts from the model with it. The full map is
+   never a hidden effect; the product term is one only when no map term is named.
 
 5. Forward selection. Bus signals are dependent (a cab temperature follows the level shift a real effect leaves
    in the error), and two effects can hide at once (the weaker one's held-out drop on the model as it is falls
@@ -336,12 +338,23 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     if n_verify and base is None and any(c.test_significant for c in testable):
         raise InputError("the model cannot be scored on held-out blocks of these data")
     term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify)
-    # the hidden-effect family: without the map candidates once the map term is named (0)
-    hidden = [c for c in testable if term is None or c.effect not in (MAP_TERM, PRODUCT_TERM)]
-    eligible = sorted((c for c in hidden if c.test_significant and c.estimated_drop_percent >= min_effect_percent),
-                      key=lambda c: -_priority(c))
-    # given a map term, the re-testable ones are verified on top of it by the forward selection, not on the model
-    for c in [c for c in eligible if term is None or not c.entry.retested][:n_verify]:
+    relevant = lambda c: c.test_significant and c.estimated_drop_percent >= min_effect_percent  # noqa: E731
+    others = sorted((c for c in testable if c.effect not in (MAP_TERM, PRODUCT_TERM) and relevant(c)),
+                    key=lambda c: -_priority(c))
+    for c in others[:n_verify]:
+        _verify(c, model, ds, run, base, base_ysim)
+    outranking = [c for c in others if term is not None and c.entry.retested and c.rmse_drop_percent is not None
+                  and _confirmed(c, c.verification, min_drop_percent) and c.rmse_drop_percent > term.rmse_drop_percent]
+    if outranking:  # a hidden effect the map's columns would partly absorb: no map term first (module docstring, 0)
+        full = next(c for c in testable if c.effect == MAP_TERM)
+        full.explanation += f" — but {outranking[0].effect} explains more of what the model misses " \
+                            f"({outranking[0].rmse_drop_percent:.0f} % held out against {term.rmse_drop_percent:.0f} %)" \
+                            ": not named as the engine's map"
+        term = None
+    # the hidden-effect family: never the full map; the product term too once the map term is named (0)
+    hidden = [c for c in testable if c.effect != MAP_TERM and (term is None or c.effect != PRODUCT_TERM)]
+    eligible = sorted((c for c in hidden if relevant(c)), key=lambda c: -_priority(c))
+    for c in [c for c in eligible if c.verification is None][:max(n_verify - len(others[:n_verify]), 0)]:
         _verify(c, model, ds, run, base, base_ysim)
     confirmed, unconfirmed = [], []
     for c in eligible:
