@@ -288,8 +288,8 @@ def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, b
 
 def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | None) -> str:
     """What the diagnosis says of the engine map term: the curvature, what the linear model misses of it held
-    out, which term dominates (the speed × torque product's own held-out drop beside the full map's) and what to
-    add."""
+    out, how much of it the speed × torque product alone explains (its own held-out drop beside the full map's)
+    and what to add."""
     drop = (term.verification or {}).get("rmse_drop_percent")
     misses = "" if drop is None else f"; the linear model misses it: the held-out RMS error falls {drop:.0f} % " \
                                      f"with the map term"
@@ -298,8 +298,8 @@ def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | 
             f" (the full map term, with its other terms, {full.rmse_drop_percent:.0f} %)"
         dominant = f"; the speed × torque product alone explains it{alone}"
     elif product is not None and product.rmse_drop_percent is not None:
-        dominant = f"; the speed × torque product dominates ({product.rmse_drop_percent:.0f} % alone), the other " \
-                   f"terms ({', '.join(term.reg.names[1:])}) add the rest"
+        dominant = f"; the speed × torque product alone {product.rmse_drop_percent:.0f} %, the other terms " \
+                   f"({', '.join(term.reg.names[1:])}) the rest"
     else:
         dominant = ""
     return f"the engine's fuel map is curved: efficiency varies over speed × torque, so fuel is not a plane in " \
