@@ -2,6 +2,7 @@
 
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
 from fuelid.ident.diagnosis import diagnose
+from fuelid.ident.diagnosis.candidate import ENGINE_MAP
 from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
@@ -60,8 +61,12 @@ def format_report(result: dict, top: int = 8) -> str:
     lines.append(f"  {'effect':{width}s} {'LM':>9s} {'p':>9s} {'explains':>9s} {'sig':>4s} {'RMS drop':>9s}")
     for r in shown:
         drop = "" if r["rmse_drop_percent"] is None else f"{r['rmse_drop_percent']:.0f} %"
+        sig = "map" if r.get("role") == ENGINE_MAP else "yes" if r["significant"] else "no"
         lines.append(f"  {r['effect']:{width}s} {r['statistic']:9.1f} {r['p_value']:9.1e} "
-                     f"{r['estimated_drop_percent']:7.1f} % {'yes' if r['significant'] else 'no':>4s} {drop:>9s}")
+                     f"{r['estimated_drop_percent']:7.1f} % {sig:>4s} {drop:>9s}")
+    if result.get("engine_map"):
+        lines.append(f"  (map: {result['engine_map']}, the engine map term — a property of the engine, tested first; "
+                     f"the missing effects are tested on the model with it)")
     lines.append(result["verdict"])
     return "\n".join(lines)
 

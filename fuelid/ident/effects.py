@@ -7,7 +7,9 @@ their SPNs) and the way it enters the Box-Jenkins model
 
 - ``input``        an extra MISO input with its own B/F/nk (e.g. J dω/dt for inertia, a coolant-temperature
                    deficit, retarder torque);
-- ``nonlinearity`` a static function of the model's own inputs fed as an extra input (speed × torque power);
+- ``nonlinearity`` a static function of the model's own inputs fed as extra inputs (speed × torque power; the
+                   engine's own fuel map `engine_map`, which the diagnosis tests first as a property of the
+                   engine, ident.diagnosis.ranking);
 - ``regime``       an on/off state I(t) ∈ {0, 1} that changes the fuelling: extra inputs I, I·ñ, I·T̃ (an
                    offset and a change of both gains while the state is on; ñ, T̃ deviations of engine speed
                    [rpm] and torque [Nm] from the operating point), e.g. DPF active regeneration or overrun
@@ -179,6 +181,28 @@ def _power(ds):
     return Regressors((n * T - n0 * T0)[:, None], ("speed x torque",), (f"rpm.{ds.input_units[1]}",))
 
 
+def _map_scales(ds) -> tuple[float, str, float, str]:
+    """(speed scale, its unit, torque scale, its unit) of the engine-map columns: krpm and kNm (100 % of reference
+    torque when the model's torque is in %), so every column is of order one."""
+    return (1000.0, "krpm") + ((1000.0, "kNm") if ds.input_units[1] == "Nm" else (100.0, "100 %"))
+
+
+def _engine_map(ds):
+    """The engine's own static curvature over its operating point: a quadratic surface in the deviations ñ, T̃
+    (`deviations`, scaled by `_map_scales`) — ñ·T̃, ñ², T̃² (the plane itself is the model's own gains) — and,
+    when the engine reports it, its relative load L = T / T_max(n) [1] (EEC2 SPN 92: the load against the
+    full-load curve, where a map's efficiency is charted)."""
+    n, T = deviations(ds)
+    sn, un, sT, uT = _map_scales(ds)
+    n, T = n / sn, T / sT
+    load = _signal(ds, "EEC2.EngPercentLoadAtCurrentSpeed")
+    cols, names, units = [n * T, n * n, T * T], ["speed x torque", "speed^2", "torque^2"], \
+        [f"{un}.{uT}", f"{un}2", f"{uT}2"]
+    if load is not None:
+        cols, names, units = cols + [load / 100.0], names + ["relative load"], units + ["1"]
+    return Regressors(np.column_stack(cols), tuple(names), tuple(units))
+
+
 def _pedal_released(ds) -> np.ndarray | None:
     pedal = _signal(ds, "EEC2.AccelPedalPos1")
     return None if pedal is None else pedal < 1.0
@@ -331,6 +355,12 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
            "term is the first missing term of the map.",
            ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque"), (190, 513), "nonlinearity", _power, orders=(2, 1, 0)),
+    Effect("engine_map", "engine fuel map (speed × torque curvature)",
+           "A real engine's fuel map is curved: its efficiency varies over speed and torque, so fuel is not a "
+           "plane in them. The map term is a quadratic surface of the model's own inputs (ñ·T̃, ñ², T̃²); the "
+           "diagnosis tests it first, as a property of the engine, before looking for hidden effects.",
+           ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque", "EEC2.EngPercentLoadAtCurrentSpeed"), (190, 513, 92),
+           "nonlinearity", _engine_map, orders=(2, 1, 0), lags=(0,)),
     Effect("idle_fuelling", "idle fuelling",
            "At idle (vehicle stopped, pedal released) the idle governor fuels to hold speed against friction "
            "and auxiliaries, a different regime from driving.",

@@ -35,6 +35,7 @@ import numpy as np
 
 from fuelid import __version__
 from fuelid.ident.diagnosis import Diagnosis, diagnose
+from fuelid.ident.diagnosis.candidate import ENGINE_MAP
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.validation import WHITENESS_MEANING, autocorr_test, crosscorr_test, metrics
 from fuelid.logger.decode import signal_units
@@ -318,10 +319,12 @@ def effects_table(candidates: list[dict], top: int = 12) -> str:
     testable = [c for c in candidates if c.get("testable", c.get("statistic") is not None)]
     for rank, c in enumerate(testable, 1):
         sig = c.get("significant")
+        named = '<span class="yes">engine map</span>' if c.get("role") == ENGINE_MAP else \
+            '<span class="yes">yes</span>' if sig else "no"
         rows.append([str(rank), _effect(c),
                      _signals(c), f"{_fmt(c.get('statistic'), '.1f')} ({c.get('df', '–')})",
                      _fmt(c.get("p_value"), '.2e'), _fmt(c.get("p_holm"), '.2e'),
-                     '<span class="yes">yes</span>' if sig else "no", _fmt(c.get("rmse_drop_percent"), '.1f'),
+                     named, _fmt(c.get("rmse_drop_percent"), '.1f'),
                      _esc(c.get("explanation", ""))])
     out = _table(head, rows[:top], "effects")
     if rows[top:]:
@@ -335,6 +338,17 @@ def effects_table(candidates: list[dict], top: int = 12) -> str:
                 f"this data</summary>"
                 f"<ul>{items}</ul></details>")
     return out
+
+
+def engine_map_paragraph(candidates: list[dict]) -> str:
+    """The engine map term (ident.diagnosis.ranking, 0), said apart from the missing effects: a property of the
+    engine; empty when the diagnosis named none."""
+    term = next((c for c in candidates if c.get("role") == ENGINE_MAP), None)
+    if term is None:
+        return ""
+    return (f'<p class="note"><b>Engine map term</b> (a property of the engine, tested first; not a missing '
+            f'effect): {_name(term["effect"])} — {_esc(term.get("explanation", ""))}. The missing effects below '
+            f'are tested on the model with it.</p>')
 
 
 def worst_table(worst: list[dict], ds) -> str:
@@ -497,6 +511,7 @@ and are not tested).</p>
 <h2>Which effect is missing</h2>
 <p class="note">{_esc(test.get("method", ""))}; family-wise α = {_esc(test.get("alpha", ""))},
 {_esc(test.get("candidates_tested", ""))} candidates tested on {_esc(test.get("samples", ""))} samples.</p>
+{engine_map_paragraph(diagnosis["candidates"])}
 {effects_table(diagnosis["candidates"], top)}
 {"".join(plots[name] for name, _ in effect_figs)}
 """

@@ -158,6 +158,40 @@ def test_no_hidden_effect_no_significant_candidate_and_calibrated_p_values():
         assert kstest(p, "uniform").pvalue > 0.01
 
 
+def test_a_curved_engine_map_is_the_engines_own_term_and_the_hidden_effect_is_found_on_top_of_it():
+    """The synthetic engine made curved (fuel + 10 L/h per krpm·kNm of ñ·T̃ and + 8 L/h per kNm² of T̃²: efficiency
+    varying over speed × torque, the largest thing the linear model misses, as on the VECTO engine) and hiding a
+    DPF regeneration: the map is named first as the engine's own term, not a missing effect, and the regeneration
+    is the missing effect found on the model with it; the product term is explained by the map. With a weaker
+    curvature (4 and 3) the regeneration explains more than the map: the map's columns would absorb part of it, so
+    no map term is named first. On the linear engine no map term is named."""
+    def curved(a, b):
+        ds = hidden.make("dpf_regeneration", seed=1)
+        n, T = (d / 1000.0 for d in fx.deviations(ds))
+        ds = dataclasses.replace(ds, y=ds.y + a * n * T + b * T * T)
+        return dg.diagnose(fitted(ds), ds)
+
+    out = curved(10.0, 8.0)
+    term = out.engine_map
+    assert term is out.candidates[0] and term.effect == "engine_map" and term.role == "engine map", out.verdict
+    assert term.recommended and term.rmse_drop_percent >= 25.0, term.verification
+    assert [c.effect for c in out.missing_effects][:1] == ["dpf_regeneration"], out.verdict
+    dpf = out.missing_effects[0]
+    assert dpf.conditional["given"] == ["engine_map"] and dpf.recommended
+    product = next(c for c in out.candidates if c.effect == "power_nonlinearity")
+    assert not product.significant and product.explained_by.startswith("engine_map")
+    js = out.to_json()
+    assert js["engine_map"] == "engine_map" and js["missing_effects"][0] == "dpf_regeneration"
+    assert js["verdict"].startswith("Engine map: the engine's fuel map is curved") and "Missing effect" in js["verdict"]
+    assert dg.confirmed_effects(js["candidates"])[:2] == ["engine_map", "dpf_regeneration"]
+
+    weak = curved(4.0, 3.0)
+    assert weak.engine_map is None and "dpf_regeneration" in [c.effect for c in weak.missing_effects], weak.verdict
+    assert "not named as the engine's map" in next(c for c in weak.candidates if c.effect == "engine_map").explanation
+    linear = dg.diagnose(fitted(hidden.make("dpf_regeneration", seed=1)), hidden.make("dpf_regeneration", seed=1))
+    assert linear.engine_map is None and linear.to_json()["engine_map"] is None
+
+
 def test_where_it_fails_sections():
     ds = hidden.make("dpf_regeneration", n=4000, seed=2)
     out = dg.diagnose(fitted(ds), ds, n_verify=0)

@@ -45,5 +45,18 @@ def test_regressors_units_and_physics():
     assert fx.EFFECTS["dpf_regeneration"].build(ds) is None
 
 
+def test_engine_map_is_a_quadratic_surface_of_the_models_inputs_and_the_relative_load():
+    """engine_map: ñ·T̃, ñ², T̃² in krpm and kNm (deviations from the operating point), and the relative load
+    (EEC2 SPN 92, as a fraction) when the engine reports it."""
+    ds = hidden.make(None, n=2000)
+    n, T = (ds.u - ds.u0).T / 1000.0
+    reg = fx.EFFECTS["engine_map"].build(ds)
+    assert reg.units == ("krpm.kNm", "krpm2", "kNm2") and reg.names[0] == "speed x torque"
+    assert np.allclose(reg.x, np.column_stack([n * T, n * n, T * T]))
+    ds.extra["EEC2.EngPercentLoadAtCurrentSpeed"] = np.clip(ds.u[:, 1] / 20.0, 0, 100)
+    reg = fx.EFFECTS["engine_map"].build(ds)
+    assert reg.units[-1] == "1" and np.allclose(reg.x[:, 3], np.clip(ds.u[:, 1] / 20.0, 0, 100) / 100.0)
+
+
 def test_held_fills_gaps_with_the_last_value():
     assert np.array_equal(fx.held([np.nan, 1, np.nan, np.nan, 3, np.nan]), [1, 1, 1, 1, 3, 3])

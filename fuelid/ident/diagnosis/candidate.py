@@ -10,8 +10,8 @@ from fuelid.ident import effects as fx
 
 JSON_FIELDS = ("effect", "spec", "name", "form", "signals", "spns", "statistic", "df", "p_value", "log10_p",
                "testable", "tests", "estimated_drop_percent", "size", "explanation", "physics", "p_holm",
-               "test_significant", "significant", "recommended", "rmse_drop_percent", "verification", "conditional",
-               "explained_by")
+               "test_significant", "significant", "recommended", "role", "rmse_drop_percent", "verification",
+               "conditional", "explained_by")
 UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "statistic", "df", "p_value",
                    "significant", "test_significant", "estimated_drop_percent", "explanation", "rmse_drop_percent",
                    "verification", "conditional", "explained_by")
@@ -63,6 +63,7 @@ class Candidate:
     verification: dict | None = None
     conditional: dict | None = None
     explained_by: str | None = None
+    role: str | None = None  # what a named candidate is: ENGINE_MAP (the engine's own curvature) or MISSING_EFFECT
     definition: fx.Effect | None = field(default=None, repr=False)
     entry: object = field(default=None, repr=False)
     reg: fx.Regressors | None = field(default=None, repr=False)
@@ -82,3 +83,7 @@ def confirmed_effects(candidates: list[dict]) -> list[str]:
     recommends none), in the order found, as `fuelid identify --effect` and identify_model take them (a fuel
     delay with the shift found: fuel_delay=0.36)."""
     return [c.get("spec", c["effect"]) for c in candidates if c.get("recommended") is True]
+
+
+ENGINE_MAP = "engine map"  # the role of the engine's own static curvature: a property of the engine (ranking, 0)
+MISSING_EFFECT = "missing effect"  # the role of a hidden effect the forward selection named

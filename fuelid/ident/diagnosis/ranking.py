@@ -1,5 +1,17 @@
-"""Ranking the candidates and naming the missing effect: the tests of every candidate, Holm, verification of
-the likeliest, and forward selection of every effect missing.
+"""Ranking the candidates and naming the missing effect: the engine's own map first, the tests of every other
+candidate, Holm, verification of the likeliest, and forward selection of every effect missing.
+
+0. The engine map. A real engine's fuel map is curved (efficiency varies over speed × torque) and a linear model
+   is a plane through it; that is a property of the engine, not a hidden effect, and on a real engine it outweighs
+   any hidden one. The map term `engine_map` (ident.effects: ñ·T̃, ñ², T̃²) is tested first, as one group (one
+   test over all its columns, at α: the first test of a fixed sequence, so the hidden-effect family after it keeps
+   its own α), must explain min_effect_percent and is verified like any candidate (held-out drop ≥
+   min_drop_percent). When it is confirmed and no other candidate, verified on the model as it is, lowers the
+   held-out error more (the map's columns would absorb part of such an effect that varies with the operating
+   point: on a linear engine hiding an inertia, they do), it is named as the engine map term (role ENGINE_MAP) —
+   as `power_nonlinearity` when the speed × torque product alone does as well (the other terms add less than
+   min_drop_percent held out) — and the hidden-effect search (5) starts from the model with it. The full map is
+   never a hidden effect; the product term is one only when no map term is named.
 
 5. Forward selection. Bus signals are dependent (a cab temperature follows the level shift a real effect leaves
    in the error), and two effects can hide at once (the weaker one's held-out drop on the model as it is falls
@@ -32,7 +44,7 @@ from scipy.signal import lfilter
 
 from fuelid.errors import InputError
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.candidate import Candidate
+from fuelid.ident.diagnosis.candidate import ENGINE_MAP, MISSING_EFFECT, Candidate
 from fuelid.ident.diagnosis.entries import ENTRIES
 from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid, explain
 from fuelid.ident.diagnosis.failures import where_it_fails
@@ -45,6 +57,7 @@ from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import metrics
 
 GENERIC_WEIGHT = 0.8  # a generic bus signal must explain 25 % more than a named effect to be accepted first
+MAP_TERM, PRODUCT_TERM = "engine_map", "power_nonlinearity"  # the engine's curvature: its map, its product term (0)
 
 
 @dataclass
@@ -61,11 +74,20 @@ class Diagnosis:
     candidates: list[Candidate]
     verdict: str
     run: ModelRun = field(repr=False)
+    engine_map: Candidate | None = None  # the engine map term (0) when named, also listed first in candidates
+
+    @property
+    def missing_effects(self) -> list[Candidate]:
+        """The hidden effects named (role MISSING_EFFECT), in the order accepted."""
+        return [c for c in self.candidates if c.role == MISSING_EFFECT]
 
     def to_json(self) -> dict:
-        """The diagnosis as `fuelid diagnose --json` prints it."""
+        """The diagnosis as `fuelid diagnose --json` prints it: engine_map the effect id of the engine map term
+        (None when the engine's map is not measurably curved), missing_effects those of the hidden effects."""
         return {"model": self.model, "data": self.data, "compare": self.compare, "held_out": self.held_out,
                 "where_it_fails": self.where_it_fails, "test": self.test,
+                "engine_map": None if self.engine_map is None else self.engine_map.effect,
+                "missing_effects": [c.effect for c in self.missing_effects],
                 "candidates": [c.to_json() for c in self.candidates], "verdict": self.verdict}
 
 
@@ -102,11 +124,16 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
             tests={name: {"statistic": t.statistic, "df": t.df, "p_value": t.p_value} for name, t in tests.items()},
             estimated_drop_percent=100.0 * (1.0 - found.left), size=size, definition=effect, entry=entry,
             reg=found.reg, x=found.x, w=lfilter(model.A, [1.0], found.x, axis=0), ref=found.ref))
-    adj, sig = holm([c.p_value for c in rows], alpha) if rows else (np.zeros(0), np.zeros(0, bool))
-    for c, a, s in zip(rows, adj, sig):
+    family = [c for c in rows if c.effect != MAP_TERM]  # the map term is tested first, alone, at alpha (0)
+    adj, sig = holm([c.p_value for c in family], alpha) if family else (np.zeros(0), np.zeros(0, bool))
+    for c, a, s in zip(family, adj, sig):
         c.p_holm = float(a)
         # p-values below ~1e-300 underflow; compare log p with Holm's log(alpha/m) bound in that case
-        c.test_significant = bool(c.testable and (s or c.log10_p < math.log10(alpha / len(rows))))
+        c.test_significant = bool(c.testable and (s or c.log10_p < math.log10(alpha / len(family))))
+    for c in rows:
+        if c.effect == MAP_TERM:
+            c.p_holm = c.p_value
+            c.test_significant = bool(c.testable and c.log10_p < math.log10(alpha))
     rows.sort(key=lambda c: (c.log10_p, -c.statistic))
     return rows + untested
 
@@ -168,13 +195,14 @@ def _added_drop(c: Candidate) -> float | None:
     return cond["rmse_drop_percent"] if cond.get("rmse_drop_percent") is not None else c.rmse_drop_percent
 
 
-def select_forward(first: Candidate, pool: list[Candidate], run: Run, model: PolyModel, ds, alpha: float,
+def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, model: PolyModel, ds, alpha: float,
                    min_effect_percent: float, min_drop_percent: float, n_verify: int) -> list[Candidate]:
-    """Forward selection (module docstring, 5): `first` accepted, then, as long as one is found, the next of `pool`
-    (the other re-testable candidates) significant, relevant and verified on the model refitted with those
-    accepted so far. Returns the accepted candidates in order; each one tested after the first has its
-    `conditional` record (the last round's for those never accepted)."""
-    accepted, pool = [first], [c for c in pool if c is not first]
+    """Forward selection (module docstring, 5): those of `first` accepted (the engine map term, or the first
+    missing effect), then, as long as one is found, the next of `pool` (the other re-testable candidates)
+    significant, relevant and verified on the model refitted with those accepted so far. Returns the accepted
+    candidates in order, `first` first; each one tested after them has its `conditional` record (the last round's
+    for those never accepted)."""
+    accepted, pool = list(first), [c for c in pool if c not in first]
     while pool:
         X_A = np.column_stack([_columns(a) for a in accepted])
         with one_blas_thread():
@@ -224,6 +252,60 @@ def select_forward(first: Candidate, pool: list[Candidate], run: Run, model: Pol
     return accepted
 
 
+def _verify(c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray) -> None:
+    """c's verification against the model as it is (its entry kind's), kept on c; an error recorded, not raised."""
+    try:
+        c.verification = v = c.entry.verify(c, model, ds, run, base, base_ysim)
+        c.rmse_drop_percent = v["rmse_drop_percent"]
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        c.verification = {"error": str(exc)}
+
+
+def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, base: dict | None,
+                    base_ysim: np.ndarray | None, min_effect_percent: float, min_drop_percent: float,
+                    n_verify: int) -> Candidate | None:
+    """The engine map term (module docstring, 0): the `engine_map` candidate when its test (alone, at α) rejects,
+    it explains min_effect_percent and (n_verify > 0) its verification confirms it; the `power_nonlinearity`
+    candidate instead when that product term alone, verified too, comes within min_drop_percent of its held-out
+    drop. None when the map is not measurably curved (or not testable: the model has it already)."""
+    full = next((c for c in testable if c.effect == MAP_TERM), None)
+    if full is None or not full.test_significant or full.estimated_drop_percent < min_effect_percent:
+        return None
+    if not n_verify:
+        return full
+    product = next((c for c in testable if c.effect == PRODUCT_TERM), None)
+    for c in (full, product):
+        if c is not None:
+            _verify(c, model, ds, run, base, base_ysim)
+    if "error" in full.verification or not _confirmed(full, full.verification, min_drop_percent):
+        return None
+    if product is not None and "error" not in product.verification \
+            and _confirmed(product, product.verification, min_drop_percent) \
+            and product.rmse_drop_percent > full.rmse_drop_percent - min_drop_percent:
+        return product
+    return full
+
+
+def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | None) -> str:
+    """What the diagnosis says of the engine map term: the curvature, what the linear model misses of it held
+    out, how much of it the speed × torque product alone explains (its own held-out drop beside the full map's)
+    and what to add."""
+    drop = (term.verification or {}).get("rmse_drop_percent")
+    misses = "" if drop is None else f"; the linear model misses it: the held-out RMS error falls {drop:.0f} % " \
+                                     f"with the map term"
+    if term is product:
+        alone = "" if full is None or full.rmse_drop_percent is None else \
+            f" (the full map term, with its other terms, {full.rmse_drop_percent:.0f} %)"
+        dominant = f"; the speed × torque product alone explains it{alone}"
+    elif product is not None and product.rmse_drop_percent is not None:
+        dominant = f"; the speed × torque product alone {product.rmse_drop_percent:.0f} %, the other terms " \
+                   f"({', '.join(term.reg.names[1:])}) the rest"
+    else:
+        dominant = ""
+    return f"the engine's fuel map is curved: efficiency varies over speed × torque, so fuel is not a plane in " \
+           f"them{misses}{dominant}; a property of the engine, not a hidden effect; add effect {term.effect}"
+
+
 def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_effect_percent: float = 1.0,
              candidates=None, min_drop_percent: float = 2.0, effects=()) -> Diagnosis:
     """The whole diagnosis of `model` on dataset ds (ident.diagnosis and its modules).
@@ -238,7 +320,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     rmse_drop_percent (held-out RMS simulation error drop with it, linearised refit, None unless verified),
     verification (held-out RMSE and cycle fuel errors without/with, direction), significant (a missing effect:
     when verified, a held-out drop ≥ min_drop_percent in the direction of its physics, then accepted by
-    `select_forward`), recommended (significant and verified: what `fuelid identify --effects-from` adds), size,
+    `select_forward`; or the engine map term, module docstring 0), role (ENGINE_MAP for the engine map term,
+    MISSING_EFFECT for a hidden effect named, None otherwise), recommended (significant and verified: what
+    `fuelid identify --effects-from` adds, the engine map term first), size,
     explanation, physics, tests. At most n_verify of the candidates that pass the tests and explain
     min_effect_percent are verified, by estimated drop. effects: effects the engineer defined (ident.effectfile),
     tested beside the built-in ones."""
@@ -251,33 +335,50 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         base = held_out_scores({"y": run.y, "ysim": base_ysim}, ds)
     except (ValueError, np.linalg.LinAlgError):
         base = base_ysim = None
-    eligible = sorted((c for c in testable if c.test_significant and c.estimated_drop_percent >= min_effect_percent),
-                      key=lambda c: -_priority(c))
-    if eligible and n_verify and base is None:
+    if n_verify and base is None and any(c.test_significant for c in testable):
         raise InputError("the model cannot be scored on held-out blocks of these data")
-    for c in eligible[:n_verify]:
-        try:
-            c.verification = v = c.entry.verify(c, model, ds, run, base, base_ysim)
-            c.rmse_drop_percent = v["rmse_drop_percent"]
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            c.verification = {"error": str(exc)}
+    term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify)
+    relevant = lambda c: c.test_significant and c.estimated_drop_percent >= min_effect_percent  # noqa: E731
+    others = sorted((c for c in testable if c.effect not in (MAP_TERM, PRODUCT_TERM) and relevant(c)),
+                    key=lambda c: -_priority(c))
+    for c in others[:n_verify]:
+        _verify(c, model, ds, run, base, base_ysim)
+    outranking = [c for c in others if term is not None and c.entry.retested and c.rmse_drop_percent is not None
+                  and _confirmed(c, c.verification, min_drop_percent) and c.rmse_drop_percent > term.rmse_drop_percent]
+    if outranking:  # a hidden effect the map's columns would partly absorb: no map term first (module docstring, 0)
+        full = next(c for c in testable if c.effect == MAP_TERM)
+        full.explanation += f" — but {outranking[0].effect} explains more of what the model misses " \
+                            f"({outranking[0].rmse_drop_percent:.0f} % held out against {term.rmse_drop_percent:.0f} %)" \
+                            ": not named as the engine's map"
+        term = None
+    # the hidden-effect family: never the full map; the product term too once the map term is named (0)
+    hidden = [c for c in testable if c.effect != MAP_TERM and (term is None or c.effect != PRODUCT_TERM)]
+    eligible = sorted((c for c in hidden if relevant(c)), key=lambda c: -_priority(c))
+    for c in [c for c in eligible if c.verification is None][:max(n_verify - len(others[:n_verify]), 0)]:
+        _verify(c, model, ds, run, base, base_ysim)
     confirmed, unconfirmed = [], []
     for c in eligible:
         (confirmed if _confirmed(c, c.verification, min_drop_percent) else unconfirmed).append(c)
     confirmed.sort(key=lambda c: (c.verification is None, -_priority(c)))  # verified ones first
     accepted = [c for c in confirmed if not c.entry.retested]  # the fuel delay: the signal path (delay.py)
-    first = next((c for c in confirmed if c.entry.retested), None)
-    if first is not None:
-        pool = [c for c in testable if c.entry.retested]
-        accepted += select_forward(first, pool, run, model, ds, alpha, min_effect_percent, min_drop_percent,
-                                   n_verify)
-        for c in confirmed:
-            if c not in accepted:
-                c.explained_by = ", ".join(a.effect for a in accepted if a.entry.retested)
+    first = [term] if term is not None else [c for c in confirmed if c.entry.retested][:1]
+    if first:
+        pool = [c for c in hidden if c.entry.retested]
+        found = select_forward(first, pool, run, model, ds, alpha, min_effect_percent, min_drop_percent, n_verify)
+        accepted += found[1:] if term is not None else found
+        explaining = ", ".join(a.effect for a in found)
+        for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
+            if c not in accepted and (c.test_significant or c.effect in (MAP_TERM, PRODUCT_TERM)):
+                c.explained_by = explaining
     for c in accepted:
-        c.significant = True
+        c.significant, c.role = True, MISSING_EFFECT
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
         c.recommended = c.verification is not None and "error" not in c.verification
+    if term is not None:
+        term.significant, term.role = True, ENGINE_MAP
+        term.recommended = term.verification is not None and "error" not in term.verification
+        term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
+                                                 for e in (MAP_TERM, PRODUCT_TERM)))
     for c in unconfirmed:
         if not c.significant:
             c.explanation += _why_not_confirmed(c, min_drop_percent)
@@ -291,20 +392,26 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     for c in rows:
         if c.testable and not c.significant:
             c.explanation = as_evidence(c)
-    order = {id(c): k for k, c in enumerate(accepted)}
+    order = {id(c): k for k, c in enumerate(([term] if term is not None else []) + accepted)}
     rows.sort(key=lambda c: (not c.significant, order.get(id(c), 0), c.log10_p))
-    testable = [c for c in rows if c.testable]
-    found = [c for c in rows if c.significant]
-    if found:
-        said = [c.explanation + ("" if (drop := _added_drop(c)) is None or not c.entry.drop_in_verdict else
-                                 f" (held-out RMS error {-drop:+.0f} % when added)") for c in found]
-        verdict = f"Missing effect: {said[0]}." if len(said) == 1 else \
-            f"Missing effects ({len(said)}): " + "; ".join(f"({k}) {t}" for k, t in enumerate(said, 1)) + "."
-    else:
-        verdict = f"No significant candidate: none of the {len(testable)} candidate effects explains the residual " \
+    n_hidden = len([c for c in hidden if c.testable])
+    said = [c.explanation + ("" if (drop := _added_drop(c)) is None or not c.entry.drop_in_verdict else
+                             f" (held-out RMS error {-drop:+.0f} % when added)") for c in accepted]
+    engine = "" if term is None else f"Engine map: {term.explanation}. "
+    if said:
+        verdict = engine + (f"Missing effect: {said[0]}." if len(said) == 1 else
+                            f"Missing effects ({len(said)}): " + "; ".join(f"({k}) {t}" for k, t in enumerate(said, 1))
+                            + ".")
+    elif term is None:
+        verdict = f"No significant candidate: none of the {n_hidden} candidate effects explains the residual " \
                   f"(Holm-corrected, family-wise α = {alpha:g}, at least {min_effect_percent:g} % of the " \
                   f"simulation error, and a held-out RMS error drop of at least {min_drop_percent:g} %); the model " \
                   "is not missing any effect the bus reveals."
+    else:
+        verdict = engine + f"No missing effect: given the engine map term, none of the {n_hidden} other candidate " \
+                  f"effects explains the residual (Holm-corrected, family-wise α = {alpha:g}, at least " \
+                  f"{min_effect_percent:g} % of the simulation error, and a held-out RMS error drop of at least " \
+                  f"{min_drop_percent:g} %); beyond its map, the model is not missing any effect the bus reveals."
     return Diagnosis(
         model={"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         data=ds.summary() if hasattr(ds, "summary") else {},
@@ -322,4 +429,5 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         candidates=rows,
         verdict=verdict,
         run=mrun,
+        engine_map=term,
     )
