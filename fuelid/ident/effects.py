@@ -498,23 +498,23 @@ def generic_effects(ds, max_states: int = 16) -> list[Effect]:
         vals, counts = np.unique(fin, return_counts=True)
 
         def effect(form, name, physics, kind, enters, values=(), torque=None):
-            return Effect(f"{form}:{sig}", f"{name} {sig}", f"Bus signal {sig} {physics}.", (sig,), spns, kind,
+            return Effect(f"{form}:{sig}", name, f"Bus signal {sig} {physics}.", (sig,), spns, kind,
                           _generic_build(sig, form, values, torque), lags=(0,) if enters != "additive" or
                           kind == "regime" else (0, 1, 2), enters=enters, zero=kind == "regime",
                           reference=_median(sig) if (form, kind) == ("scales", "input") else None)
 
         if _is_state(sig, vals, max_states):
             by_count = tuple(float(v) for v in vals[np.argsort(-counts, kind="stable")])
-            out += [effect("state", "state of", "in each of its states", "regime", "additive", by_count[1:4]),
-                    effect("scales", "fuel scaled while off its usual state:",
+            out += [effect("state", f"state of {sig}", "in each of its states", "regime", "additive", by_count[1:4]),
+                    effect("scales", f"{sig} other than {by_count[0]:g}",
                            "off its most frequent value, scaling the fuel", "regime", "scales_fuel", by_count[:1])]
             continue
-        out += [effect("level", "level of", "(its value)", "input", "additive"),
-                effect("rate", "rate of change of", "(its time derivative)", "input", "additive"),
-                effect("scales", "fuel scaled by", "scaling the fuel, y (1 + m x)", "input", "scales_fuel")]
+        out += [effect("level", f"level of {sig}", "(its value)", "input", "additive"),
+                effect("rate", f"rate of change of {sig}", "(its time derivative)", "input", "additive"),
+                effect("scales", f"fuel scaled by {sig}", "scaling the fuel, y (1 + m x)", "input", "scales_fuel")]
         torque = _torque_unit_factor(sig)
         if torque is not None:
-            out.append(effect("torque", "torque the bus does not report:",
+            out.append(effect("torque", f"torque the bus does not report: {sig}",
                               "as a torque the engine delivers and the bus does not report", "input", "torque",
                               torque=torque))
     return out
