@@ -42,9 +42,10 @@
    the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after projecting out an offset and the segments'
    initial states. An effect that scales the fuel with x nearly constant is a change of the model's own gains;
    a signal that moves only with the trip's start is told apart from its initial state by nothing. For a bus
-   signal whose physics is not known (a generic candidate, Effect.zero False) slow drifts over each trip are
-   projected out too (`slow_drifts`): a signal that only warms up with the trip is confounded with every other
-   slow drift, and its origin (0 °C) is arbitrary, so it is measured against its own deviation (x − x̄)·ŷ.
+   signal whose physics is not known (a generic candidate, Effect.zero False) each trip's level and slow drifts
+   over it are projected out too (`slow_drifts`): a signal that differs between days only in its level, or only
+   warms up with the trip, is confounded with everything else that differs between days or drifts, and its
+   origin (0 °C) is arbitrary, so it is measured against its own deviation (x − x̄)·ŷ.
    Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
    refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
    since a refit of the 30+ parameters on half the data adds its own noise to the comparison. A full refit is
@@ -158,16 +159,17 @@ def identifiability(run: Run, varying: np.ndarray, column: np.ndarray,
 
 
 def slow_drifts(ds, run: Run, carrier: np.ndarray, degree: int = 2) -> np.ndarray:
-    """A slow drift over each trip (trip_groups) of what `carrier` (stacked like run.r) stands for: P_k(τ)·carrier,
-    P_k the Legendre polynomials of degree 1..degree in the trip's time τ ∈ [−1, 1], zero on the other trips. A bus
-    signal whose physics is not known and that moves only as slowly as these over a trip (an oil temperature
-    warming up) is told apart from every other slow drift — the other temperatures warming with it, the weather,
-    the tyres — by nothing in one trip."""
+    """A level and a slow drift over each trip (trip_groups) of what `carrier` (stacked like run.r) stands for:
+    P_k(τ)·carrier, P_k the Legendre polynomials of degree 0..degree in the trip's time τ ∈ [−1, 1], zero on the
+    other trips. A bus signal whose physics is not known and that differs between trips only by its level, or moves
+    within one only as slowly as these (an oil temperature warming up), is told apart from everything else that
+    differs between days or drifts over a trip — the other temperatures warming with it, the weather, the tyres —
+    by nothing."""
     t = ds.t[run.index]
     cols = []
     for g in trip_groups(ds, run):
         tau = np.interp(t[g], (t[g].min(), max(t[g].max(), t[g].min() + 1e-9)), (-1.0, 1.0))
-        for k in range(1, degree + 1):
+        for k in range(degree + 1):
             col = np.zeros(t.size)
             col[g] = np.polynomial.legendre.Legendre.basis(k)(tau) * carrier[g]
             cols.append(col)
