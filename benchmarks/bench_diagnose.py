@@ -59,10 +59,15 @@ def timing(truth: str):
     t = best_of(lambda: dg.diagnose(delayed_model, delayed))
     top = dg.diagnose(delayed_model, delayed).candidates[0]
     print(f" 90 min with a hidden 0.4 s fuel delay (21 refits of the reference model): {t:.2f} s   top: {top.spec}")
-    all_candidates = list(fx.EFFECTS.values()) + fx.generic_effects(ds)
+    generic = fx.generic_effects(ds)
+    all_candidates = list(fx.EFFECTS.values()) + generic
     for k in (10, 25, len(all_candidates)):
         t = best_of(lambda: dg.diagnose(model, ds, candidates=all_candidates[:k], n_verify=0))
         print(f" 90 min, {k:3d} candidates, without verification: {t:.2f} s")
+    additive = list(fx.EFFECTS.values()) + [e for e in generic if e.id.split(":")[0] in ("level", "rate", "state")]
+    for name, c in (("generic signals additive only (level, rate, state)", additive), ("every form", all_candidates)):
+        t = best_of(lambda: dg.diagnose(model, ds, candidates=c))
+        print(f" 90 min, {name}: {len(c)} candidates, {t:.2f} s")
 
 
 def floor_rmse(effect: str, seed: int, truth: str, arrays: dict, base_effects: tuple) -> float:
