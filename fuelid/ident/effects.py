@@ -19,7 +19,7 @@ their SPNs) and the way it enters the Box-Jenkins model
 `EFFECTS` holds the built-in effects; `generic_effects(ds)` adds candidates for every further decoded bus
 signal in Dataset.extra, in every form an effect takes that can apply to it — a physical quantity as its level,
 its rate of change, a factor that scales the fuel and (a torque or a power only) a torque the bus does not
-report; an enumeration as its states and as a regime that scales the fuel — so an effect nobody listed is still
+report; an enumeration as its states — so an effect nobody listed is still
 found and named by its DBC signal and SPN. Effect ids are the
 same as the simulator's (`fuelid simulate --effect ID=MAG`): the diagnosis says "add effect ID" and
 `fuelid identify --effect ID` adds it.
@@ -460,8 +460,6 @@ def _generic_build(signal: str, form: str, values=(), torque: str | None = None,
         if form == "state":
             return Regressors(np.column_stack([x == v for v in values]).astype(float),
                               tuple(f"{signal} = {v:g}" for v in values), ("1",) * len(values))
-        if form == "scales" and values:  # a state: off its most frequent value
-            return regime(ds, x != values[0], f"{signal} ≠ {values[0]:g}")
         if form == "scales":
             r = _median(signal)(ds) if ref is None else ref
             return scaling(ds, x - r, f"{signal} - {r:g}", unit)
@@ -479,8 +477,10 @@ def generic_effects(ds, max_states: int = 16) -> list[Effect]:
       and ``rate:SIG`` (additive), ``scales:SIG`` (scales the fuel: tested as x and x·ŷ, as cold engine and
       ambient air are; x centred on its median, `centred`), and, for a torque or a power (DBC unit Nm, kW, or a J1939 percent torque),
       ``torque:SIG`` (a torque the bus does not report, through the model's torque path, as the engine fan is);
-    - an enumeration: ``state:SIG`` (indicators of its three most frequent non-modal values, additive) and
-      ``scales:SIG`` (off its most frequent value, a regime that scales the fuel, as DPF regeneration is).
+    - an enumeration: ``state:SIG`` (indicators of its three most frequent non-modal values, additive). Not as a
+      regime scaling the fuel "off its most frequent value": that lumps unordered states, and on the simulator
+      the retarder's mode (on exactly while the engine is motored) took overrun cut-off's place with it and
+      raised another day's error (README, issue 16).
 
     Signals valid on less than half of the valid samples, or constant, are left out. They are tested in the same
     Holm family as the built-in effects (ident.diagnosis.ranking), so every form counts in the correction."""
@@ -501,13 +501,11 @@ def generic_effects(ds, max_states: int = 16) -> list[Effect]:
             return Effect(f"{form}:{sig}", name, f"Bus signal {sig} {physics}.", (sig,), spns, kind,
                           _generic_build(sig, form, values, torque), lags=(0,) if enters != "additive" or
                           kind == "regime" else (0, 1, 2), enters=enters, zero=kind == "regime",
-                          reference=_median(sig) if (form, kind) == ("scales", "input") else None)
+                          reference=_median(sig) if form == "scales" else None)
 
         if _is_state(sig, vals, max_states):
             by_count = tuple(float(v) for v in vals[np.argsort(-counts, kind="stable")])
-            out += [effect("state", f"state of {sig}", "in each of its states", "regime", "additive", by_count[1:4]),
-                    effect("scales", f"{sig} other than {by_count[0]:g}",
-                           "off its most frequent value, scaling the fuel", "regime", "scales_fuel", by_count[:1])]
+            out.append(effect("state", f"state of {sig}", "in each of its states", "regime", "additive", by_count[1:4]))
             continue
         out += [effect("level", f"level of {sig}", "(its value)", "input", "additive"),
                 effect("rate", f"rate of change of {sig}", "(its time derivative)", "input", "additive"),

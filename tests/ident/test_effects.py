@@ -37,7 +37,7 @@ def test_generic_candidates_name_every_other_signal_and_never_the_fuel():
 def test_generic_candidates_take_every_form_that_can_apply_to_their_signal():
     """A quantity (DBC unit) as level, rate and scaling the fuel, even when sent in whole units with few values
     (intake air in whole °C); a percent torque also as a torque through the torque path; an enumeration (no unit,
-    whole steps) as its states and as a regime scaling the fuel; never a torque form for a temperature."""
+    whole steps) as its states; never a torque form for a temperature."""
     ds = hidden.make(None, n=2000)
     ds.extra["AMB.EngAirInletTemp"] = np.round(35 + 5 * np.sin(ds.t / 60.0))
     ds.extra["EEC3.EstEngParasiticLossesPercentTorque"] = np.where(np.sin(ds.t / 90.0) > 0, 5.0, 0.0)
@@ -48,8 +48,8 @@ def test_generic_candidates_take_every_form_that_can_apply_to_their_signal():
         forms.setdefault(sig, set()).add(form)
     assert forms["AMB.EngAirInletTemp"] == {"level", "rate", "scales"}
     assert forms["EEC3.EstEngParasiticLossesPercentTorque"] == {"level", "rate", "scales", "torque"}
-    assert forms["CCVS1.CruiseCtrlActive"] == {"state", "scales"}
-    assert forms["XX.UnknownState"] == {"state", "scales"}  # not in the DBC: a few whole values
+    assert forms["CCVS1.CruiseCtrlActive"] == {"state"}
+    assert forms["XX.UnknownState"] == {"state"}  # not in the DBC: a few whole values
     parasitic = fx.get_effect("torque:EEC3.EstEngParasiticLossesPercentTorque", ds)
     reg = parasitic.build(ds)
     assert reg.units == ("Nm",) and reg.x.max() == 5.0 * 1600.0 / 100.0  # % of the 1600 Nm reference torque
