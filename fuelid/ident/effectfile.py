@@ -174,9 +174,7 @@ def _builder(node, label: str, unit: str, enters: str):
         if node[0] == "state" and enters == "scales_fuel":
             return fx.regime(ds, x, label)
         if enters == "scales_fuel":
-            n, T = fx.deviations(ds)
-            return fx.Regressors(np.column_stack([x, x * n, x * T]), (label, f"{label} x speed", f"{label} x torque"),
-                                 (unit, f"{unit}.{ds.input_units[0]}", f"{unit}.{ds.input_units[1]}"))
+            return fx.scaling(ds, x, label, unit)
         return fx.Regressors(x[:, None], (label,), (unit,))
     return build
 

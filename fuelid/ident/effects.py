@@ -18,9 +18,11 @@ their SPNs) and the way it enters the Box-Jenkins model
                    cubic-spline fractional-delay interpolation; τ is estimated by seed 2's sweep (±1 s in
                    0.1 s steps, refined by a parabola through the best three) or given.
 
-`EFFECTS` holds the built-in effects; `generic_effects(ds)` adds one candidate per further decoded bus signal
-in Dataset.extra — its level and its rate of change (continuous signals) or its state (enumerations with few
-values) — so an effect nobody listed is still found and named by its DBC signal and SPN. Effect ids are the
+`EFFECTS` holds the built-in effects; `generic_effects(ds)` adds candidates for every further decoded bus
+signal in Dataset.extra, in every form an effect takes that can apply to it — a physical quantity as its level,
+its rate of change, a factor that scales the fuel and (a torque or a power only) a torque the bus does not
+report; an enumeration as its states — so an effect nobody listed is still
+found and named by its DBC signal and SPN. Effect ids are the
 same as the simulator's (`fuelid simulate --effect ID=MAG`): the diagnosis says "add effect ID" and
 `fuelid identify --effect ID` adds it.
 
@@ -84,6 +86,9 @@ class Effect:
     template: str | None = None  # an engineer-defined effect's explanation (ident.effectfile)
     source: str = ""  # where an effect defined outside the catalogue comes from: its file or plug-in
     definition: dict | None = field(default=None, compare=False, repr=False)  # its effect-file table
+    zero: bool = True  # x = 0 means no effect (a deficit, a state); False for a bus signal's raw value (0 °C is arbitrary)
+    # a raw bus signal that scales the fuel is centred, x − x_ref: ds → x_ref [signal unit] when not given (`centred`)
+    reference: Callable | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass
@@ -410,27 +415,105 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
 ALIASES = {"coolant_temperature": "cold_engine", "fan": "engine_fan"}
 
 
-# ---- generic candidates: every other decoded bus signal -------------------------------------------------
+# ---- generic candidates: every other decoded bus signal, in every form an effect takes ---------------------
 
-def _generic_build(signal: str, kind: str, values=()):
+def scaling(ds, x: np.ndarray, label: str, unit: str) -> Regressors:
+    """The columns a refit adds for an effect that scales the fuel, y (1 + m x): x, x·ñ, x·T̃ (the first-order
+    terms of y (1 + m x) in the model's inputs, ñ and T̃ their deviations from the operating point)."""
+    n, T = deviations(ds)
+    return Regressors(np.column_stack([x, x * n, x * T]), (label, f"{label} x speed", f"{label} x torque"),
+                      (unit, f"{unit}.{ds.input_units[0]}", f"{unit}.{ds.input_units[1]}"))
+
+
+@functools.lru_cache(maxsize=1)
+def _dbc_units() -> dict[str, tuple[str, float]]:
+    db = cantools.database.load_file(str(FMS_DBC))
+    return {f"{m.name}.{s.name}": (s.unit or "", float(s.scale)) for m in db.messages for s in m.signals}
+
+
+def _is_state(signal: str, values: np.ndarray, max_states: int) -> bool:
+    """Whether a bus signal is an enumeration (a mode, a switch, a status) rather than a physical quantity: in the
+    DBC, no unit and whole raw steps (a temperature sent in whole °C is still a quantity); a signal the DBC does
+    not know, whole values only. Either way at most max_states distinct values."""
+    if values.size > max_states or not np.all(values == np.round(values)):
+        return False
+    unit, scale = _dbc_units().get(signal, ("", 1.0))
+    return not unit and scale == round(scale)
+
+
+def _torque_unit_factor(signal: str) -> str | None:
+    """How a bus signal is a torque, from its DBC unit and name: "Nm"; "%" of the reference torque (J1939's
+    percent-torque signals, e.g. EEC3 SPN 2978 parasitic losses); "kW", a power the engine delivers; None when it is
+    neither (a torque form for it could never apply, and would only add to the multiple-testing count)."""
+    unit, _ = _dbc_units().get(signal, ("", 1.0))
+    if unit in ("Nm", "kW"):
+        return unit
+    return "%" if unit == "%" and "PercentTorque" in signal else None
+
+
+def _as_model_torque(ds, x: np.ndarray, kind: str) -> tuple[np.ndarray, str] | None:
+    """A torque-like signal x (Nm, % of the reference torque, or kW) in the unit of the model's torque input; None
+    when it cannot be converted (a percent model without the reference torque)."""
+    if kind == "%":
+        return _percent_torque_in_model_unit(ds, x)
+    nm = x if kind == "Nm" else 1000.0 * x / (np.maximum(ds.u[:, 0], 300.0) * RPM_TO_RAD_S)  # P/ω [Nm]
+    if ds.input_units[1] == "Nm":
+        return nm, "Nm"
+    ref = reference_torque(ds)
+    return (100.0 * nm / ref, ds.input_units[1]) if ref else None
+
+
+def _median(signal: str):
+    def reference(ds) -> float:
+        return float(np.nanmedian(ds.extra[signal][ds.valid]))
+    return reference
+
+
+def centred(effect: Effect, ref: float) -> Effect:
+    """A generic ``scales:SIG`` of a physical quantity centred on ref [the signal's unit]: x − ref scales the fuel.
+    With x's arbitrary origin (0 °C) its mean level times the fuel would be a change of the model's own gains,
+    which x·ñ and x·T̃ with their own dynamics fit badly and carry to another day with that day's level; centred
+    on a level kept with the model (ident.modeldata records it), every data set is centred alike."""
+    return replace(effect, build=_generic_build(effect.signals[0], "scales", ref=ref), reference=None)
+
+
+def _generic_build(signal: str, form: str, values=(), torque: str | None = None, ref: float | None = None):
     def build(ds):
         x = _signal(ds, signal)
         if x is None:
             return None
-        if kind == "level":
-            return Regressors(x[:, None], (signal,), ("",))
-        if kind == "rate":
-            return Regressors(rate(x, ds.t)[:, None], (f"d/dt {signal}",), ("1/s",))
-        return Regressors(np.column_stack([x == v for v in values]).astype(float),
-                          tuple(f"{signal} = {v:g}" for v in values), ("1",) * len(values))
+        unit = _dbc_units().get(signal, ("", 1.0))[0]
+        if form == "level":
+            return Regressors(x[:, None], (signal,), (unit,))
+        if form == "rate":
+            return Regressors(rate(x, ds.t)[:, None], (f"d/dt {signal}",), (f"{unit}/s" if unit else "1/s",))
+        if form == "state":
+            return Regressors(np.column_stack([x == v for v in values]).astype(float),
+                              tuple(f"{signal} = {v:g}" for v in values), ("1",) * len(values))
+        if form == "scales":
+            r = _median(signal)(ds) if ref is None else ref
+            return scaling(ds, x - r, f"{signal} - {r:g}", unit)
+        converted = _as_model_torque(ds, x, torque)
+        return None if converted is None else Regressors(converted[0][:, None], (signal,), (converted[1],))
     return build
 
 
 def generic_effects(ds, max_states: int = 16) -> list[Effect]:
     """Candidates from every bus signal in ds.extra that no built-in effect uses and that is not computed from
-    the fuel (OUTPUT_DERIVED_SPNS, the flow meter): ``level:SIG`` and ``rate:SIG`` for continuous signals,
-    ``state:SIG`` (indicators of its three most frequent non-modal values) for integer signals with at most
-    max_states values. Signals valid on less than half of the valid samples, or constant, are left out."""
+    the fuel (OUTPUT_DERIVED_SPNS, the flow meter), in every form an effect takes (Effect.enters) that can apply
+    to it:
+
+    - a physical quantity (`_is_state`: a DBC unit, or values that are not a few whole numbers): ``level:SIG``
+      and ``rate:SIG`` (additive), ``scales:SIG`` (scales the fuel: tested as x and x·ŷ, as cold engine and
+      ambient air are; x centred on its median, `centred`), and, for a torque or a power (DBC unit Nm, kW, or a J1939 percent torque),
+      ``torque:SIG`` (a torque the bus does not report, through the model's torque path, as the engine fan is);
+    - an enumeration: ``state:SIG`` (indicators of its three most frequent non-modal values, additive). Not as a
+      regime scaling the fuel "off its most frequent value": that lumps unordered states, and on the simulator
+      the retarder's mode (on exactly while the engine is motored) took overrun cut-off's place with it and
+      raised another day's error (README, issue 16).
+
+    Signals valid on less than half of the valid samples, or constant, are left out. They are tested in the same
+    Holm family as the built-in effects (ident.diagnosis.ranking), so every form counts in the correction."""
     claimed = {s for e in EFFECTS.values() for s in e.signals}
     out = []
     for sig in sorted(ds.extra):
@@ -443,15 +526,25 @@ def generic_effects(ds, max_states: int = 16) -> list[Effect]:
             continue
         spns = (spn,) if spn is not None else ()
         vals, counts = np.unique(fin, return_counts=True)
-        if np.all(vals == np.round(vals)) and vals.size <= max_states:
-            states = tuple(float(v) for v in vals[np.argsort(-counts)][1:4])
-            out.append(Effect(f"state:{sig}", f"state of {sig}", f"Bus signal {sig} in each of its states.",
-                              (sig,), spns, "regime", _generic_build(sig, "state", states), lags=(0,)))
-        else:
-            out.append(Effect(f"level:{sig}", f"level of {sig}", f"Bus signal {sig} (its value).",
-                              (sig,), spns, "input", _generic_build(sig, "level")))
-            out.append(Effect(f"rate:{sig}", f"rate of change of {sig}", f"Bus signal {sig} (its time derivative).",
-                              (sig,), spns, "input", _generic_build(sig, "rate")))
+
+        def effect(form, name, physics, kind, enters, values=(), torque=None):
+            return Effect(f"{form}:{sig}", name, f"Bus signal {sig} {physics}.", (sig,), spns, kind,
+                          _generic_build(sig, form, values, torque), lags=(0,) if enters != "additive" or
+                          kind == "regime" else (0, 1, 2), enters=enters, zero=kind == "regime",
+                          reference=_median(sig) if form == "scales" else None)
+
+        if _is_state(sig, vals, max_states):
+            by_count = tuple(float(v) for v in vals[np.argsort(-counts, kind="stable")])
+            out.append(effect("state", f"state of {sig}", "in each of its states", "regime", "additive", by_count[1:4]))
+            continue
+        out += [effect("level", f"level of {sig}", "(its value)", "input", "additive"),
+                effect("rate", f"rate of change of {sig}", "(its time derivative)", "input", "additive"),
+                effect("scales", f"fuel scaled by {sig}", "scaling the fuel, y (1 + m x)", "input", "scales_fuel")]
+        torque = _torque_unit_factor(sig)
+        if torque is not None:
+            out.append(effect("torque", f"torque the bus does not report: {sig}",
+                              "as a torque the engine delivers and the bus does not report", "input", "torque",
+                              torque=torque))
     return out
 
 
@@ -477,7 +570,7 @@ def plugin_effects() -> tuple[Effect, ...]:
 
 def get_effect(effect_id: str, ds=None, defined=()) -> Effect:
     """The effect with this id: built-in (or an alias), one of `defined` (effects the engineer defined,
-    ident.effectfile), an installed plug-in's (`plugin_effects`), else a generic ``level:``/``rate:``/``state:SIG``
+    ident.effectfile), an installed plug-in's (`plugin_effects`), else a generic ``level:``/``rate:``/``scales:``/``torque:``/``state:SIG``
     (needs ds to see the signal)."""
     effect_id = ALIASES.get(effect_id, effect_id)
     if effect_id in EFFECTS:
@@ -491,7 +584,8 @@ def get_effect(effect_id: str, ds=None, defined=()) -> Effect:
                 return e
     known = ", ".join(EFFECTS)
     raise InputError(f"unknown effect {effect_id!r}: built in are {known}; any logged signal SIG also as "
-                     "level:SIG, rate:SIG or state:SIG; an effect you define, from its --effects-file")
+                     "level:SIG, rate:SIG, scales:SIG, torque:SIG (a torque or power) or state:SIG; an effect you "
+                     "define, from its --effects-file")
 
 
 def parse_effect(spec: str) -> tuple[str, float | None]:

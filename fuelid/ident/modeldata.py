@@ -16,7 +16,7 @@ import numpy as np
 
 from fuelid.errors import InputError
 from fuelid.ident.effectfile import effects_of_model
-from fuelid.ident.effects import get_effect, parse_effect
+from fuelid.ident.effects import centred, get_effect, parse_effect
 from fuelid.ident.fueldelay import shift_signal
 from fuelid.ident.polymodel import Structure
 
@@ -45,7 +45,8 @@ def apply_effects(ds, ids, parameters: dict | None = None,
                   estimate_shift: Callable[[EffectInputs], float] | None = None, defined=()) -> EffectInputs:
     """Extra inputs and shifted fuel for the effects `ids` ("ID" or "ID=VALUE") on dataset ds.
 
-    parameters: {"fuel_delay": τ [s]} the fuel advance; when fuel_delay is asked for without τ, τ [s] is
+    parameters: {"fuel_delay": τ [s]} the fuel advance, {"scales:SIG": x_ref} the level a raw bus signal that
+    scales the fuel is centred on (default its median on ds: ident.effects.centred); when fuel_delay is asked for without τ, τ [s] is
     estimate_shift(the EffectInputs of the other effects, fuel not shifted), e.g. ident.identify's sweep with
     the model (required then). defined: effects the engineer defined (ident.effectfile) the ids may name.
     Raises ValueError for an unknown id or an effect whose signals are not logged.
@@ -58,6 +59,9 @@ def apply_effects(ds, ids, parameters: dict | None = None,
         eid, value = parse_effect(raw)
         effect = get_effect(eid, ds, defined)
         used.append(effect.id)
+        if effect.reference is not None:  # a raw bus signal scaling the fuel: centred alike on every data set
+            parameters[effect.id] = value if value is not None else parameters.get(effect.id, effect.reference(ds))
+            effect = centred(effect, parameters[effect.id])
         if effect.enters == "shift":
             shift_id = effect.id
             shift = value if value is not None else parameters.get(effect.id, "sweep")

@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from fuelid.ident import effects as fx
+from fuelid.ident.modeldata import apply_effects
 from tests.ident import hidden
 
 
@@ -31,6 +32,41 @@ def test_generic_candidates_name_every_other_signal_and_never_the_fuel():
     assert "level:AMB.BarometricPress" not in ids  # constant
     oil = next(e for e in fx.generic_effects(ds) if e.id == "level:ET1.EngOilTemp1")
     assert oil.spns == (175,)
+
+
+def test_generic_candidates_take_every_form_that_can_apply_to_their_signal():
+    """A quantity (DBC unit) as level, rate and scaling the fuel, even when sent in whole units with few values
+    (intake air in whole °C); a percent torque also as a torque through the torque path; an enumeration (no unit,
+    whole steps) as its states; never a torque form for a temperature."""
+    ds = hidden.make(None, n=2000)
+    ds.extra["AMB.EngAirInletTemp"] = np.round(35 + 5 * np.sin(ds.t / 60.0))
+    ds.extra["EEC3.EstEngParasiticLossesPercentTorque"] = np.where(np.sin(ds.t / 90.0) > 0, 5.0, 0.0)
+    ds.extra["CCVS1.CruiseCtrlActive"] = (np.sin(ds.t / 120.0) > 0.5).astype(float)
+    forms = {}
+    for e in fx.generic_effects(ds):
+        form, sig = e.id.split(":", 1)
+        forms.setdefault(sig, set()).add(form)
+    assert forms["AMB.EngAirInletTemp"] == {"level", "rate", "scales"}
+    assert forms["EEC3.EstEngParasiticLossesPercentTorque"] == {"level", "rate", "scales", "torque"}
+    assert forms["CCVS1.CruiseCtrlActive"] == {"state"}
+    assert forms["XX.UnknownState"] == {"state"}  # not in the DBC: a few whole values
+    parasitic = fx.get_effect("torque:EEC3.EstEngParasiticLossesPercentTorque", ds)
+    reg = parasitic.build(ds)
+    assert reg.units == ("Nm",) and reg.x.max() == 5.0 * 1600.0 / 100.0  # % of the 1600 Nm reference torque
+    assert parasitic.enters == "torque" and fx.get_effect("scales:AMB.EngAirInletTemp", ds).enters == "scales_fuel"
+
+
+def test_a_raw_signal_scaling_the_fuel_is_centred_alike_on_other_data():
+    """scales:SIG is centred on the identification data's median, kept with the model for other data."""
+    ds = hidden.make(None, n=2000)
+    ds.extra["AMB.EngAirInletTemp"] = np.round(35 + 5 * np.sin(ds.t / 60.0))
+    first = apply_effects(ds, ["scales:AMB.EngAirInletTemp"])
+    ref = float(np.median(ds.extra["AMB.EngAirInletTemp"]))
+    assert first.parameters == {"scales:AMB.EngAirInletTemp": ref}
+    assert np.allclose(first.u[:, 0], ds.extra["AMB.EngAirInletTemp"] - ref)
+    ds.extra["AMB.EngAirInletTemp"] = ds.extra["AMB.EngAirInletTemp"] + 10.0  # a hotter day
+    other = apply_effects(ds, ["scales:AMB.EngAirInletTemp"], first.parameters)
+    assert np.allclose(other.u[:, 0], first.u[:, 0] + 10.0)
 
 
 def test_regressors_units_and_physics():

@@ -22,7 +22,7 @@ from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain, si
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import lagged, level_test, one_blas_thread, score_test
 from fuelid.ident.diagnosis.verification import (MIN_IDENTIFIABILITY, identifiability, leave_one_trip_out,
-                                                 trip_groups, verify)
+                                                 slow_drifts, trip_groups, verify)
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
 
@@ -100,7 +100,7 @@ class Additive:
         # fuel (its own part and the model's re-fitted gains and offset together) with its direction regressor
         x0 = self.direction_regressor(c, run)
         v["direction"] = int(np.sign((change - change.mean()) @ (x0 - x0.mean())))
-        v["identifiability"] = identifiability(run, *self.varying_column(c, run))
+        v["identifiability"] = identifiability(run, *self.varying_column(c, run), self.confounders(c, ds, run))
         v["identifiable"] = bool(v["identifiability"] >= MIN_IDENTIFIABILITY)
         groups = trip_groups(ds, run)
         if len(groups) > 1:  # the refit fitted on the other trips, scored on each one
@@ -124,6 +124,16 @@ class Additive:
         stacked like run.r: whether the effect is identifiable (verification.identifiability). For x, x itself."""
         return c.x[:, 0], c.x[:, 0]
 
+    def confounders(self, c: Candidate, ds, run: Run) -> np.ndarray | None:
+        """What else its decisive column could be, beyond an offset and the initial states (verification.
+        identifiability): for a bus signal whose physics is not known (Effect.zero False), a slow drift over each
+        trip of what it adds to (`carrier`)."""
+        return None if c.definition.zero else slow_drifts(ds, run, self.carrier(run))
+
+    def carrier(self, run: Run) -> np.ndarray:
+        """What the effect's column multiplies, stacked like run.r: 1 for an additive effect."""
+        return np.ones(run.r.size)
+
     def relevance(self, v: dict) -> float:
         """The held-out RMS error drop [%] that decides a verification."""
         return v["rmse_drop_percent"]
@@ -143,9 +153,15 @@ class ScalesFuel(Additive):
                              (reg.units[0], f"{reg.units[0]}.{ds.output_unit}"))
 
     def varying_column(self, c, run):
-        # x·ŷ with x constant is the model's own fuel scaled: what identifies m is (x − x̄)·ŷ
+        # x·ŷ with x constant is the model's own fuel scaled: what identifies m is (x − x̄)·ŷ. A raw bus signal's
+        # origin is arbitrary (0 °C), so its x̄·ŷ says nothing of how well m is determined: measured against its own
+        # (x − x̄)·ŷ (Effect.zero)
         x, fuel = c.x[:, 0], run.ysim[run.index]
-        return (x - x.mean()) * fuel, x * fuel
+        varying = (x - x.mean()) * fuel
+        return varying, x * fuel if c.definition.zero else varying
+
+    def carrier(self, run):
+        return run.ysim[run.index]  # a slowly drifting gain
 
     def direction_regressor(self, c, run):
         # x·ŷ: air density is nearly constant within a trip, and a trip's fuel level is not told apart from its

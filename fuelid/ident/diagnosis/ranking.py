@@ -166,7 +166,8 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
     if not v.get("identifiable", True):
         return f" — but it is not identifiable from these data: its signal's variation makes only " \
                f"{100 * v['identifiability']:.0f} % of its column beyond an offset and the initial states " \
-               "(the signal hardly varies, or only with the trip's start); data that differ in it (other days, places) are " \
+               "(the signal hardly varies, or only with the trip's start or, a bus signal whose physics is not known, " \
+               "as a slow drift over the trip); data that differ in it (other days, places) are " \
                "needed: not recommended"
     return f" — but fitted on the other trips it makes the held-out trips worse (RMS error " \
            f"{-v['trips']['pooled_rmse_drop_percent']:+.1f} %, leave-one-trip-out): not recommended"

@@ -46,6 +46,7 @@ model's torque path makes of it, B_T/(A F_T) x (the gradient at κ = 0, one colu
 from __future__ import annotations
 
 import contextlib
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,9 +55,9 @@ from scipy.signal import lfilter
 from scipy.stats import chi2
 
 try:  # BLAS threads only cost time on N × k problems this narrow (as in ident.pem)
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import ThreadpoolController
 except ImportError:  # pragma: no cover - threadpoolctl missing: run with the BLAS defaults
-    threadpool_limits = None
+    ThreadpoolController = None
 
 AR_ORDER = 100  # samples of the AR whitener of the simulation-error test (30 s at 0.3 s)
 
@@ -195,6 +196,12 @@ def free_responses(denominators, n: int) -> np.ndarray:
     return np.column_stack(cols) if cols else np.zeros((n, 0))
 
 
+@functools.lru_cache(maxsize=1)
+def _blas_controller():
+    # found once: threadpoolctl scans the process's loaded libraries each time it is built (tens of ms)
+    return ThreadpoolController()
+
+
 def one_blas_thread():
     """A context in which BLAS runs on one thread (none when threadpoolctl is missing)."""
-    return threadpool_limits(1, "blas") if threadpool_limits else contextlib.nullcontext()
+    return _blas_controller().limit(limits=1, user_api="blas") if ThreadpoolController else contextlib.nullcontext()

@@ -41,7 +41,11 @@
    inflation factor above 10): the share of its decisive column (x; x·ŷ for an effect that scales the fuel) that
    the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after projecting out an offset and the segments'
    initial states. An effect that scales the fuel with x nearly constant is a change of the model's own gains;
-   a signal that moves only with the trip's start is told apart from its initial state by nothing.
+   a signal that moves only with the trip's start is told apart from its initial state by nothing. For a bus
+   signal whose physics is not known (a generic candidate, Effect.zero False) each trip's level and slow drifts
+   over it are projected out too (`slow_drifts`): a signal that differs between days only in its level, or only
+   warms up with the trip, is confounded with everything else that differs between days or drifts, and its
+   origin (0 °C) is arbitrary, so it is measured against its own deviation (x − x̄)·ŷ.
    Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
    refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
    since a refit of the 30+ parameters on half the data adds its own noise to the comparison. A full refit is
@@ -140,15 +144,36 @@ def leave_one_trip_out(model: PolyModel, run: Run, X: np.ndarray, groups) -> lis
     return [float(np.sqrt(np.mean(err[g] ** 2))) for g in groups]
 
 
-def identifiability(run: Run, varying: np.ndarray, column: np.ndarray) -> float:
+def identifiability(run: Run, varying: np.ndarray, column: np.ndarray,
+                    confounders: np.ndarray | None = None) -> float:
     """How much of an effect's decisive column (fuel domain, stacked like run.r) its signal's variation determines:
-    ‖M varying‖ / ‖column − mean‖, M projecting out an offset and the segments' initial states (run.QG's free
-    responses), `varying` the column made of the signal's deviation from its mean (module docstring, 4; with
-    A = 1, as in a Box-Jenkins model, the same in the w domain)."""
+    ‖M varying‖ / ‖column − mean‖, M projecting out an offset, the segments' initial states (run.QG's free
+    responses) and the confounders given (columns stacked like run.r: `slow_drifts`), `varying` the column made of
+    the signal's deviation from its mean (module docstring, 4; with A = 1, as in a Box-Jenkins model, the same in
+    the w domain)."""
     n_initial = run.QG.shape[1] - run.QG_blocks.shape[1]
-    Z = nuisance_basis(np.column_stack([np.ones(varying.size), run.QG[:, :n_initial]]))
+    extra = np.zeros((varying.size, 0)) if confounders is None else confounders
+    Z = nuisance_basis(np.column_stack([np.ones(varying.size), run.QG[:, :n_initial], extra]))
     left = varying - Z @ (Z.T @ varying)
     return float(np.linalg.norm(left) / max(np.linalg.norm(column - column.mean()), 1e-300))
+
+
+def slow_drifts(ds, run: Run, carrier: np.ndarray, degree: int = 2) -> np.ndarray:
+    """A level and a slow drift over each trip (trip_groups) of what `carrier` (stacked like run.r) stands for:
+    P_k(τ)·carrier, P_k the Legendre polynomials of degree 0..degree in the trip's time τ ∈ [−1, 1], zero on the
+    other trips. A bus signal whose physics is not known and that differs between trips only by its level, or moves
+    within one only as slowly as these (an oil temperature warming up), is told apart from everything else that
+    differs between days or drifts over a trip — the other temperatures warming with it, the weather, the tyres —
+    by nothing."""
+    t = ds.t[run.index]
+    cols = []
+    for g in trip_groups(ds, run):
+        tau = np.interp(t[g], (t[g].min(), max(t[g].max(), t[g].min() + 1e-9)), (-1.0, 1.0))
+        for k in range(degree + 1):
+            col = np.zeros(t.size)
+            col[g] = np.polynomial.legendre.Legendre.basis(k)(tau) * carrier[g]
+            cols.append(col)
+    return np.column_stack(cols)
 
 
 def _through_1_over_A(model: PolyModel, run: Run, err: np.ndarray) -> np.ndarray:
