@@ -419,9 +419,11 @@ class _Scan:
             opcode, length = _RECORD_HEAD.unpack_from(buf, pos)
             end = pos + 9 + length
             try:
-                followed = end == size or opcode == Opcode.FOOTER or self._record_starts_at(end)
+                # a wrong length would swallow what follows; a chunk's CRC vouches for its own length, so
+                # garbage after an intact chunk is damage after it, not in it
+                followed = end == size or opcode in (Opcode.FOOTER, Opcode.CHUNK) or self._record_starts_at(end)
                 if opcode not in _OPCODES or end > size or not followed:
-                    raise ValueError("garbled record header")  # a wrong length would swallow what follows
+                    raise ValueError("garbled record header")
                 records = self._parse(opcode, buf, pos, end)
             except Exception as exc:  # noqa: BLE001 -- any failure to parse a whole record is damage or the cut
                 whole = end == size or end < size and self._record_starts_at(end)  # its length is believable

@@ -119,6 +119,8 @@ PAPER = Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11)  # the paper's 
 class _Records:
     """A Recorder's writer that keeps the decoded records in memory (no MCAP file: 3× faster for tests)."""
 
+    columns = None  # no message columns (logger.columns): the records are the data
+
     def __init__(self):
         self.records = []
 

@@ -46,22 +46,25 @@ def test_without_the_file_the_generic_forms_find_it_and_what_they_recommend_help
                                                                                                  signal):
     """The built-in and generic candidates alone (issue 16, item 1: every bus signal in every form — the intake
     air as a factor scaling the fuel, the parasitic losses as a torque through the torque path): the effect's
-    signal is recommended, and what is recommended lowers the validation trip's RMS error by at least 70 % of
-    what the true effect (the example file's) does — never raises it (item 3)."""
+    signal is named, and adding what is named lowers the validation trip's RMS error by at least 70 % of what the
+    true effect (the example file's) does — never raises it (item 3). Found on one trip, a bus signal fuelid
+    knows no physics for is named but not recommended (`--effects-from` does not add it)."""
     ds, _, _ = hidden.simulated(effect, 5001)
     val, _, _ = hidden.simulated(effect, 5051)
     model = hidden.identify(ds)
-    recommended = [c for c in dg.diagnose(model, ds).candidates if c.recommended]
-    assert any(signal in c.signals for c in recommended), [c.effect for c in recommended]
+    candidates = dg.diagnose(model, ds).candidates
+    named = [c for c in candidates if c.significant]
+    assert any(signal in c.signals for c in named), [c.effect for c in named]
+    assert not [c.effect for c in candidates if c.recommended and ":" in c.effect]
     base = evaluate(model, val)["rmse"]["simulation"]
-    named = evaluate(hidden.identify(ds, effects=[c.spec for c in recommended]), val)["rmse"]["simulation"]
+    named = evaluate(hidden.identify(ds, effects=[c.spec for c in named]), val)["rmse"]["simulation"]
     oracle = evaluate(hidden.identify(ds, effects=[file_id], defined=read_effects_file(EXAMPLE)),
                       val)["rmse"]["simulation"]
     assert named < base and base - named >= 0.7 * (base - oracle), (base, named, oracle)
 
 
-def test_with_nothing_hidden_the_generic_forms_recommend_nothing():
-    """A trip on the hot-intake-air route with nothing hidden: no bus signal in any form is recommended."""
+def test_with_nothing_hidden_the_generic_forms_name_nothing():
+    """A trip on the hot-intake-air route with nothing hidden: no bus signal in any form is named."""
     ds, _, _ = hidden.simulated(None, 500, routes_of="hot_intake_air")
     out = dg.diagnose(hidden.identify(ds), ds)
-    assert not [c.effect for c in out.candidates if c.recommended], out.verdict
+    assert not [c.effect for c in out.candidates if c.significant], out.verdict

@@ -101,6 +101,8 @@ def test_a_map_trip_decodes_with_the_engines_reference_torque(trip, vecto):
     records = []
 
     class Sink:
+        columns = None  # no message columns (logger.columns)
+
         def add_channel(self, topic, schema):
             pass
 

@@ -30,9 +30,14 @@ linearised refit lowers the held-out RMS error by at least min_drop_percent (def
 says, identifiably and never worse on a held-out trip, AND (after the first) forward selection accepts it given
 those before it. The conjunction can only remove rejections, so the family-wise false-alarm rate of the first
 stays ≤ α. Significant candidates are listed first, in the order accepted;
-then the rest by p-value. Measured on 20-minute simulated trips (benchmarks/bench_diagnose.py --acceptance):
-1 of 70 data sets with nothing hidden (50 trips, 20 pairs of trips) names an effect; README gives the table per
-hidden effect.
+then the rest by p-value. README gives the measured false alarms and the table per hidden effect.
+
+A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified —
+and, for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no
+physics for), only when the data held several trips and it held up left out of each (leave-one-trip-out). On one
+trip such a signal can stand in for whatever else moves with the operating point that day (on a real engine its
+transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined effect brings its
+physics (sign, form) and is recommended from one trip.
 """
 from __future__ import annotations
 
@@ -173,6 +178,17 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
            f"{-v['trips']['pooled_rmse_drop_percent']:+.1f} %, leave-one-trip-out): not recommended"
 
 
+ONE_TRIP_ONLY = ("; not recommended: a bus signal fuelid knows no physics for, found on one trip (diagnose it "
+                 "with other days' files to see whether it carries over)")
+"""Why a generic bus-signal candidate found on one trip is named but not recommended (module docstring)."""
+
+
+def _generic(c: Candidate) -> bool:
+    """Whether c is a decoded bus signal in one of the generic forms (ids FORM:SIGNAL), not a catalogued or an
+    engineer-defined effect with known physics."""
+    return ":" in c.effect
+
+
 def _priority(c: Candidate, v: dict | None = None, estimated: float | None = None) -> float:
     """Order of acceptance: the held-out RMS error drop of its verification v (default c's own) when verified,
     else the estimated drop (default c's own); a generic bus signal's discounted by GENERIC_WEIGHT (a named
@@ -180,7 +196,7 @@ def _priority(c: Candidate, v: dict | None = None, estimated: float | None = Non
     v = c.verification if v is None else v
     drop = (c.estimated_drop_percent if estimated is None else estimated) if v is None or "error" in v \
         else c.entry.relevance(v)
-    return drop * (GENERIC_WEIGHT if ":" in c.effect else 1.0)  # generic ids are FORM:SIGNAL
+    return drop * (GENERIC_WEIGHT if _generic(c) else 1.0)
 
 
 def _columns(c: Candidate) -> np.ndarray:
@@ -375,6 +391,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         c.significant, c.role = True, MISSING_EFFECT
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
         c.recommended = c.verification is not None and "error" not in c.verification
+        if c.recommended and _generic(c) and "trips" not in c.verification:
+            c.recommended = False
+            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + ONE_TRIP_ONLY
     if term is not None:
         term.significant, term.role = True, ENGINE_MAP
         term.recommended = term.verification is not None and "error" not in term.verification
@@ -396,8 +415,10 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     order = {id(c): k for k, c in enumerate(([term] if term is not None else []) + accepted)}
     rows.sort(key=lambda c: (not c.significant, order.get(id(c), 0), c.log10_p))
     n_hidden = len([c for c in hidden if c.testable])
-    said = [c.explanation + ("" if (drop := _added_drop(c)) is None or not c.entry.drop_in_verdict else
-                             f" (held-out RMS error {-drop:+.0f} % when added)") for c in accepted]
+    said = [c.explanation.removesuffix(ONE_TRIP_ONLY)
+            + ("" if (drop := _added_drop(c)) is None or not c.entry.drop_in_verdict else
+               f" (held-out RMS error {-drop:+.0f} % when added)")
+            + (ONE_TRIP_ONLY if c.explanation.endswith(ONE_TRIP_ONLY) else "") for c in accepted]
     engine = "" if term is None else f"Engine map: {term.explanation}. "
     if said:
         verdict = engine + (f"Missing effect: {said[0]}." if len(said) == 1 else
