@@ -57,7 +57,8 @@ Initialisation (`initial_estimate`): the input part by least squares (ARX, when 
 A), or for OE/BJ by a high-order ARX (A_h, B_h,i), whose per-input responses B_h,i/A_h u_i are reduced to
 B_i/F_i by Steiglitz–McBride iterations and refined by the same LM as an OE model on data prefiltered by
 A_h ≈ H⁻¹ (prefiltering by the inverse noise model makes the OE criterion the BJ one with H fixed, Ljung
-sec. 14.4); then the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
+sec. 14.4), whose steps after OE_GEODESIC_AFTER iterations get the geodesic acceleration (`geodesic_step`);
+then the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
 w = A y − Σ B_i/F_i u_i, refined by LM as an ARMA model. Hand-written because SciPy has no PEM; the linear
 algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter.
 """
@@ -88,7 +89,7 @@ HIGH_ORDER_ARX = 30  # order of the ARX model behind the OE/BJ initialisation
 INIT_MAX_ITER = 500
 # The initialisation's OE fit takes plain LM steps for this many iterations, then geodesically accelerated ones
 # (`geodesic_step`) until it stops: most fits converge before; on the shipped 1.5 h trip, whose nf = 5 the data do
-# not support, plain steps crawl ~450 iterations along a valley of near pole–zero cancellations (README,
+# not support, plain steps crawl hundreds of iterations along a valley of near pole–zero cancellations (README,
 # "Where `identify` spends its time"). Accelerating from the start ends some fits on the stability bound.
 OE_GEODESIC_AFTER = 60
 
