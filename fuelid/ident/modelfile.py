@@ -96,9 +96,13 @@ def from_dict(d: dict) -> PolyModel:
 
 
 def save_model(model: PolyModel, path) -> None:
-    """Write model.json atomically (a temporary file renamed over `path`)."""
+    """Write model.json atomically (a temporary file renamed over `path`); into `path` itself when it exists and
+    is not a regular file (`-o /dev/null`, a pipe): renaming over a device would replace it."""
     text = json.dumps(to_dict(model), indent=1, allow_nan=False) + "\n"
     path = Path(path)
+    if path.exists() and not path.is_file():
+        path.write_text(text, encoding="utf-8")
+        return
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text, encoding="utf-8")
     os.replace(tmp, path)

@@ -1,5 +1,8 @@
 """ident.modelfile: model.json round trip (bit for bit), malformed files, the paper's appendix models."""
 import json
+import os
+import stat
+import threading
 import warnings
 
 import numpy as np
@@ -27,6 +30,19 @@ def fitted():
     m.training = {"samples": 1500, "files": ["a.mcap"]}
     m.validation = {"fit_percent": {"simulation": 91.2}}
     return m
+
+
+def test_saving_to_a_pipe_writes_into_it_and_leaves_it_a_pipe(fitted, tmp_path):
+    """`identify -o /dev/null` (or a named pipe): the atomic rename would replace the device with a file."""
+    fifo = tmp_path / "out.fifo"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    save_model(fitted, fifo)
+    reader.join(timeout=10)
+    assert stat.S_ISFIFO(fifo.stat().st_mode) and json.loads(got[0])["format"] == "fuelid-model"
+    assert not (tmp_path / "out.fifo.tmp").exists()
 
 
 def test_round_trip_bit_for_bit(fitted, tmp_path):
