@@ -12,9 +12,9 @@ inside the unit circle, a stationary noise model needs D inside too).
 Hard initialisation (skipped with --no-trip): the dataset of the shipped 1.5 h trip (replay_logs/diesel_ident_90min,
 converted as benchmarks/bench_dataset.py does, same cache; the dataset cached in benchmarks/.cache/pem/), fitted as
 `fuelid identify --orders paper` does (ident.identify.identify_model's segments and operating point). On these data
-the initialisation's OE fit needs over a hundred LM iterations (hundreds without its geodesic acceleration)
-where the simulated data need a few dozen: both are reported, with the share of the time spent before the final
-fit and the loss V (fuelid only: the peers are run on the simulated data).
+the initialisation's OE fit needs hundreds of LM iterations where the simulated data need a few dozen: both are
+reported, with the share of the time spent before the final fit and the loss V (fuelid only: the peers are run
+on the simulated data).
 
 Peers run in their own environment benchmarks/.venv-peers (git-ignored), created on first use with
 `python -m venv benchmarks/.venv-peers && benchmarks/.venv-peers/bin/pip install sippy_unipi statsmodels`,

@@ -57,8 +57,7 @@ Initialisation (`initial_estimate`): the input part by least squares (ARX, when 
 A), or for OE/BJ by a high-order ARX (A_h, B_h,i), whose per-input responses B_h,i/A_h u_i are reduced to
 B_i/F_i by Steiglitz–McBride iterations and refined by the same LM as an OE model on data prefiltered by
 A_h ≈ H⁻¹ (prefiltering by the inverse noise model makes the OE criterion the BJ one with H fixed, Ljung
-sec. 14.4), whose steps after OE_GEODESIC_AFTER iterations get the geodesic acceleration (`geodesic_step`);
-then the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
+sec. 14.4); then the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
 w = A y − Σ B_i/F_i u_i, refined by LM as an ARMA model. Hand-written because SciPy has no PEM; the linear
 algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter.
 """
@@ -87,13 +86,6 @@ HIGH_ORDER_ARX = 30  # order of the ARX model behind the OE/BJ initialisation
 # off at a limit leaves the BJ fit in a valley it crawls along (shipped 20-min DPF trip: OE stopped at 100
 # iterations → BJ V = 565.6, not converged after 100; OE run to its minimum in 161 → BJ converged in 7 at 558.7).
 INIT_MAX_ITER = 500
-# The initialisation's OE fit takes plain LM steps for this many iterations, then geodesically accelerated ones
-# (`geodesic_step`) until it stops: most fits converge before; on the shipped 1.5 h trip, whose nf = 5 the data do
-# not support, plain steps crawl hundreds of iterations along a valley of near pole–zero cancellations (README,
-# "Where `identify` spends its time"). Accelerated fits can end with a root of F_i on the stability bound where
-# plain ones do not, and the BJ fit started there stays in a worse minimum: such a fit is done again with plain
-# steps.
-OE_GEODESIC_AFTER = 60
 
 
 def stabilize(p: np.ndarray, rho: float = RHO_MAX) -> np.ndarray:
@@ -234,35 +226,8 @@ STOP_REASONS = {
 }
 
 
-GEODESIC_H = 0.1  # finite-difference step along δ, as a fraction of δ (Transtrum & Sethna 2012: 0.1)
-GEODESIC_ALPHA = 0.75  # largest 2‖a‖/‖δ‖ (scaled) for which the acceleration a is trusted
-
-
-def geodesic_step(delta, Q, damped, scale, theta, eps, psi, s: Structure, u, y, starts, used) -> np.ndarray:
-    """δ + ½a, the LM step δ with the geodesic acceleration a (Transtrum & Sethna, arXiv:1201.5885), or δ when
-    the acceleration is not to be trusted.
-
-    The second directional derivative of ε along δ, by a finite difference with h = GEODESIC_H,
-
-        ε_δδ ≈ (2/h) ((ε(θ + hδ) − ε(θ))/h + Ψδ)          (ψ = −∂ε/∂θ, so ε(θ + hδ) ≈ ε − hΨδ)
-
-    gives a = S⁻¹ Q diag(1/damped) Qᵀ S⁻¹ Ψᵀ ε_δδ, the damped solve that made δ from Ψᵀε (damped = ℓ + μ ℓ_max,
-    S = scale): ε(θ + δ + ½a) ≈ ε − Ψδ − ½Ψa + ½ε_δδ is minimised to second order along the path, which
-    follows a curved valley of V where the straight δ runs out of it. Trusted only when ε(θ + hδ) is finite
-    and 2‖Sa‖ ≤ GEODESIC_ALPHA ‖Sδ‖."""
-    J = psi[used]
-    eps_h = prediction_errors(theta + GEODESIC_H * delta, s, u, y, starts=starts)[used]
-    if not np.all(np.isfinite(eps_h)):
-        return delta
-    eps_dd = (2.0 / GEODESIC_H) * ((eps_h - eps[used]) / GEODESIC_H + J @ delta)
-    a = Q @ ((Q.T @ ((J.T @ eps_dd) / scale)) / damped) / scale
-    if not np.all(np.isfinite(a)) or 2.0 * np.linalg.norm(scale * a) > GEODESIC_ALPHA * np.linalg.norm(scale * delta):
-        return delta
-    return delta + 0.5 * a
-
-
 def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int = 100, tol: float = 1e-7,
-                        ftol: float = 1e-3, geodesic_after: int | None = None) -> LMResult:
+                        ftol: float = 1e-3) -> LMResult:
     """Minimise V(θ) from θ (module docstring); starts: segment starts (filters restart there, the first n0
     samples of each are left out of V).
 
@@ -278,9 +243,6 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     ratio 1): a fall of 1e-3 of that per iteration is statistically nothing whatever N (a tolerance relative
     to V alone means 4.5× more in standard errors on 18,000 samples than on 4,000). Not converged after
     max_iter iterations.
-
-    geodesic_after: from that iteration on, each damped step δ gets the geodesic acceleration
-    (`geodesic_step`); None: plain steps throughout.
     """
     used = _used(y.size, starts, s.n_start)
     theta = _stable_theta(np.asarray(theta, float), s)
@@ -298,13 +260,8 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
             return LMResult(theta, V, it - 1, True, "stability_bound" if cut and not small_step else "flat_loss",
                             history, psi, eps)
         best, all_cut = (V, None, mu, False), True
-        accelerate = geodesic_after is not None and it > geodesic_after
         for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
-            damped = ell + trial * ell[-1]
-            delta = Q @ (g / damped) / scale
-            if accelerate:
-                delta = geodesic_step(delta, Q, damped, scale, theta, eps, psi, s, u, y, starts, used)
-            raw = theta + delta
+            raw = theta + Q @ (g / (ell + trial * ell[-1])) / scale
             cand = _stable_theta(raw, s)
             all_cut &= not np.array_equal(cand, raw)
             V_c = _loss(prediction_errors(cand, s, u, y, starts=starts), used)
@@ -390,13 +347,8 @@ def _input_model(u, y, s: Structure, *, starts=(0,), max_iter: int, tol: float):
     theta = np.concatenate([b[k:] for (b, _), k in zip(fits, s.nk)] + [f[1:] for _, f in fits])
     uf = _restarted(lambda p: lfilter(Ah, [1.0], p, axis=0), u, starts)
     yf = _restarted(lambda p: lfilter(Ah, [1.0], p), y, starts)
-    fit = levenberg_marquardt(theta, oe, uf, yf, starts=starts, max_iter=max_iter, tol=tol,
-                              geodesic_after=OE_GEODESIC_AFTER)
+    fit = levenberg_marquardt(theta, oe, uf, yf, starts=starts, max_iter=max_iter, tol=tol)
     g = from_theta(fit.theta, oe, 1.0)
-    if fit.iterations > OE_GEODESIC_AFTER and any(_on_bound(f) for f in g.F):
-        plain = levenberg_marquardt(theta, oe, uf, yf, starts=starts, max_iter=max_iter, tol=tol)
-        g = from_theta(plain.theta, oe, 1.0)
-        return g.A, g.B, g.F, fit.iterations + plain.iterations
     return g.A, g.B, g.F, fit.iterations
 
 
@@ -428,16 +380,11 @@ def initial_estimate(u, y, s: Structure, *, starts=(0,), max_iter: int = INIT_MA
     return InitialEstimate(theta, oe_iterations, arma_iterations)
 
 
-def _on_bound(p) -> bool:
-    """Whether the monic polynomial p has a root on the stability bound |z| = RHO_MAX."""
-    return p.size > 1 and np.abs(np.roots(p)).max() >= RHO_MAX * (1 - 1e-9)
-
-
 def at_stability_bound(model: PolyModel) -> list[str]:
     """Which of F_i, C, D have a root on the stability bound |z| = RHO_MAX (where `stabilize` clips them)."""
     polys = [(f"F{i + 1} ({name})", f) for i, (name, f) in enumerate(zip(model.input_names, model.F))]
     polys += [("C", model.C), ("D", model.D)]
-    return [label for label, p in polys if _on_bound(p)]
+    return [label for label, p in polys if p.size > 1 and np.abs(np.roots(p)).max() >= RHO_MAX * (1 - 1e-9)]
 
 
 def cancellations(model: PolyModel, tol: float = 0.01) -> list[str]:

@@ -8,8 +8,7 @@ import pytest
 from scipy.signal import lfilter
 
 from fuelid.ident.modelfile import PAPER_MODELS, load_paper_model
-from fuelid.ident.pem import (_scaled_normal_equations, at_stability_bound, geodesic_step, levenberg_marquardt,
-                              pem, prediction_errors, stabilize)
+from fuelid.ident.pem import at_stability_bound, pem, prediction_errors, stabilize
 from fuelid.ident.polymodel import PolyModel, Structure, simulate
 from fuelid.ident.validation import fit_percent
 from tests.ident.synthetic import minimal_truth, paper_data, true_model
@@ -45,30 +44,6 @@ def test_gradient_matches_finite_differences():
         d[k] = h
         fd = -(prediction_errors(th + d, s, u, y) - prediction_errors(th - d, s, u, y)) / (2 * h)
         np.testing.assert_allclose(psi[:, k], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
-
-
-def test_geodesic_acceleration_vanishes_where_the_errors_are_linear():
-    """ARX: ε is linear in θ, so its second derivative along the step, and the acceleration, are zero."""
-    m = PolyModel(A=[1, -0.8], B=[[0, 1.0, 0.5]], F=[[1]], C=[1], D=[1], Ts=1.0, nk=(1,))
-    u, y, _ = generate(m, 500, 0)
-    s, th, used = m.structure, m.theta + 0.1, slice(m.structure.n_start, None)
-    eps, psi = prediction_errors(th, s, u, y, jacobian=True)
-    scale, Q, ell, g = _scaled_normal_equations(psi, eps, used)
-    damped = ell + 1e-3 * ell[-1]
-    delta = Q @ (g / damped) / scale
-    step = geodesic_step(delta, Q, damped, scale, th, eps, psi, s, u, y, (0,), used)
-    np.testing.assert_allclose(step, delta, rtol=1e-6, atol=1e-9)
-
-
-def test_geodesic_steps_reach_the_plain_minimum():
-    """OE (ε nonlinear in F): accelerated steps from the first iteration find the minimum plain LM finds."""
-    m = PolyModel(A=[1], B=[[0.5, 0.3], [0, 0.2]], F=[[1, -0.9], [1, -1.2, 0.6]], C=[1], D=[1], Ts=1.0, nk=(0, 1))
-    u, y, _ = generate(m, 2000, 1)
-    start = m.theta * 0.8
-    plain = levenberg_marquardt(start, m.structure, u, y)
-    accelerated = levenberg_marquardt(start, m.structure, u, y, geodesic_after=0)
-    assert accelerated.converged and plain.converged
-    assert accelerated.V == pytest.approx(plain.V, rel=1e-6)
 
 
 @pytest.mark.parametrize("truth", [
