@@ -99,7 +99,7 @@ def test_console_finds_the_drifting_truck(console_server, tmp_path):
         page.click("#refit")
         # (a wait_for_function predicate would be eval'd, which the page's CSP rightly refuses)
         playwright.expect(page.locator("#job")).to_contain_text("done", timeout=20000)
-        assert versions.count() == 4
+        playwright.expect(versions).to_have_count(4, timeout=10000)  # the page reloads the history after the job
         page.screenshot(path=tmp_path / "truck.png", full_page=True)
         browser.close()
 
