@@ -36,7 +36,7 @@ import orjson
 from fuelid.dbc import FMS_DBC
 from fuelid.errors import FuelidError
 from fuelid.logger.frame_block import FrameBlock
-from fuelid.logger.j1939 import parse_id
+from fuelid.logger.j1939 import parse_id, parse_ids
 from fuelid.logger.json_rows import Field, records, text_matrix, texts_by_value
 
 INVALID_STATUSES = ("not_available", "error", "reserved", "missing")
@@ -253,8 +253,7 @@ class Decoder:
 
     def frame_by_frame(self, can_id: np.ndarray) -> np.ndarray:
         """Which of the 29-bit identifiers `can_id` `decode_block` leaves to `decode`: VI's (a VIN, not signals)."""
-        pgn = can_id >> 8 & 0x3FFFF
-        pgn = np.where((pgn >> 8 & 0xFF) < 240, pgn & 0x3FF00, pgn)
+        pgn, _, _ = parse_ids(can_id)
         return np.isin(pgn, [p for p, (name, _, _) in self._by_pgn.items() if name == VI_NAME])
 
     def decode_block(self, block: FrameBlock, t_texts: np.ndarray) -> list[DecodedRows]:

@@ -7,6 +7,8 @@ destination address and is not part of the PGN; when PF >= 240 (PDU2) the messag
 """
 from typing import NamedTuple
 
+import numpy as np
+
 GLOBAL_ADDRESS = 255
 """Destination address meaning "all nodes" (also the destination of every PDU2 message)."""
 
@@ -45,6 +47,13 @@ def parse_id(can_id: int) -> J1939Id:
     if (pgn >> 8) & 0xFF < 240:  # PDU1: PS is the destination address
         return J1939Id((can_id >> 26) & 7, pgn & 0x3FF00, can_id & 0xFF, pgn & 0xFF)
     return J1939Id((can_id >> 26) & 7, pgn, can_id & 0xFF, GLOBAL_ADDRESS)
+
+
+def parse_ids(can_id: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`parse_id` of many 29-bit identifiers at once: (PGN, source address, destination address) arrays."""
+    pgn = can_id >> 8 & 0x3FFFF
+    pdu1 = (pgn >> 8 & 0xFF) < 240  # PDU1: PS is the destination address
+    return np.where(pdu1, pgn & 0x3FF00, pgn), can_id & 0xFF, np.where(pdu1, pgn & 0xFF, GLOBAL_ADDRESS)
 
 
 def make_id(pgn: int, sa: int, da: int = GLOBAL_ADDRESS, priority: int = 6) -> int:

@@ -15,7 +15,7 @@ from fuelid.dbc import FMS_DBC
 from fuelid.logger.decode import Decoder, message_schema
 from fuelid.logger.flowmeter import FlowReading
 from fuelid.logger.frame_block import FrameBlock
-from fuelid.logger.j1939 import GLOBAL_ADDRESS
+from fuelid.logger.j1939 import parse_ids
 from fuelid.logger.json_rows import number_texts
 from fuelid.logger.mcap_log import FLOWMETER_SCHEMA, RAW_SCHEMA, McapLogWriter, raw_record, raw_records
 from fuelid.logger.tp import TransportReassembler
@@ -175,11 +175,7 @@ class Recorder(can.Listener):
         if columns is None:
             return lambda lo, hi: None
         frame = order // 2
-        can_id = block.can_id[frame]
-        pdu1 = (can_id >> 16 & 0xFF) < 240
-        pgn = np.where(pdu1, can_id >> 8 & 0x3FF00, can_id >> 8 & 0x3FFFF).tolist()
-        da = np.where(pdu1, can_id >> 8 & 0xFF, GLOBAL_ADDRESS).tolist()
-        sa = (can_id & 0xFF).tolist()
+        pgn, sa, da = (a.tolist() for a in parse_ids(block.can_id[frame]))
         payloads = [bytes(block.data[f, :n]) for f, n in zip(frame.tolist(), block.dlc[frame].tolist())]
         decoded = (topic > 0).tolist()
         t_ns = log_time.tolist()
