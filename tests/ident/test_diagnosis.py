@@ -5,6 +5,7 @@ import warnings
 
 import numpy as np
 import pytest
+from scipy.linalg import block_diag
 from scipy.signal import lfilter
 from scipy.stats import chi2, kstest
 
@@ -58,6 +59,35 @@ def test_level_test_whitens_coloured_noise_under_the_alternative():
     shifted = lfilter([1.0], [1.0, -0.98], np.random.default_rng(1).normal(size=n)) + 6.0 * step[:, 0]
     found, left = st.level_test(shifted - shifted.mean(), step - step.mean(), [n], Q)  # noise std 5
     assert found.p_value < 1e-6 and left < 0.9
+
+
+def test_nuisance_basis_keeps_each_segments_initial_states_on_its_own_rows():
+    """Segments' free-response columns are zero outside their segment: the basis projects out exactly what the
+    dense QR of [Z, blockdiag(IC_1 … IC_S)] does, stores N·(p_Z + p_s) numbers however many segments there are,
+    and block_cv on it equals block_cv on the dense basis."""
+    rng = np.random.default_rng(5)
+    lens = [300, 200, 250, 250]
+    ICs = [lfilter([1.0], [1.0, -0.95], np.eye(n, 2), axis=0) for n in lens]  # two free responses per segment
+    Z = rng.normal(size=(sum(lens), 3))
+    X = rng.normal(size=(sum(lens), 2))
+    basis = st.nuisance_basis(Z, ICs)
+    dense = np.linalg.qr(np.column_stack([Z, block_diag(*ICs)]))[0]
+    assert np.allclose(basis.project_out(X), X - dense @ (dense.T @ X))
+    assert basis.dense.shape == (sum(lens), 3) and [b.shape for b in basis.blocks] == [(n, 2) for n in lens]
+    r = Z @ [1.0, 0.5, -1.0] + rng.normal(size=sum(lens))
+    assert np.allclose(block_cv(r, basis, 60, buffer=20), block_cv(r, st.NuisanceBasis(dense), 60, buffer=20))
+    wider = basis.extended(X)
+    assert np.allclose(wider.project_out(X), 0.0, atol=1e-10) and wider.dense.shape[1] == 5
+
+
+def test_a_nuisance_column_already_in_the_span_adds_nothing():
+    """An offset next to the trips' levels (an exact dependence) adds no direction: a plain QR would add one made
+    of rounding errors, and project it out of everything."""
+    levels = np.zeros((400, 2))
+    levels[:250, 0], levels[250:, 1] = 1.0, 1.0
+    basis = st.nuisance_basis(np.column_stack([levels, np.ones(400)]))
+    assert basis.dense.shape[1] == 2
+    assert basis.extended(levels @ [2.0, -1.0]) is basis
 
 
 def test_block_cv_is_exact_leave_one_block_out_least_squares():

@@ -21,12 +21,12 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import block_diag
 from scipy.signal import lfilter
 
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.run import Run
-from fuelid.ident.diagnosis.statistics import ScoreTest, free_responses, nuisance_basis, one_blas_thread, score_test
+from fuelid.ident.diagnosis.statistics import (NuisanceBasis, ScoreTest, free_responses, nuisance_basis, one_blas_thread,
+                                               score_test)
 from fuelid.ident.diagnosis.verification import (BLOCK_S, BUFFER_S, block_cv, held_out, held_out_scores,
                                                  without_with)
 from fuelid.ident.fueldelay import DELAY_REFERENCE, shift_signal, sweep_fuel_shift
@@ -43,7 +43,7 @@ class Reference:
 
     model: PolyModel
     r: np.ndarray
-    Q: np.ndarray
+    Q: NuisanceBasis
     ysim: np.ndarray
 
 
@@ -66,9 +66,9 @@ def reference_fit(ds, run: Run, delay_s: float = 0.0, init: PolyModel | None = N
         ICs.append(free_responses(m.F, len(ys))[run.warm:])
         rs.append(r[run.warm:])
     with one_blas_thread():
-        Q = nuisance_basis(np.column_stack([np.vstack(Zs), block_diag(*ICs)]))
+        Q = nuisance_basis(np.vstack(Zs), ICs)
     r = np.concatenate(rs)
-    return Reference(m, r - Q @ (Q.T @ r), Q, ysim)
+    return Reference(m, Q.project_out(r), Q, ysim)
 
 
 def shift_test(ds, run: Run, ref: Reference) -> tuple[ScoreTest, float, np.ndarray]:
@@ -78,7 +78,7 @@ def shift_test(ds, run: Run, ref: Reference) -> tuple[ScoreTest, float, np.ndarr
     x = np.concatenate([fx.rate(ref.ysim[g], ds.t[g])[run.warm:] for g in run.segs])[:, None]
     with one_blas_thread():
         test = score_test(ref.r, x, ref.Q)
-    xt = x[:, 0] - ref.Q @ (ref.Q.T @ x[:, 0])
+    xt = ref.Q.project_out(x[:, 0])
     left = np.linalg.norm(ref.r - xt * test.coef[0]) / max(np.linalg.norm(ref.r), 1e-300)
     return test, float(left), x
 
@@ -106,7 +106,7 @@ def verify_shift(ref: Reference, model: PolyModel, ds, run: Run, before: dict) -
     dy = (y - run.y)[run.index]
     ends = np.cumsum(run.lens)
     dw = np.concatenate([lfilter(model.A, [1.0], dy[a:b]) for a, b in zip(ends - run.lens, ends)])  # w has A y
-    shifted = dataclasses.replace(run, r=run.r + dw - run.QG @ (run.QG.T @ dw), y=y)
+    shifted = dataclasses.replace(run, r=run.r + run.QG.project_out(dw), y=y)
     after = held_out_scores(held_out(model, shifted, np.zeros((run.r.size, 0))), ds)
     return {**without_with(before, after), "direction": int(np.sign(tau)),
             "reference": {"structure": str(DELAY_REFERENCE), "delay_s": tau, "rmse_without": without,

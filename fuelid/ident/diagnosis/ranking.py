@@ -54,7 +54,7 @@ from fuelid.ident.diagnosis.entries import ENTRIES
 from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid, explain
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
-from fuelid.ident.diagnosis.statistics import holm, level_test, nuisance_basis, one_blas_thread
+from fuelid.ident.diagnosis.statistics import holm, level_test, one_blas_thread
 from fuelid.ident.diagnosis.verification import held_out, held_out_scores
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.modelrun import ModelRun, run_model
@@ -223,8 +223,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     while pool:
         X_A = np.column_stack([_columns(a) for a in accepted])
         with one_blas_thread():
-            QG = nuisance_basis(np.column_stack([run.QG, X_A]))
-            resid = run.r - QG @ (QG.T @ run.r)
+            QG = run.QG.extended(X_A)
+            resid = QG.project_out(run.r)
             tests = [level_test(resid, c.w, run.lens, QG) for c in pool]
         adj, rejected = holm([t.p_value for t, _ in tests], alpha)
         given = [a.effect for a in accepted]

@@ -6,10 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import block_diag
 from scipy.signal import lfilter
 
-from fuelid.ident.diagnosis.statistics import free_responses, nuisance_basis, one_blas_thread
+from fuelid.ident.diagnosis.statistics import NuisanceBasis, free_responses, nuisance_basis, one_blas_thread
 from fuelid.ident.modelrun import ModelRun
 from fuelid.ident.pem import prediction_errors
 from fuelid.ident.polymodel import Structure
@@ -21,8 +20,8 @@ class Run:
     (shifted) fuel, ysim its simulation on the tested segments (NaN elsewhere); segs those segments; after each
     one's first `warm` (= n_start) samples, stacked: e the prediction errors and Q a basis of their nuisance
     columns (test 1), r the errors w = A ỹ − Σ B_i/F_i ũ_i before the noise filter (the simulation errors when
-    A = 1) with the basis QG of their nuisance columns projected out (test 2), and QG_blocks the part of QG the
-    held-out refit re-fits per block (QG without the initial states, which are fitted on all the data). u and eps
+    A = 1) with the basis QG of their nuisance columns projected out (test 2); QG.dense is the part of QG the
+    held-out refit re-fits per block (without the initial states, QG.blocks, fitted on all the data). u and eps
     (the prediction errors on every segment, as ident.validation reads them for its whiteness verdict, so the
     diagnosis and the compare table never disagree on it) are the ModelRun's."""
 
@@ -32,10 +31,9 @@ class Run:
     segs: list
     warm: int
     e: np.ndarray
-    Q: np.ndarray
+    Q: NuisanceBasis
     r: np.ndarray
-    QG: np.ndarray
-    QG_blocks: np.ndarray
+    QG: NuisanceBasis
 
     @property
     def u(self) -> np.ndarray:
@@ -82,11 +80,7 @@ def run_gradients(mrun: ModelRun) -> Run:
         es.append(e[warm:])
         ws.append(w[warm:])
     with one_blas_thread():
-        Q = nuisance_basis(np.column_stack([np.vstack(Zs), block_diag(*ICs)]))
-        QI = nuisance_basis(block_diag(*ICGs))
-        ZG = np.vstack(ZGs)
-        QGp = nuisance_basis(ZG - QI @ (QI.T @ ZG))
-    QG = np.column_stack([QI, QGp])
-    w = np.concatenate(ws)
-    return Run(mrun, y, mrun.on_tested(mrun.ysim), list(mrun.tested), warm, np.concatenate(es), Q,
-               w - QG @ (QG.T @ w), QG, QGp)
+        Q = nuisance_basis(np.vstack(Zs), ICs)
+        QG = nuisance_basis(np.vstack(ZGs), ICGs)
+        r = QG.project_out(np.concatenate(ws))
+    return Run(mrun, y, mrun.on_tested(mrun.ysim), list(mrun.tested), warm, np.concatenate(es), Q, r, QG)

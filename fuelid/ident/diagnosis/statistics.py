@@ -59,6 +59,7 @@ try:  # BLAS threads only cost time on N × k problems this narrow (as in ident.
 except ImportError:  # pragma: no cover - threadpoolctl missing: run with the BLAS defaults
     ThreadpoolController = None
 
+RANK_TOL = 1e-10  # a nuisance column independent of the others by less than this share of its norm adds nothing
 AR_ORDER = 100  # samples of the AR whitener of the simulation-error test (30 s at 0.3 s)
 
 
@@ -83,20 +84,82 @@ def newey_west(g: np.ndarray, lags: int) -> np.ndarray:
     return omega
 
 
-def nuisance_basis(Z: np.ndarray) -> np.ndarray:
-    """An orthonormal basis Q (N × p) of the nuisance columns Z, so that M_Z x = x − Q Qᵀ x."""
-    return qr(Z, mode="economic", check_finite=False)[0]
+@dataclass(frozen=True)
+class NuisanceBasis:
+    """An orthonormal basis Q = [Q_1 … Q_S, Q_d] (N × p) of nuisance columns, so that M_Z x = x − Q Qᵀ x.
+
+    Q_s spans columns that are zero outside segment s (its initial state's free responses, `free_responses`):
+    Q is block-diagonal there, and each block is kept on its own rows (n_s × p_s, the segments' rows in order,
+    covering all N). Q_d (N × p_d) spans the columns that run through every segment, made orthogonal to the
+    blocks. Stored densely, Q would take N·(p_d + S·p_s) numbers, and a truck's week is a few hundred
+    segments: quadratic in the data; stored this way it takes N·(p_d + p_s)."""
+
+    dense: np.ndarray
+    blocks: tuple[np.ndarray, ...] = ()
+
+    @property
+    def bounds(self) -> list[tuple[int, int]]:
+        """Rows (start, stop) of each block."""
+        ends = np.cumsum([b.shape[0] for b in self.blocks], dtype=int)
+        return [(int(e - b.shape[0]), int(e)) for e, b in zip(ends, self.blocks)]
+
+    def project_out(self, X: np.ndarray) -> np.ndarray:
+        """M_Z X = X − Q Qᵀ X (X: N or N × k; Q_d is orthogonal to every block, so the parts subtract)."""
+        X = np.asarray(X, float)
+        out = X - self.dense @ (self.dense.T @ X)
+        for (a, b), Qs in zip(self.bounds, self.blocks):
+            out[a:b] -= Qs @ (Qs.T @ X[a:b])
+        return out
+
+    def rows(self, lo: int, hi: int) -> np.ndarray:
+        """Rows lo … hi − 1 of Q, without the columns of the blocks that are zero there."""
+        parts = [self.dense[lo:hi]]
+        for (a, b), Qs in zip(self.bounds, self.blocks):
+            if a < hi and b > lo:
+                part = np.zeros((hi - lo, Qs.shape[1]))
+                part[max(a, lo) - lo:min(b, hi) - lo] = Qs[max(a, lo) - a:min(b, hi) - a]
+                parts.append(part)
+        return np.column_stack(parts)
+
+    def extended(self, X: np.ndarray, rank_tol: float = RANK_TOL) -> NuisanceBasis:
+        """The basis of these nuisance columns and the columns of X (N × k). A column whose part outside the span
+        so far is below rank_tol of its norm adds nothing (an exact dependence: an offset that the trips' levels
+        already hold): a plain QR would add a direction made of rounding errors instead."""
+        X = np.asarray(X, float).reshape(self.dense.shape[0], -1)
+        added = _orthonormal_columns(self.project_out(X), np.linalg.norm(X, axis=0), rank_tol)
+        return NuisanceBasis(np.column_stack([self.dense, added]), self.blocks) if added.shape[1] else self
+
+
+def _orthonormal_columns(X: np.ndarray, norms: np.ndarray, rank_tol: float) -> np.ndarray:
+    """An orthonormal basis of the columns of X (N × k) whose independent part is at least rank_tol of norms (each
+    column's own size): QR with column pivoting, cut where |R_jj| falls below it."""
+    if not X.shape[1]:
+        return X
+    scaled = X / np.where(norms > 0, norms, 1.0)
+    Q, R, _ = qr(scaled, mode="economic", pivoting=True, check_finite=False)
+    return Q[:, np.abs(np.diag(R)) > rank_tol]
+
+
+def nuisance_basis(Z: np.ndarray, segment_columns=()) -> NuisanceBasis:
+    """The orthonormal basis of the nuisance columns Z (N × p, through every segment) and of segment_columns:
+    per segment, in order, the columns (n_s × p_s) that are zero outside it, Σ n_s = N (none: Z alone)."""
+    Z = np.asarray(Z, float)
+    blocks = tuple(_orthonormal_columns(C, np.linalg.norm(C, axis=0), RANK_TOL)
+                   for C in (np.asarray(C, float) for C in segment_columns))
+    if blocks and sum(b.shape[0] for b in blocks) != Z.shape[0]:
+        raise ValueError("the segments' columns must cover the rows of Z")
+    return NuisanceBasis(np.zeros((Z.shape[0], 0)), blocks).extended(Z)
 
 
 def score_test(eps, X, Q=None, hac_lags: int | None = None, rank_tol: float = 1e-4) -> ScoreTest:
     """Score (LM) test that ε (N) does not depend on the columns of X (N × k) beyond the nuisance columns with
-    orthonormal basis Q (N × p, `nuisance_basis`; None: only a mean): LM = sᵀ Ω̂⁻¹ s ~ χ²(k_eff), module
+    basis Q (`nuisance_basis`; None: only a mean): LM = sᵀ Ω̂⁻¹ s ~ χ²(k_eff), module
     docstring. Columns of X whose part orthogonal to Q has less than rank_tol of their norm are not testable
     (k_eff counts the rest); k_eff = 0 gives LM = 0, p = 1."""
     eps = np.asarray(eps, float)
     X = np.asarray(X, float).reshape(eps.size, -1)
-    if Q is not None and Q.size:
-        Xt, et = X - Q @ (Q.T @ X), eps - Q @ (Q.T @ eps)
+    if Q is not None:
+        Xt, et = Q.project_out(X), Q.project_out(eps)
     else:
         Xt, et = X - X.mean(axis=0), eps - eps.mean()
     coef = np.linalg.lstsq(Xt, et, rcond=None)[0] if Xt.size else np.zeros(0)
@@ -127,7 +190,7 @@ def ar_whitener(v: np.ndarray, order: int) -> np.ndarray:
     return np.r_[1.0, -solve_toeplitz(acov[:order], acov[1:order + 1], check_finite=False)]
 
 
-def level_test(r: np.ndarray, X: np.ndarray, lens, QG: np.ndarray, order: int = AR_ORDER,
+def level_test(r: np.ndarray, X: np.ndarray, lens, QG: NuisanceBasis, order: int = AR_ORDER,
                rank_tol: float = 1e-4) -> tuple[ScoreTest, float]:
     """The simulation-error test (module docstring, 2): r (N) the simulation errors with the basis QG of the
     simulation gradient already projected out, X (N × k) the candidate's columns, lens the lengths of the
@@ -138,7 +201,7 @@ def level_test(r: np.ndarray, X: np.ndarray, lens, QG: np.ndarray, order: int = 
     (the whitened noise under the alternative): a level shift whitens to a spike, and the score form's robust
     variance, built from errors that still contain the effect, would let that one sample cancel its own
     evidence."""
-    Xt = X - QG @ (QG.T @ X)
+    Xt = QG.project_out(X)
     beta = np.linalg.lstsq(Xt, r, rcond=None)[0]
     v = r - Xt @ beta
     a = ar_whitener(v, order)

@@ -59,7 +59,7 @@ from scipy.linalg import lstsq, svd
 from scipy.signal import lfilter
 
 from fuelid.ident.diagnosis.run import Run
-from fuelid.ident.diagnosis.statistics import nuisance_basis, one_blas_thread
+from fuelid.ident.diagnosis.statistics import NuisanceBasis, one_blas_thread
 from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import cycle_fuel_error, error_table
 
@@ -71,19 +71,19 @@ BUFFER_S = 15.0  # [s] also left out of the fit on either side of the scored blo
 #   about twice the slowest time constant of the simulated noise H (≈ 9 s), past which the errors decorrelate
 
 
-def block_cv(r: np.ndarray, Q: np.ndarray, block: int, buffer: int = 0) -> np.ndarray:
-    """Leave-one-block-out errors of the least-squares fit of r (N) on the orthonormal columns Q (N × p): for
+def block_cv(r: np.ndarray, Q: NuisanceBasis, block: int, buffer: int = 0) -> np.ndarray:
+    """Leave-one-block-out errors of the least-squares fit of r (N) on the orthonormal columns of Q: for
     each block b of `block` consecutive samples, r − Q δ_(−S) on b, δ_(−S) fitted without S = b and `buffer`
     samples either side (h-block cross-validation, Burman, Chow & Nolan 1994: the errors are correlated over
     seconds, and neighbours left in the fit would carry b's own noise into its prediction). Exact, without
     refitting (module docstring, 4): e_(S) = e_S + Q_S (I − Q_Sᵀ Q_S)⁺ Q_Sᵀ e_S, e = r − Q Qᵀ r."""
-    e = r - Q @ (Q.T @ r)
+    e = Q.project_out(r)
     out = e.copy()
-    eye = np.eye(Q.shape[1])
     block = max(block, 1)
     for a in range(0, r.size, block):
         lo, hi = max(a - buffer, 0), min(a + block + buffer, r.size)
-        Qs, es = Q[lo:hi], e[lo:hi]
+        Qs, es = Q.rows(lo, hi), e[lo:hi]
+        eye = np.eye(Qs.shape[1])
         left_out = es + Qs @ lstsq(eye - Qs.T @ Qs, Qs.T @ es, cond=1e-10, check_finite=False)[0]
         out[a:a + block] = left_out[a - lo:a - lo + block]
     return out
@@ -96,9 +96,9 @@ def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S
     it is scored against) and beta (X's coefficients fitted on all the data, for the size of the effect)."""
     block = round(block_s / model.Ts)
     with one_blas_thread():
-        Xt = X - run.QG @ (run.QG.T @ X)
+        Xt = run.QG.project_out(X)
         U, sig, _ = svd(Xt / np.maximum(np.linalg.norm(X, axis=0), 1e-300), full_matrices=False, check_finite=False)
-        Q = np.column_stack([run.QG_blocks, U[:, sig > 1e-4]])  # the same rank rule as the tests
+        Q = NuisanceBasis(np.column_stack([run.QG.dense, U[:, sig > 1e-4]]))  # the same rank rule as the tests
         err = block_cv(run.r, Q, block, round(buffer_s / model.Ts))
         beta = lstsq(Xt, run.r, cond=1e-10, check_finite=False)[0] if X.shape[1] else np.zeros(0)
     err = _through_1_over_A(model, run, err)  # the step is linear in w = A·(simulation error)
@@ -139,7 +139,7 @@ def leave_one_trip_out(model: PolyModel, run: Run, X: np.ndarray, groups) -> lis
     """RMS simulation error [output unit] on each trip of `groups` (trip_groups) of the linearised refit with the
     extra columns X (w domain, stacked like run.r), fitted on the other trips."""
     with one_blas_thread():
-        err = trip_cv(run.r, np.column_stack([run.QG_blocks, X]), groups)
+        err = trip_cv(run.r, np.column_stack([run.QG.dense, X]), groups)
     err = _through_1_over_A(model, run, err)
     return [float(np.sqrt(np.mean(err[g] ** 2))) for g in groups]
 
@@ -151,10 +151,10 @@ def identifiability(run: Run, varying: np.ndarray, column: np.ndarray,
     responses) and the confounders given (columns stacked like run.r: `slow_drifts`), `varying` the column made of
     the signal's deviation from its mean (module docstring, 4; with A = 1, as in a Box-Jenkins model, the same in
     the w domain)."""
-    n_initial = run.QG.shape[1] - run.QG_blocks.shape[1]
     extra = np.zeros((varying.size, 0)) if confounders is None else confounders
-    Z = nuisance_basis(np.column_stack([np.ones(varying.size), run.QG[:, :n_initial], extra]))
-    left = varying - Z @ (Z.T @ varying)
+    initial_states = NuisanceBasis(np.zeros((varying.size, 0)), run.QG.blocks)
+    Z = initial_states.extended(np.column_stack([np.ones(varying.size), extra]))
+    left = Z.project_out(varying)
     return float(np.linalg.norm(left) / max(np.linalg.norm(column - column.mean()), 1e-300))
 
 
