@@ -174,16 +174,14 @@ class Recorder(can.Listener):
         columns = self.writer.columns
         if columns is None:
             return lambda lo, hi: None
-        frame = order // 2
-        pgn, sa, da = (a.tolist() for a in parse_ids(block.can_id[frame]))
-        payloads = [bytes(block.data[f, :n]) for f, n in zip(frame.tolist(), block.dlc[frame].tolist())]
-        decoded = (topic > 0).tolist()
-        t_ns = log_time.tolist()
+        decoded = np.flatnonzero(topic > 0)
+        frame = order[decoded] // 2
+        pgn, sa, da = parse_ids(block.can_id[frame])
+        t_ns, length, payload = log_time[decoded], block.dlc[frame], block.data[frame]
 
         def add(lo: int, hi: int) -> None:
-            for i in range(lo, hi):
-                if decoded[i]:
-                    columns.add_message(t_ns[i], pgn[i], sa[i], da[i], None, payloads[i])
+            part = slice(*np.searchsorted(decoded, [lo, hi]).tolist())
+            columns.add_messages(t_ns[part], pgn[part], sa[part], da[part], length[part], payload[part])
         return add
 
     def _record(self, decoded, payload: bytes) -> None:
