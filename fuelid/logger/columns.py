@@ -1,7 +1,7 @@
-"""J1939 message columns: what a converted file's decoded channels hold, in a form that reads without JSON.
+"""J1939 message columns: what a file's decoded channels hold, in a form that reads without JSON.
 
-`fuelid convert` writes, beside the `/j1939/<MESSAGE>` and `/flowmeter` JSON channels, MCAP attachments named
-`fuelid.columns` (media type `application/x.fuelid.columns+npz+zstd`, docs/formats.md): each a zstd-compressed
+`fuelid convert` and the logger daemon write, beside the `/j1939/<MESSAGE>` and `/flowmeter` JSON channels,
+MCAP attachments named `fuelid.columns` (media type `application/x.fuelid.columns+npz+zstd`, docs/formats.md): each a zstd-compressed
 `.npz` of one block of up to `BLOCK_ROWS` rows, every row one message written to those channels, numbered in
 write order (`seq`):
 
@@ -14,7 +14,7 @@ write order (`seq`):
 Rows are grouped by (pgn, sa) inside a block (write order kept within a group), which compresses the
 payload bytes ~2× better. Attachments sit outside the chunks, so a reader of the columns decompresses
 ~1 MB per 1.5 h of driving instead of every chunk. They are an addition: every reader of the JSON channels
-is unaffected, and files without them (older files, the daemon's) read through the JSON channels.
+is unaffected, and files without them (older files, cut files, recovered ones) read through the JSON channels.
 """
 from __future__ import annotations
 

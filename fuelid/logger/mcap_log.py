@@ -167,8 +167,9 @@ class McapLogWriter:
     Built on the Foxglove SDK's MCAP writer (Rust) rather than the pure-Python `mcap` Writer, which
     caps at ~120,000 messages/s on one core, too slow for the logger's decode + write budget.
     `metadata` is the `fuelid` metadata record (truck, dbc_sha256, source, ...; logger_version is added).
-    `columns`: also write the messages as `logger.columns` attachments (`self.columns` collects them; a
-    conversion's choice: a block is written only when full or at `close()`).
+    `columns`: also write the messages as `logger.columns` attachments (`self.columns` collects them; a block
+    is written when full, at most `columns.BLOCK_ROWS` rows held in memory, and the rest at `close()`). Only a
+    closed file's summary lists them, so a file cut before `close()` reads through its JSON channels.
     """
 
     def __init__(

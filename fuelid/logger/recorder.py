@@ -34,11 +34,12 @@ def open_writer(path, *, truck: str = "unknown", source: str = "", live: bool = 
 
     live (the daemon, which a power cut may stop): one-second chunks with message indexes, synced to disk
     every second of wall time. Otherwise (a conversion, which can be run again): big chunks, no message
-    indexes, no sync, and the decoded messages also as column attachments (logger.columns) that the dataset
-    reads without JSON; less than half the bytes (README, Logging and converting)."""
+    indexes, no sync; less than half the bytes (README, Logging and converting). Both write the decoded
+    messages also as column attachments (logger.columns) that the dataset reads without JSON: a block when
+    full and the rest at close, so a file cut before its close (no summary) reads through its JSON."""
     metadata = {"truck": truck, "logger_version": __version__, "dbc_sha256": dbc_sha256(), "source": source}
     if live:
-        return McapLogWriter(path, metadata=metadata)
+        return McapLogWriter(path, metadata=metadata, columns=True)
     return McapLogWriter(path, metadata=metadata, chunk_flush_s=None, chunk_size=CONVERT_CHUNK_BYTES,
                          message_indexes=False, fsync=False, columns=True)
 
