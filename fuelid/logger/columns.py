@@ -118,7 +118,7 @@ class ColumnWriter:
         payload[row, np.arange(len(row)) - (np.cumsum(length) - length)[row]] = np.frombuffer(b"".join(cols[6]), np.uint8)
         if self._many:
             many = list(zip(*self._many))
-            seq, t, pgn, sa, da, length = (np.concatenate([a, *(b.astype(a.dtype) for b in m)])
+            seq, t, pgn, sa, da, length = (np.concatenate([a, *m]).astype(a.dtype, copy=False)
                                            for a, m in zip((seq, t, pgn, sa, da, length), many))
             tp = np.concatenate([tp, np.zeros(len(seq) - len(tp), np.uint8)])
             wide = np.full((len(seq) - len(payload), width), 0xFF, np.uint8)
