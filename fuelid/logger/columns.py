@@ -68,11 +68,6 @@ class ColumnWriter:
         self._readings: list[tuple] = []  # (seq, t_ns, flow_kg_h, volts)
         self._many: list[tuple] = []  # (seq, t_ns, pgn, sa, da, length, payload matrix) arrays of add_messages
 
-    @property
-    def rows(self) -> int:
-        """Rows collected and not yet written."""
-        return self._rows
-
     def add_message(self, t_ns: int, pgn: int, sa: int, da: int, tp: str | None, payload: bytes) -> None:
         """One decoded J1939 message: its log time [ns], identifier fields and the payload it decoded from."""
         self._messages.append((self._rows, t_ns, pgn, sa, da, TP_KINDS[tp], payload))
