@@ -12,7 +12,9 @@ in the VM (tests/logger/vcan.py) the CPU is emulated, so CPU figures there say n
 Why not `udp_multicast` across processes: it needs msgpack and multicast routing, and would mostly measure
 its own UDP and msgpack decoding. In one process each side's CPU is read per thread from
 /proc/self/task/<tid>/stat: the receiver's notifier thread plus, for fuelid, the daemon's main loop
-(flushes, rotation checks, status file); the sender thread's CPU is excluded.
+(flushes, rotation checks, status file); the sender thread's CPU is excluded. The daemon rotates its file
+every third of a run, so closing files (summary, message-column attachments) is counted; it runs again
+without message columns (what it wrote before them), for their cost.
 """
 import argparse
 import json
@@ -28,6 +30,7 @@ import can
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from fuelid.commands.log import estimator  # noqa: E402
 from fuelid.logger.config import LoggerConfig  # noqa: E402
+from fuelid.logger import daemon as daemon_module  # noqa: E402
 from fuelid.logger.daemon import Daemon  # noqa: E402
 from tests.logger import traffic  # noqa: E402
 
@@ -63,10 +66,22 @@ def native_ids(*threads) -> list[int]:
     return [t.native_id for t in threads if t is not None]
 
 
-def run_fuelid(rate: float, seconds: float, out: Path, model: Path | None = None) -> dict:
-    """The daemon on the virtual bus; with `model`, online identification from it (--identify --model)."""
+def without_columns(open_writer):
+    """`open_writer` whose writers write no message columns (the daemon before them)."""
+    def opened(*args, **kwargs):
+        writer = open_writer(*args, **kwargs)
+        writer.columns = None
+        return writer
+    return opened
+
+
+def run_fuelid(rate: float, seconds: float, out: Path, model: Path | None = None, columns: bool = True) -> dict:
+    """The daemon on the virtual bus, a new file every third of the run; with `model`, online identification
+    from it (--identify --model); `columns` False: without message columns."""
     config = LoggerConfig(interface="virtual", channel="bench-fuelid", output_dir=out, identify=model is not None,
-                          identify_model=model)
+                          identify_model=model, rotate_s=seconds / 3)
+    if not columns:
+        daemon_module.open_writer, opener = without_columns(daemon_module.open_writer), daemon_module.open_writer
     daemon = Daemon(config, estimator(config))  # as `fuelid log` wires it
     main = threading.Thread(target=daemon.run)
     main.start()
@@ -81,6 +96,8 @@ def run_fuelid(rate: float, seconds: float, out: Path, model: Path | None = None
     received = daemon.sink.recorder.stats.frames
     daemon.stop()
     main.join()
+    if not columns:
+        daemon_module.open_writer = opener
     result = {"sent": sent, "logged": received, "lost": sent - received, "cpu_s": cpu,
               "cpu_pct_of_core": 100 * cpu / seconds}
     if model is not None:
@@ -159,6 +176,8 @@ def main() -> int:
             model = paper_model(Path(d) / "prior.json")
             results[load] = {"frames_per_s": rate,
                              "fuelid_log": run_fuelid(rate, args.seconds, Path(d) / "fuelid"),
+                             "fuelid_log_without_columns": run_fuelid(rate, args.seconds, Path(d) / "nocolumns",
+                                                                      columns=False),
                              "fuelid_log_identify": run_fuelid(rate, args.seconds, Path(d) / "identify", model),
                              "can_logger": run_can_logger(rate, args.seconds, Path(d))}
         r = results[load]
@@ -166,13 +185,14 @@ def main() -> int:
     if args.json:
         print(json.dumps(results, indent=2))
         return 0
-    print(f"{'load':<16}{'frames/s':>9}  {'fuelid log: CPU % core, lost':<30}{'--identify: CPU %, lost, bins':<36}"
-          f"{'can.logger: CPU % core, lost':<30}{'ratio':>6}")
+    print(f"{'load':<16}{'frames/s':>9}  {'fuelid log: CPU % core, lost':<30}{'no columns: CPU %, lost':<26}"
+          f"{'--identify: CPU %, lost, bins':<36}{'can.logger: CPU % core, lost':<30}{'ratio':>6}")
     for load, r in results.items():
         if load == "estimator_alone":
             continue
-        f, i, c = r["fuelid_log"], r["fuelid_log_identify"], r["can_logger"]
+        f, n, i, c = r["fuelid_log"], r["fuelid_log_without_columns"], r["fuelid_log_identify"], r["can_logger"]
         print(f"{load:<16}{r['frames_per_s']:>9}  {f['cpu_pct_of_core']:>6.1f} %, {f['lost']:>3} of {f['sent']:<13}"
+              f"{n['cpu_pct_of_core']:>6.1f} %, {n['lost']:>3} lost{'':<11}"
               f"{i['cpu_pct_of_core']:>6.1f} %, {i['lost']:>3} lost, {i['identify_samples']:>5} bins{'':<6}"
               f"{c['cpu_pct_of_core']:>6.1f} %, {c['lost']:>3} of {c['sent']:<13}{r['cpu_ratio_fuelid_over_can_logger']:>6.2f}")
     e = results["estimator_alone"]

@@ -7,7 +7,8 @@ Data: the shipped 1.5 h trip (replay_logs/diesel_ident_90min.log.gz) converted b
 channel, /can/raw included, and the message columns), and a long recording: that trip's decoded messages
 (/j1939 JSON channels and their message columns, no /can/raw) repeated with shifted log times into 1.5 h files
 until --hours, built in one call as one truck's files; both made once into benchmarks/.cache/dataset/
-(git-ignored; delete it after changing the file format).
+(git-ignored; delete it after changing the file format). Also the trip as the logger daemon writes it (frame by
+frame, one-second chunks with message indexes, its message columns), read through its columns and its JSON.
 
 Each build runs in a fresh process (imports excluded from the time), which reports its CPU time, wall time
 and peak RSS (getrusage ru_maxrss, imports included: about 100 MB). The peer is the record-by-record build
@@ -39,6 +40,24 @@ def converted_trip() -> Path:
         tmp = out.with_suffix(".part.mcap")
         subprocess.run([sys.executable, "-m", "fuelid.cli", "convert", str(TRIP), "-o", str(tmp), "--json"],
                        check=True, stdout=subprocess.DEVNULL, cwd=REPO)
+        tmp.rename(out)
+    return out
+
+
+def daemon_trip() -> Path:
+    """The trip as the logger daemon writes it (frame by frame, one-second chunks, message columns), one file."""
+    out = CACHE / "diesel_ident_90min.daemon.mcap"
+    if not out.exists():
+        from fuelid.logger.readers import read_frames
+        from fuelid.logger.recorder import Recorder, open_writer
+
+        CACHE.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_suffix(".part")
+        writer = open_writer(tmp, source="benchmark")
+        recorder = Recorder(writer)
+        for msg in read_frames(TRIP):
+            recorder.on_message_received(msg)
+        writer.close()
         tmp.rename(out)
     return out
 
@@ -151,13 +170,16 @@ def main():
             r = run(mode, [trip])
             if mode not in best or r["cpu_s"] < best[mode]["cpu_s"]:
                 best[mode] = r
+    daemon = daemon_trip()
+    from_daemon = {mode: run(mode, [daemon]) for mode in ("columns", "json")}
     old, new = best["records"], best["columns"]
-    if len({(r["digest"], r["samples"]) for r in best.values()}) != 1:
+    if len({(r["digest"], r["samples"]) for r in [*best.values(), *from_daemon.values()]}) != 1:
         raise SystemExit("bench_dataset: the builds differ")
     summary = {"trip_mcap_mb": trip.stat().st_size / 1e6, **best,
                "cpu_speedup": old["cpu_s"] / new["cpu_s"], "wall_speedup": old["wall_s"] / new["wall_s"],
                "json_cpu_speedup": best["json"]["cpu_s"] / new["cpu_s"],
-               "rss_ratio": old["peak_rss_mb"] / new["peak_rss_mb"], "load_average_before": load_before}
+               "rss_ratio": old["peak_rss_mb"] / new["peak_rss_mb"], "load_average_before": load_before,
+               "daemon_file": {"mcap_mb": daemon.stat().st_size / 1e6, **from_daemon}}
     if args.hours:
         files = long_recording(trip, args.hours)
         long = run("columns", files)
@@ -177,6 +199,10 @@ def main():
           f"(vs column-wise JSON {summary['json_cpu_speedup']:.1f}× CPU); peak RSS {summary['rss_ratio']:.2f}× "
           f"smaller (imports ≈ {new['rss_after_imports_mb']:.0f} MB); the same Dataset (SHA-256 of its arrays); "
           f"cached {old['cpu_s'] / best['cache']['cpu_s']:.0f}× record by record")
+    d = summary["daemon_file"]
+    print(f"the daemon's file of the trip ({d['mcap_mb']:.1f} MB): message columns {d['columns']['cpu_s']:.2f} CPU s, "
+          f"{d['columns']['peak_rss_mb']:.0f} MB; column-wise JSON {d['json']['cpu_s']:.2f} s, "
+          f"{d['json']['peak_rss_mb']:.0f} MB ({d['json']['cpu_s'] / d['columns']['cpu_s']:.1f}×); the same Dataset")
     if args.hours:
         lg = summary["long"]
         print(f"long: {lg['files']} files, {lg['hours']:.1f} h ({lg['mcap_mb']:.0f} MB, /j1939 + columns), "

@@ -1,7 +1,7 @@
-"""J1939 message columns: what a converted file's decoded channels hold, in a form that reads without JSON.
+"""J1939 message columns: what a file's decoded channels hold, in a form that reads without JSON.
 
-`fuelid convert` writes, beside the `/j1939/<MESSAGE>` and `/flowmeter` JSON channels, MCAP attachments named
-`fuelid.columns` (media type `application/x.fuelid.columns+npz+zstd`, docs/formats.md): each a zstd-compressed
+`fuelid convert` and the logger daemon write, beside the `/j1939/<MESSAGE>` and `/flowmeter` JSON channels,
+MCAP attachments named `fuelid.columns` (media type `application/x.fuelid.columns+npz+zstd`, docs/formats.md): each a zstd-compressed
 `.npz` of one block of up to `BLOCK_ROWS` rows, every row one message written to those channels, numbered in
 write order (`seq`):
 
@@ -14,7 +14,7 @@ write order (`seq`):
 Rows are grouped by (pgn, sa) inside a block (write order kept within a group), which compresses the
 payload bytes ~2× better. Attachments sit outside the chunks, so a reader of the columns decompresses
 ~1 MB per 1.5 h of driving instead of every chunk. They are an addition: every reader of the JSON channels
-is unaffected, and files without them (older files, the daemon's) read through the JSON channels.
+is unaffected, and files without them (older files, cut files, recovered ones) read through the JSON channels.
 """
 from __future__ import annotations
 
@@ -55,7 +55,8 @@ class ColumnBlock:
 
 class ColumnWriter:
     """Collects the rows of the column attachments and hands each full block to `attach(data, log_time_ns)`.
-    A row is one tuple appended to a list (a conversion writes one per message); columns are made per block."""
+    Rows come one at a time (a tuple appended to a list: the frame-by-frame path) or many at once as arrays
+    (`add_messages`: a block of candump frames); the columns are made per block."""
 
     def __init__(self, attach: Callable[[bytes, int], None]):
         self._attach = attach  # (block data, log time [ns] of its earliest row)
@@ -65,6 +66,7 @@ class ColumnWriter:
         self._rows = 0
         self._messages: list[tuple] = []  # (seq, t_ns, pgn, sa, da, tp kind, payload)
         self._readings: list[tuple] = []  # (seq, t_ns, flow_kg_h, volts)
+        self._many: list[tuple] = []  # (seq, t_ns, pgn, sa, da, length, payload matrix) arrays of add_messages
 
     def add_message(self, t_ns: int, pgn: int, sa: int, da: int, tp: str | None, payload: bytes) -> None:
         """One decoded J1939 message: its log time [ns], identifier fields and the payload it decoded from."""
@@ -72,6 +74,22 @@ class ColumnWriter:
         self._rows += 1
         if self._rows == BLOCK_ROWS:
             self.flush()
+
+    def add_messages(self, t_ns: np.ndarray, pgn: np.ndarray, sa: np.ndarray, da: np.ndarray, length: np.ndarray,
+                     payload: np.ndarray) -> None:
+        """`add_message` of many single-frame messages in write order: arrays of their log times [ns],
+        identifier fields, payload lengths [bytes] and an (n, width) matrix of the payloads (bytes after each
+        length ignored)."""
+        done = 0
+        while done < len(t_ns):
+            take = min(len(t_ns) - done, BLOCK_ROWS - self._rows)
+            part = slice(done, done + take)
+            self._many.append((self._rows + np.arange(take), t_ns[part], pgn[part], sa[part], da[part],
+                               length[part], payload[part]))
+            self._rows += take
+            done += take
+            if self._rows == BLOCK_ROWS:
+                self.flush()
 
     def add_flow(self, t_ns: int, flow_kg_h: float | None, volts: float | None) -> None:
         """One flow-meter reading: log time [ns], flow [kg/h] and voltage [V] (None = null)."""
@@ -89,11 +107,23 @@ class ColumnWriter:
         seq, t, pgn, sa, da, tp = (np.array(c, dtype) for c, dtype in
                                    zip(cols, (np.int64, np.int64, np.uint32, np.uint8, np.uint8, np.uint8)))
         length = np.array([len(p) for p in cols[6]], np.int64)
-        width = int(length.max()) if len(length) else 0
+        width = max([int(length.max()) if len(length) else 0] + [p[6].shape[1] for p in self._many])
         payload = np.full((len(length), width), 0xFF, np.uint8)
         row = np.repeat(np.arange(len(length)), length)
         payload[row, np.arange(len(row)) - (np.cumsum(length) - length)[row]] = np.frombuffer(b"".join(cols[6]), np.uint8)
-        order = np.lexsort((sa, pgn))  # stable: write order within each (pgn, sa) group
+        if self._many:
+            many = list(zip(*self._many))
+            seq, t, pgn, sa, da, length = (np.concatenate([a, *m]).astype(a.dtype, copy=False)
+                                           for a, m in zip((seq, t, pgn, sa, da, length), many))
+            tp = np.concatenate([tp, np.zeros(len(seq) - len(tp), np.uint8)])
+            wide = np.full((len(seq) - len(payload), width), 0xFF, np.uint8)
+            at = 0
+            for p in many[6]:
+                wide[at : at + len(p), : p.shape[1]] = p
+                at += len(p)
+            payload = np.concatenate([payload, wide])
+            payload[np.arange(width) >= length[:, None]] = 0xFF
+        order = np.lexsort((seq, sa, pgn))  # write order within each (pgn, sa) group
         t, seq = t[order], seq[order]
         arrays = dict(zip(_J1939, (np.diff(seq, prepend=0).astype(np.int32), np.diff(t, prepend=0), pgn[order],
                                    sa[order], da[order], tp[order], length[order].astype(np.uint16),

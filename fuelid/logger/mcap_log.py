@@ -29,7 +29,8 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Attachment, Channel, Chunk, Footer, McapRecord, Message, Metadata, Schema, Statistics
+from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, McapRecord,
+                          Message, MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
 from mcap.writer import CompressionType, Writer
 
 from fuelid import __version__
@@ -167,8 +168,9 @@ class McapLogWriter:
     Built on the Foxglove SDK's MCAP writer (Rust) rather than the pure-Python `mcap` Writer, which
     caps at ~120,000 messages/s on one core, too slow for the logger's decode + write budget.
     `metadata` is the `fuelid` metadata record (truck, dbc_sha256, source, ...; logger_version is added).
-    `columns`: also write the messages as `logger.columns` attachments (`self.columns` collects them; a
-    conversion's choice: a block is written only when full or at `close()`).
+    `columns`: also write the messages as `logger.columns` attachments (`self.columns` collects them; a block
+    is written when full, at most `columns.BLOCK_ROWS` rows held in memory, and the rest at `close()`). Only a
+    closed file's summary lists them, so a file cut before `close()` reads through its JSON channels.
     """
 
     def __init__(
@@ -391,13 +393,23 @@ class _Scan:
     summary's Statistics record when the summary CRC vouches for it.
     """
 
+    # every record is parsed, so one whose bytes are not what its opcode says is damage, not skipped unread
     _PARSERS = {
+        Opcode.HEADER: Header.read,
         Opcode.SCHEMA: Schema.read,
         Opcode.CHANNEL: Channel.read,
         Opcode.METADATA: Metadata.read,
         Opcode.STATISTICS: Statistics.read,
         Opcode.FOOTER: Footer.read,
+        Opcode.MESSAGE_INDEX: MessageIndex.read,
+        Opcode.CHUNK_INDEX: ChunkIndex.read,
+        Opcode.ATTACHMENT: Attachment.read,
+        Opcode.ATTACHMENT_INDEX: AttachmentIndex.read,
+        Opcode.METADATA_INDEX: MetadataIndex.read,
+        Opcode.SUMMARY_OFFSET: SummaryOffset.read,
+        Opcode.DATA_END: DataEnd.read,
     }
+    _KEPT = {Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA, Opcode.STATISTICS, Opcode.FOOTER}
 
     def __init__(self, f: IO[bytes], path: Path, on_damage: Callable[[DamagedChunk], None]):
         f.seek(0, io.SEEK_END)
@@ -450,10 +462,11 @@ class _Scan:
         stream = ReadDataStream(io.BytesIO(body))
         if opcode == Opcode.MESSAGE:
             return [Message.read(stream, len(body))]
-        parser = self._PARSERS.get(opcode)
-        if parser is None:  # indexes, attachments: nothing to recover from them
+        record = self._PARSERS[opcode](stream)
+        if stream.count != len(body):  # e.g. a chunk whose opcode byte turned into a message index's
+            raise ValueError(f"a {Opcode(opcode).name} record that does not fill its length")
+        if opcode not in self._KEPT:  # indexes, attachments: nothing to recover from them
             return []
-        record = parser(stream)
         if isinstance(record, Statistics):
             self.statistics = record if _summary_intact(buf, self.size) else None
             return []

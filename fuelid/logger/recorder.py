@@ -34,11 +34,12 @@ def open_writer(path, *, truck: str = "unknown", source: str = "", live: bool = 
 
     live (the daemon, which a power cut may stop): one-second chunks with message indexes, synced to disk
     every second of wall time. Otherwise (a conversion, which can be run again): big chunks, no message
-    indexes, no sync, and the decoded messages also as column attachments (logger.columns) that the dataset
-    reads without JSON; less than half the bytes (README, Logging and converting)."""
+    indexes, no sync; less than half the bytes (README, Logging and converting). Both write the decoded
+    messages also as column attachments (logger.columns) that the dataset reads without JSON: a block when
+    full and the rest at close, so a file cut before its close (no summary) reads through its JSON."""
     metadata = {"truck": truck, "logger_version": __version__, "dbc_sha256": dbc_sha256(), "source": source}
     if live:
-        return McapLogWriter(path, metadata=metadata)
+        return McapLogWriter(path, metadata=metadata, columns=True)
     return McapLogWriter(path, metadata=metadata, chunk_flush_s=None, chunk_size=CONVERT_CHUNK_BYTES,
                          message_indexes=False, fsync=False, columns=True)
 
@@ -174,16 +175,14 @@ class Recorder(can.Listener):
         columns = self.writer.columns
         if columns is None:
             return lambda lo, hi: None
-        frame = order // 2
-        pgn, sa, da = (a.tolist() for a in parse_ids(block.can_id[frame]))
-        payloads = [bytes(block.data[f, :n]) for f, n in zip(frame.tolist(), block.dlc[frame].tolist())]
-        decoded = (topic > 0).tolist()
-        t_ns = log_time.tolist()
+        decoded = np.flatnonzero(topic > 0)
+        frame = order[decoded] // 2
+        pgn, sa, da = parse_ids(block.can_id[frame])
+        t_ns, length, payload = log_time[decoded], block.dlc[frame], block.data[frame]
 
         def add(lo: int, hi: int) -> None:
-            for i in range(lo, hi):
-                if decoded[i]:
-                    columns.add_message(t_ns[i], pgn[i], sa[i], da[i], None, payloads[i])
+            part = slice(*np.searchsorted(decoded, [lo, hi]).tolist())
+            columns.add_messages(t_ns[part], pgn[part], sa[part], da[part], length[part], payload[part])
         return add
 
     def _record(self, decoded, payload: bytes) -> None:

@@ -17,8 +17,8 @@ from fuelid.logger.mcap_log import METADATA_NAME
 def relabel(path: str | Path, metadata: dict[str, str]) -> None:
     """Rewrite the complete MCAP file `path` with `metadata` merged into its `fuelid` record, in place and
     atomically (a power cut leaves the old file or the new one). Schemas, channels, messages (their bytes,
-    times and sequence numbers) and the other metadata records are copied; chunk CRCs are checked on the
-    way, so a damaged file raises (mcap's error) and stays as it was."""
+    times and sequence numbers), attachments and the other metadata records are copied; chunk CRCs are checked
+    on the way, so a damaged file raises (mcap's error) and stays as it was."""
     path = Path(path)
     tmp = path.with_name(path.name + ".relabel")
     try:
@@ -33,6 +33,8 @@ def relabel(path: str | Path, metadata: dict[str, str]) -> None:
             for _, channel, message in reader.iter_messages(log_time_order=False):
                 writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,
                                    message.sequence)
+            for a in reader.iter_attachments():  # the message columns: they hold the messages just copied
+                writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
             fuelid: dict[str, str] = {}
             for record in reader.iter_metadata():
                 writer.add_metadata(record.name, record.metadata)

@@ -61,3 +61,33 @@ def test_decoded_columns_equal_the_decoder_frame_by_frame():
             for k, v in got.items():
                 assert v is None or float(want[k]).hex() == float(v).hex()  # bit for bit
     assert decoder.decode_columns(12345, np.zeros((1, 8), np.uint8), np.array([8])) is None
+
+
+def test_many_messages_at_once_make_the_blocks_one_at_a_time_makes():
+    """Across a block boundary, among single messages and readings; payload bytes past a length do not count."""
+    rng = np.random.default_rng(3)
+    n = BLOCK_ROWS + 500
+    t = np.arange(n) * 1000
+    pgn, sa = rng.choice([61444, 65265, 61443], n), rng.choice([0, 0x31], n)
+    length = rng.integers(0, 9, n)
+    payload = rng.integers(0, 256, (n, 8)).astype(np.uint8)
+    one, many = [], []
+    a, b = ColumnWriter(lambda data, t0: one.append(data)), ColumnWriter(lambda data, t0: many.append(data))
+    for w in (a, b):
+        w.add_message(5, 65251, 0, 255, "bam", bytes(39))
+        w.add_flow(6, 2.5, 1.0)
+    for i in range(n):
+        if i == 100:
+            a.add_flow(100_500, None, 3.0)
+        a.add_message(int(t[i]), int(pgn[i]), int(sa[i]), 255, None, bytes(payload[i, : length[i]]))
+    payload[np.arange(8) >= length[:, None]] = 0  # as a FrameBlock holds them
+    b.add_messages(t[:100], pgn[:100], sa[:100], np.full(100, 255), length[:100], payload[:100])
+    b.add_flow(100_500, None, 3.0)
+    b.add_messages(t[100:], pgn[100:], sa[100:], np.full(n - 100, 255), length[100:], payload[100:])
+    for w in (a, b):
+        w.flush()
+    assert len(one) == len(many) == 2
+    for x, y in zip(one, many):
+        x, y = read_block(x), read_block(y)
+        for k in vars(x):
+            np.testing.assert_array_equal(getattr(x, k), getattr(y, k), err_msg=k)

@@ -19,9 +19,12 @@ from fuelid.commands.log import estimator
 from fuelid.logger import daemon as daemon_mod
 from fuelid.logger.config import LoggerConfig
 from fuelid.logger.daemon import Daemon
-from fuelid.logger.mcap_log import RAW_SCHEMA, McapLogWriter, raw_record, read_messages, read_metadata
+from fuelid.ident.dataset import build_dataset
+from fuelid.logger import columns
+from fuelid.logger.mcap_log import RAW_SCHEMA, McapLogWriter, raw_record, read_attachments, read_messages, read_metadata
 from fuelid.logger.recorder import open_writer
 from fuelid.logger.replay import replay
+from tests.ident.test_dataset_columns import SAMPLE, assert_same, without_columns
 from tests.logger import traffic
 
 
@@ -85,6 +88,26 @@ def test_rotation_by_size(tmp_path, drive):
     run.stop()
     assert len(list(run.config.output_dir.glob("*.mcap"))) >= 2
     assert len(run.raw()) == len(msgs)
+
+
+def test_closed_files_carry_message_columns_that_give_the_dataset_of_their_json(tmp_path, monkeypatch):
+    """A replayed minute of driving (its timestamps kept) in rotated files, column blocks written mid-file too
+    (small blocks): every closed file reads through its columns, giving the Dataset its JSON channels give; a
+    file cut before its close has none (no summary lists them) and reads through its JSON."""
+    monkeypatch.setattr(columns, "BLOCK_ROWS", 500)
+    run = Running(tmp_path, "columns", preserve_timestamps=True, rotate_s=4.0)
+    sent = replay([SAMPLE], run.tx, speed=10).frames
+    _wait(lambda: run.daemon.sink.recorder.stats.frames == sent, timeout=60)
+    run.stop()
+    files = sorted(run.config.output_dir.glob("*.mcap"))
+    found = [read_attachments(f, columns.NAME) for f in files]
+    assert len(files) >= 2 and all(found) and max(len(blocks) for _, blocks in found) >= 2
+    assert_same(build_dataset(files), build_dataset([without_columns(f) for f in files]))
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(files[0].read_bytes()[: files[0].stat().st_size * 3 // 4])
+    assert read_attachments(cut, columns.NAME) is None
+    whole, part = list(read_messages(files[0])), list(read_messages(cut))  # read past the column blocks in it
+    assert 0 < len(part) < len(whole) and part == whole[: len(part)]
 
 
 def test_status_file(tmp_path, drive):

@@ -10,7 +10,9 @@ from hypothesis import given, settings, strategies as st
 from mcap.reader import make_reader
 
 from fuelid.dbc import FMS_DBC
+from fuelid.logger.columns import NAME, read_block
 from fuelid.logger.frame_block import FrameBlock
+from fuelid.logger.mcap_log import read_attachments
 from fuelid.logger.readers import one_timeline, open_frames
 from fuelid.logger.recorder import Recorder, open_writer
 from fuelid.logger.tp import bam_frames, rts_cts_frames
@@ -62,6 +64,12 @@ def messages(path):
         return [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages(log_time_order=False)]
 
 
+def columns(path):
+    """The message columns of `path`, every array of every block as a list."""
+    found = read_attachments(path, NAME)
+    return [] if found is None else [{k: v.tolist() for k, v in vars(read_block(data)).items()} for data in found[1]]
+
+
 def record(path, items, tmp_path, name):
     out = tmp_path / name
     writer = open_writer(out, live=False)
@@ -81,7 +89,7 @@ def both_ways(path, tmp_path):
         out, recorder = record(path, one_timeline([source], [], blocks=blocks), tmp_path, f"{blocks}.mcap")
         counts = (source.frames, source.skipped, source.status, source.position, source.error,
                   recorder.stats, recorder.decoder.counters(), recorder.reassembler.counters(), recorder.vin)
-        results.append((messages(out), counts))
+        results.append((messages(out), columns(out), counts))
     return results
 
 
@@ -91,9 +99,10 @@ def test_blocks_write_the_bytes_frame_by_frame_writes(tmp_path):
     log.write_text(candump_l(frames(20_000)))
     by_frame, by_block = both_ways(log, tmp_path)
     assert by_block == by_frame
-    counts = by_frame[1][6]
+    assert sum(len(b["seq"]) for b in by_frame[1]) > 10_000  # the message columns too
+    counts = by_frame[2][6]
     assert all(counts[s] > 100 for s in ("not_available", "error", "reserved", "missing"))
-    assert by_frame[1][7]["completed"] > 100 and by_frame[1][8] == "YS2R4X20005399401"
+    assert by_frame[2][7]["completed"] > 100 and by_frame[2][8] == "YS2R4X20005399401"
 
 
 def test_odd_lines_among_ordinary_ones_read_and_record_as_line_by_line(tmp_path):
@@ -105,7 +114,7 @@ def test_odd_lines_among_ordinary_ones_read_and_record_as_line_by_line(tmp_path)
     with gzip.open(log, "wb") as f:
         f.write("".join(lines).encode("latin-1"))
     by_frame, by_block = both_ways(log, tmp_path)
-    assert by_block == by_frame and by_frame[1][1] > 10
+    assert by_block == by_frame and by_frame[2][1] > 10
 
 
 @pytest.mark.parametrize("cut", [0, 1, 9, 1000, 5000])

@@ -437,6 +437,21 @@ def test_a_garbled_record_length_does_not_swallow_what_follows(log, tmp_path, of
     assert list(read_messages(fixed)) == written
 
 
+@pytest.mark.parametrize("which", [0, -2])
+def test_a_chunk_whose_opcode_became_another_records_is_damage_not_skipped(log, tmp_path, which):
+    """A chunk's opcode byte with one bit flipped (CHUNK 0x06 → MESSAGE_INDEX 0x07) in a cut file, which is read by
+    the scan: the record does not parse as a message index, so its messages are reported lost, never skipped."""
+    path, written = log
+    data = path.read_bytes()
+    end, lost, start = _chunk_ends(data)[which]
+    blob = bytearray(data[:-50])
+    blob[start] ^= 0x01
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(blob))
+    with pytest.raises(FuelidError, match=f"damaged chunk at bytes {start}-"):
+        list(read_messages(bad))
+
+
 def test_a_damaged_last_chunk_of_a_cut_file_is_damage_not_the_cut(log, tmp_path):
     path, written = log
     data = path.read_bytes()

@@ -3,6 +3,9 @@ waits for the network with backoff, and deletes a local file only after the serv
 import json
 import time
 
+from fuelid.ident.dataset import build_dataset
+from fuelid.logger.columns import NAME
+from fuelid.logger.mcap_log import read_attachments, read_messages
 from fuelid.logger.upload import UploadQueue
 from tests.fleet.conftest import Server, make_mcap
 
@@ -216,6 +219,10 @@ def test_files_closed_before_the_vin_are_relabelled_and_uploaded(tmp_path):
             trucks = [t for (t,) in conn.exec_driver_sql("SELECT truck FROM files").all()]
         assert len(trucks) == uploaded >= 3 and set(trucks) == {traffic.VIN}
         assert len(run.raw()) == len(msgs)  # relabelling kept every frame
+        decoded = [f for f in sorted(run.config.output_dir.glob("*.mcap"))
+                   if any(topic != "/can/raw" for topic, _, _ in read_messages(f))]
+        assert decoded and all(read_attachments(f, NAME) for f in decoded)  # and the message columns
+        build_dataset(decoded, fuel="lfe1")  # (they hold as many messages as the channels, or it raises)
     finally:
         server.stop()
 
