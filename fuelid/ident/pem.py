@@ -12,7 +12,7 @@ Gradient by filtering (no finite differences). With x_i = B_i/F_i ũ_i and w = A
     ∂ε/∂c_k     = −D/C² w(t−k) = −ε(t−k)/C     ψ_c,k   =  1/C ε(t−k)
     ∂ε/∂d_k     =  1/C w(t−k)                  ψ_d,k   = −1/C w(t−k)
 
-Each family is one filtered signal, shifted: for m inputs 2m + 3 lfilter calls give the whole N × d Jacobian
+Each family is one filtered signal, shifted: for m inputs at most 2m + 3 lfilter calls give the whole N × d Jacobian
 Ψ = [ψ(n0) … ψ(N−1)]ᵀ.
 
 Levenberg–Marquardt step: with S = diag of the column norms of Ψ and the eigendecomposition
