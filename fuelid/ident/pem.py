@@ -12,7 +12,7 @@ Gradient by filtering (no finite differences). With x_i = B_i/F_i ũ_i and w = A
     ∂ε/∂c_k     = −D/C² w(t−k) = −ε(t−k)/C     ψ_c,k   =  1/C ε(t−k)
     ∂ε/∂d_k     =  1/C w(t−k)                  ψ_d,k   = −1/C w(t−k)
 
-Each family is one filtered signal, shifted: for m inputs 2m + 3 lfilter calls give the whole N × d Jacobian
+Each family is one filtered signal, shifted: for m inputs at most 2m + 3 lfilter calls give the whole N × d Jacobian
 Ψ = [ψ(n0) … ψ(N−1)]ᵀ.
 
 Levenberg–Marquardt step: with S = diag of the column norms of Ψ and the eigendecomposition
@@ -64,6 +64,8 @@ algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter.
 from __future__ import annotations
 
 import contextlib
+import functools
+import operator
 import time
 import warnings
 from typing import NamedTuple
@@ -73,7 +75,8 @@ from scipy.linalg import eigh, lstsq
 from scipy.signal import lfilter
 
 from fuelid.errors import InputError
-from fuelid.ident.polymodel import PolyModel, Structure, as_inputs, from_theta, input_responses, parameter_names
+from fuelid.ident.polymodel import (PolyModel, Structure, as_inputs, from_theta, input_responses, parameter_names,
+                                    polynomials)
 
 try:  # BLAS threads only cost time on N × d problems this narrow (8× slower on 2 cores, measured)
     from threadpoolctl import threadpool_limits
@@ -150,34 +153,49 @@ def _least_squares(rows: np.ndarray, target: np.ndarray, used) -> np.ndarray:
 
 def _stable_theta(theta: np.ndarray, s: Structure) -> np.ndarray:
     """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter)."""
-    m = from_theta(theta, s, 1.0)
-    m.F = [stabilize(f) for f in m.F]
-    m.C, m.D = stabilize(m.C), stabilize(m.D)
-    return m.theta
+    p = polynomials(theta, s)
+    return np.concatenate([p.A[1:]] + [b[k:] for b, k in zip(p.B, s.nk)] + [stabilize(f)[1:] for f in p.F]
+                          + [stabilize(p.C)[1:], stabilize(p.D)[1:]])
+
+
+def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:
+    """Σ_i x_i of n samples each, bit for bit numpy's sum over the rows of the n × m array [x_1 … x_m]: up to 7
+    columns that sum adds them one after the other (measured), which is 20× faster done column by column."""
+    if not x:
+        return np.zeros(n)
+    if len(x) >= 8:
+        return np.column_stack(x).sum(axis=1)
+    return functools.reduce(operator.add, x)
 
 
 def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobian: bool = False, starts=(0,)):
     """ε(t, θ) for deviation data (u: N × m, y: N); with jacobian=True also Ψ (N × d), ψ = −∂ε/∂θ (module doc).
 
-    starts: the indices where segments begin (the first 0); every filter restarts from zero state there."""
-    m = from_theta(theta, s, 1.0)
+    starts: the indices where segments begin (the first 0); every filter restarts from zero state there.
+    Filters by 1/1 (A, C, D of an OE model) are skipped, and so are the signals of empty regressor blocks:
+    lfilter([1], [1], x) is x exactly, so ε and Ψ are the same to the bit."""
+    m = polynomials(theta, s)
 
     def filt(b, a, x, axis=-1):
+        if len(b) == len(a) == 1 and b[0] == a[0] == 1.0:
+            return x
         return _restarted(lambda p: lfilter(b, a, p, axis=axis), x, starts, axis)
 
-    x = _restarted(lambda p: input_responses(m, p), u, starts)
-    w = filt(m.A, [1.0], y) - x.sum(axis=1)
+    x = [filt(b, f, u[:, i]) for i, (b, f) in enumerate(zip(m.B, m.F))]
+    w = filt(m.A, [1.0], y) - _sum_of_columns(x, y.size)
     eps = filt(m.D, m.C, w)
     if not jacobian:
         return eps
-    blocks = [(-filt(m.D, m.C, y), range(1, s.na + 1))]
+    blocks = [(-filt(m.D, m.C, y), range(1, s.na + 1))] if s.na else []
     fx = []
     for i in range(s.n_inputs):
-        fi = filt(m.D, np.convolve(m.C, m.F[i]), np.vstack([u[:, i], x[:, i]]))
+        fi = filt(m.D, np.convolve(m.C, m.F[i]), np.vstack([u[:, i], x[i]]))
         blocks.append((fi[0], range(s.nk[i], s.nk[i] + s.nb[i])))
         fx.append((-fi[1], range(1, s.nf[i] + 1)))
-    ew = filt([1.0], m.C, np.vstack([eps, w]))
-    blocks += fx + [(ew[0], range(1, s.nc + 1)), (-ew[1], range(1, s.nd + 1))]
+    blocks += fx
+    if s.nc or s.nd:
+        ew = filt([1.0], m.C, np.vstack([eps, w]))
+        blocks += [(ew[0], range(1, s.nc + 1)), (-ew[1], range(1, s.nd + 1))]
     return eps, _regressors(blocks, y.size, starts).T
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -213,23 +214,41 @@ class PolyModel:
         return None if self.covariance is None else np.sqrt(np.diag(self.covariance))
 
 
-def from_theta(theta: np.ndarray, s: Structure, Ts: float, **meta) -> PolyModel:
-    """The PolyModel of structure s with parameter vector θ (order of `parameter_names`)."""
+class Polynomials(NamedTuple):
+    """The polynomials of a parameter vector θ: A, B_i (with their nk_i leading zeros), F_i, C, D."""
+
+    A: np.ndarray
+    B: list[np.ndarray]
+    F: list[np.ndarray]
+    C: np.ndarray
+    D: np.ndarray
+
+
+def polynomials(theta: np.ndarray, s: Structure) -> Polynomials:
+    """The polynomials of structure s with parameter vector θ (order of `parameter_names`), without the checks
+    and metadata of a PolyModel (the PEM evaluates them for every trial step)."""
     theta = np.asarray(theta, float)
     if theta.size != s.n_params:
         raise ValueError(f"θ has {theta.size} entries, structure {s} needs {s.n_params}")
-    pieces = np.split(theta, np.cumsum([s.na, *s.nb, *s.nf, s.nc]))
-    a, bs, fs, c, d = pieces[0], pieces[1 : 1 + s.n_inputs], pieces[1 + s.n_inputs : 1 + 2 * s.n_inputs], pieces[-2], pieces[-1]
-    return PolyModel(
-        A=np.r_[1.0, a],
-        B=[np.r_[np.zeros(k), b] for b, k in zip(bs, s.nk)],
-        F=[np.r_[1.0, f] for f in fs],
-        C=np.r_[1.0, c],
-        D=np.r_[1.0, d],
-        Ts=Ts,
-        nk=s.nk,
-        **meta,
-    )
+    ends = np.cumsum([s.na, *s.nb, *s.nf, s.nc, s.nd]).tolist()
+    pieces = [theta[a:b] for a, b in zip([0, *ends[:-1]], ends)]
+    m = s.n_inputs
+    return Polynomials(A=_padded(1.0, pieces[0]), B=[_padded(0.0, b, k) for b, k in zip(pieces[1 : 1 + m], s.nk)],
+                       F=[_padded(1.0, f) for f in pieces[1 + m : 1 + 2 * m]], C=_padded(1.0, pieces[-2]),
+                       D=_padded(1.0, pieces[-1]))
+
+
+def _padded(lead: float, x: np.ndarray, n: int = 1) -> np.ndarray:
+    """x after n copies of lead (np.r_ without its parsing: polynomials runs in the PEM's inner loop)."""
+    out = np.empty(n + x.size)
+    out[:n] = lead
+    out[n:] = x
+    return out
+
+
+def from_theta(theta: np.ndarray, s: Structure, Ts: float, **meta) -> PolyModel:
+    """The PolyModel of structure s with parameter vector θ (order of `parameter_names`)."""
+    return PolyModel(**polynomials(theta, s)._asdict(), Ts=Ts, nk=s.nk, **meta)
 
 
 def as_inputs(u, m: int | None = None) -> np.ndarray:

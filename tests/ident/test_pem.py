@@ -8,8 +8,9 @@ import pytest
 from scipy.signal import lfilter
 
 from fuelid.ident.modelfile import PAPER_MODELS, load_paper_model
-from fuelid.ident.pem import at_stability_bound, pem, prediction_errors, stabilize
-from fuelid.ident.polymodel import PolyModel, Structure, simulate
+from fuelid.ident import pem as pem_module
+from fuelid.ident.pem import _sum_of_columns, at_stability_bound, pem, prediction_errors, stabilize
+from fuelid.ident.polymodel import PolyModel, Structure, from_theta, residuals, simulate
 from fuelid.ident.validation import fit_percent
 from tests.ident.synthetic import minimal_truth, paper_data, true_model
 
@@ -44,6 +45,40 @@ def test_gradient_matches_finite_differences():
         d[k] = h
         fd = -(prediction_errors(th + d, s, u, y) - prediction_errors(th - d, s, u, y)) / (2 * h)
         np.testing.assert_allclose(psi[:, k], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+
+
+@pytest.mark.parametrize("structure", [Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0)),  # the initialisation's OE fit
+                                       Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11),  # paper's BJ
+                                       Structure(nb=(2, 1), nf=(0, 0), nk=(1, 0), na=2)])  # ARX
+def test_prediction_errors_are_the_model_filters_to_the_bit(structure):
+    """ε is what polymodel.residuals computes with every filter of the model (A, B_i/F_i, D/C; the 1/1 ones that
+    prediction_errors skips included), bit for bit, in each of several segments."""
+    rng = np.random.default_rng(3)
+    u, y = rng.normal(size=(900, 2)), rng.normal(size=900)
+    theta = 0.05 * rng.normal(size=structure.n_params)
+    model = from_theta(theta, structure, 1.0)
+    starts = (0, 300, 650)
+    eps = prediction_errors(theta, structure, u, y, jacobian=True, starts=starts)[0]
+    for a, b in zip(starts, [*starts[1:], 900]):
+        np.testing.assert_array_equal(eps[a:b], residuals(model, u[a:b], y[a:b]))
+
+
+def test_an_output_error_model_filters_only_through_b_and_f(monkeypatch):
+    """ε and Ψ of an OE model cost one filter B_i/F_i per input and one 1/F_i (of two signals) per input: A = C =
+    D = 1 filter nothing (they run in every LM iteration of the initialisation's OE fit, hundreds on a real trip)."""
+    calls = []
+    monkeypatch.setattr(pem_module, "lfilter", lambda b, a, x, axis=-1: calls.append(1) or lfilter(b, a, x, axis=axis))
+    s = Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0))
+    rng = np.random.default_rng(0)
+    prediction_errors(0.05 * rng.normal(size=s.n_params), s, rng.normal(size=(500, 2)), rng.normal(size=500),
+                      jacobian=True)
+    assert len(calls) == 2 * s.n_inputs
+
+
+@pytest.mark.parametrize("m", range(11))
+def test_sum_of_the_inputs_responses_is_numpys_to_the_bit(m):
+    x = np.random.default_rng(m).normal(size=(1000, m))
+    np.testing.assert_array_equal(_sum_of_columns(list(x.T), 1000), x.sum(axis=1))
 
 
 @pytest.mark.parametrize("truth", [

@@ -1,0 +1,137 @@
+"""The PEM on every shipped trip and on the diagnosis tests' simulated cases: loss V, iterations and CPU time of
+two versions of fuelid side by side in one run (e.g. main's checkout against this one).
+
+    .venv/bin/python benchmarks/bench_pem_trips.py --before /work/main/.venv/bin/python [--only SUBSTRING]
+        [--repeat N] [--json]
+
+Problems (cached in benchmarks/.cache/pem/trips/, built with this checkout's dataset code): every
+replay_logs/{diesel,map,effect,map_effect}_*.log.gz converted and built into the dataset `fuelid identify` fits
+(its segments, operating point; the paper's orders), and the simulated cases of tests/ident/test_hidden_effects.py
+whose start is hard for the OE initialisation: the ambient effect's two trips identified together (seeds 2004 and
+3004) and one trip with nothing hidden (seed 11), identified as tests.ident.hidden.identify does. Each version
+fits every problem in its own subprocess on CPU 0 (one BLAS thread); CPU seconds of `pem` are reported
+(time.process_time, the least of --repeat fits), and V after / V before − 1, the goal being ≤ 0.1 % on every problem.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+CACHE = HERE / ".cache" / "pem" / "trips"
+FAMILIES = ("diesel_", "map_", "effect_", "map_effect_")
+SIMULATED = (("ambient", 2004), ("ambient", 3004), (None, 11))
+ONE_CORE_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+PAPER = {"nb": (4, 5), "nf": (5, 5), "nk": (3, 0), "nc": 11, "nd": 11}
+
+
+def save(name, u, y, segments, u0, y0):
+    import numpy as np
+
+    np.savez(CACHE / f"{name}.npz", u=u, y=y, u0=u0, y0=y0, segments=[(s.start, s.stop) for s in segments])
+
+
+def problems(only: str) -> list[Path]:
+    """The cached problems (built on first use) whose name contains `only`."""
+    import warnings
+
+    sys.path[:0] = [str(REPO)]
+    CACHE.mkdir(parents=True, exist_ok=True)
+    trips = sorted(p for p in (REPO / "replay_logs").glob("*.log.gz") if p.name.startswith(FAMILIES))
+    for log in trips:
+        name = log.name.removesuffix(".log.gz")
+        if only in name and not (CACHE / f"{name}.npz").exists():
+            from fuelid.ident.dataset import build_dataset
+            from fuelid.ident.identify import training_segments
+
+            mcap = CACHE / f"{name}.mcap"
+            subprocess.run([sys.executable, "-m", "fuelid.cli", "convert", str(log), "-o", str(mcap), "--json"],
+                           check=True, stdout=subprocess.DEVNULL, cwd=REPO)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                ds = build_dataset([mcap])
+            save(name, ds.u, ds.y, training_segments(ds, ds.u, ds.y, 30.0), ds.u0, ds.y0)
+            mcap.unlink()
+    for effect, seed in SIMULATED:
+        name = f"simulated_{effect or 'nothing'}_{seed}"
+        if only in name and not (CACHE / f"{name}.npz").exists():
+            from tests.ident import hidden
+
+            ds, _, _ = hidden.simulated(effect, seed)
+            save(name, ds.u, ds.y, [s for s in ds.segments() if s.stop - s.start > 100], ds.u0, ds.y0)
+    return sorted(p for p in CACHE.glob("*.npz") if only in p.stem)
+
+
+def worker(paths, repeat: int):
+    """Fit each problem `repeat` times with the fuelid this interpreter imports; one JSON line each (the least
+    CPU time)."""
+    import warnings
+
+    import numpy as np
+
+    from fuelid.ident.pem import pem
+    from fuelid.ident.polymodel import Structure
+
+    for path in paths:
+        d = np.load(path)
+        cpu = float("inf")
+        for _ in range(repeat):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                t0 = time.process_time()
+                m = pem(d["u"], d["y"], Structure(**PAPER), 0.3,
+                        segments=[tuple(map(int, s)) for s in d["segments"]], u0=d["u0"], y0=float(d["y0"]))
+                cpu = min(cpu, time.process_time() - t0)
+        info = m.info
+        print(json.dumps({"problem": Path(path).stem, "V": info["loss_V"], "cpu_s": cpu,
+                          "oe_iterations": info["initialisation_iterations"]["output_error"],
+                          "iterations": info["iterations"], "stop_reason": info["stop_reason"]}), flush=True)
+
+
+def fitted(python: str, paths, repeat: int) -> dict:
+    """{problem: result} of `worker` run by `python` (cwd outside the checkout: it imports its own fuelid)."""
+    out = subprocess.run([python, __file__, "--repeat", str(repeat), "--worker", *map(str, paths)], capture_output=True, text=True,
+                         cwd="/", env={**os.environ, **ONE_CORE_ENV}, check=True).stdout
+    return {r["problem"]: r for r in map(json.loads, out.splitlines())}
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--before", required=False, help="the python of the version to compare with (its own fuelid)")
+    p.add_argument("--only", default="", help="problems whose name contains this")
+    p.add_argument("--repeat", type=int, default=1, help="fits per problem and version; the least CPU time counts")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--worker", nargs="*", help=argparse.SUPPRESS)
+    args = p.parse_args()
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {0})
+    if args.worker is not None:
+        return worker(args.worker, args.repeat)
+    paths = problems(args.only)
+    before = fitted(args.before, paths, args.repeat) if args.before else {}
+    after = fitted(sys.executable, paths, args.repeat)
+    rows = [{"problem": k, "before": before.get(k), "after": a} for k, a in after.items()]
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return
+    print(f"{'problem':38} {'V before':>11} {'V after':>11} {'ΔV %':>7} {'OE it':>9} {'BJ it':>7} {'CPU s':>11}")
+    worst, cpu, same = -float("inf"), [0.0, 0.0], 0
+    for r in rows:
+        a, b = r["after"], r["before"] or r["after"]
+        dv = 100 * (a["V"] / b["V"] - 1)
+        worst, same = max(worst, dv), same + (a["V"] == b["V"])
+        cpu[0] += b["cpu_s"]
+        cpu[1] += a["cpu_s"]
+        print(f"{r['problem']:38} {b['V']:11.3f} {a['V']:11.3f} {dv:+7.3f} {b['oe_iterations']:4d}>{a['oe_iterations']:<4d}"
+              f" {b['iterations']:3d}>{a['iterations']:<3d} {b['cpu_s']:5.2f}>{a['cpu_s']:<5.2f}")
+    print(f"worst ΔV {worst:+.3f} %, V the same to the bit on {same} of {len(rows)}, CPU total {cpu[0]:.1f} s before, {cpu[1]:.1f} s after ({cpu[1] / cpu[0]:.2f}×)")
+
+
+if __name__ == "__main__":
+    main()
