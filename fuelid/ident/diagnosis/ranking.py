@@ -241,7 +241,7 @@ def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects) -> tuple[PolyM
     try:
         refit = refit_with_effects(model, ds, [c.effect], defined=effects, max_iter=REFIT_MAX_ITER)
         refit_run = run_gradients(run_model(refit, ds))
-    except (FuelidError, ValueError, np.linalg.LinAlgError) as exc:
+    except (FuelidError, np.linalg.LinAlgError) as exc:
         c.refit = {"error": str(exc), "verified": False}
         return None
     index = np.intersect1d(run.index, refit_run.index)
