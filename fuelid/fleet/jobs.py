@@ -115,7 +115,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             lap("diagnose")
             diagnosis = found.to_json()
             effects = confirmed_effects(diagnosis["candidates"])
-            stored = identify_model(ds, structure, effects, files=names, init=previous) if effects else model
+            stored = identify_model(ds, structure, effects, files=names, init=previous, base=model) if effects else model
             lap("identify with effects")
         except FuelidError as exc:
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None

@@ -5,6 +5,13 @@ Steps: the effects' extra inputs (ident.modeldata.apply_effects; a fuel delay as
 estimated by seed 2's sweep with the model itself, `estimate_fuel_delay`) are appended to engine speed and torque, the
 valid stretches of at least `min_segment_s` are taken, the model is estimated by prediction-error minimisation
 (ident.pem.pem) and its validation metrics on the whole dataset (ident.validation.evaluate) are stored in it.
+
+With effects that add inputs, PEM is run from two starts and the lower loss V kept: the usual initialisation of
+the whole structure, and the model without the effects (given, or identified first on the same samples) with the
+effects' coefficients at zero (`with_inputs`) — the point the diagnosis linearises around, from which
+Levenberg–Marquardt only descends. So the model with the effects never has a higher V on its identification data
+than the model without them, and a start that falls into a poor local minimum (a pole pressed against the
+stability bound) is not the one kept.
 """
 from __future__ import annotations
 
@@ -14,8 +21,9 @@ import warnings
 import numpy as np
 
 from fuelid.errors import FuelidError
+from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.fueldelay import shift_signal, sweep_fuel_shift
-from fuelid.ident.modeldata import EffectInputs, apply_effects
+from fuelid.ident.modeldata import EffectInputs, apply_effects, at_operating_point
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure, simulate
 from fuelid.ident.validation import evaluate, rmse
@@ -59,41 +67,91 @@ def training_segments(ds, u, y, min_s: float) -> list[slice]:
 
 
 def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float = 30.0, files=(),
-                   init: PolyModel | None = None, defined=()) -> PolyModel:
+                   init: PolyModel | None = None, defined=(), base: PolyModel | None = None) -> PolyModel:
     """The PolyModel of `structure` (speed, torque inputs) plus `effects` ("ID" or "ID=VALUE") identified on
     dataset ds, with names, units, training summary (`files` recorded) and validation metrics filled in.
 
     init: a model of the final structure (with the effects' inputs) to start PEM from instead of the ARX /
     Steiglitz–McBride initialisation, e.g. the truck's previous model; ignored when its structure differs.
+    base: the model of `structure` without the effects (e.g. the one diagnosed) for the second start (module
+    docstring); identified here on the same samples when not given or of another structure.
     defined: effects the engineer defined (ident.effectfile) that `effects` may name; the model carries the
     definitions of those it uses (info["effect_definitions"]), so it runs without their file.
+    info["starts"] records the loss V each start reached and which was kept.
     Raises FuelidError for an unusable effect, too little valid data, or a failed estimation."""
     fx = effect_inputs(ds, effects, structure, defined)
     u, y = np.hstack([ds.u, fx.u]), fx.y
-    structure = fx.extend(structure)
+    extended = fx.extend(structure)
     segs = training_segments(ds, u, y, min_segment_s)
     n_train = sum(s.stop - s.start for s in segs)
-    if n_train - len(segs) * structure.n_start <= 2 * structure.n_params:
-        raise FuelidError(f"too little valid data to identify {structure.n_params} parameters "
+    if n_train - len(segs) * extended.n_start <= 2 * extended.n_params:
+        raise FuelidError(f"too little valid data to identify {extended.n_params} parameters "
                           f"({int(ds.valid.sum())} valid samples, {len(segs)} stretches ≥ {min_segment_s:g} s)")
     u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
-    if init is not None and init.structure != structure:
-        init = None
+    starts = {"given model" if init is not None and init.structure == extended else "initialisation":
+              init if init is not None and init.structure == extended else None}
     with warnings.catch_warnings():  # pem records its warnings in model.info
         warnings.simplefilter("ignore", UserWarning)
-        model = pem(u, y, structure, ds.Ts, segments=segs, u0=u0, y0=ds.y0, init=init)
-
+        if fx.u.shape[1]:
+            if base is None or base.structure != structure:
+                base = pem(ds.u, y, structure, ds.Ts, segments=segs, u0=ds.u0, y0=ds.y0)
+            starts["model without the effects"] = with_inputs(base, extended)
+        fits = {name: pem(u, y, extended, ds.Ts, segments=segs, u0=u0, y0=ds.y0, init=start)
+                for name, start in starts.items()}
+    kept = min(fits, key=lambda name: fits[name].info["loss_V"])
+    model = fits[kept]
     model = dataclasses.replace(
         model, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
         output_name=ds.output_name, output_unit=ds.output_unit, effects=fx.effects,
         info={**model.info, "effect_parameters": fx.parameters,
+              "starts": {"loss_V": {name: m.info["loss_V"] for name, m in fits.items()}, "kept": kept},
               **effect_definitions(fx.effects, defined)},
         training={**ds.summary(), "files": list(map(str, files)),
                   "identification_samples": int(n_train), "identification_stretches": len(segs)})
     model = dataclasses.replace(model, validation=evaluate(model, ds))
     model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
-                                                n_train - len(segs) * structure.n_start)
+                                                n_train - len(segs) * extended.n_start)
     return model
+
+
+def with_inputs(model: PolyModel, structure: Structure) -> PolyModel:
+    """`model` as a model of `structure`, which has the same noise model and A and adds inputs after model's: those
+    inputs' B_i = 0 and F_i = 1 (the model itself, as a start for PEM with them)."""
+    m = len(model.B)
+    if structure.nb[:m] != model.structure.nb or structure.nf[:m] != model.structure.nf \
+            or structure.nk[:m] != model.nk or (structure.na, structure.nc, structure.nd) != \
+            (model.structure.na, model.structure.nc, model.structure.nd):
+        raise ValueError(f"{structure} does not extend the model's structure {model.structure}")
+    added = range(m, structure.n_inputs)
+    return PolyModel(A=model.A, B=list(model.B) + [np.zeros(structure.nk[i] + structure.nb[i]) for i in added],
+                     F=list(model.F) + [np.r_[1.0, np.zeros(structure.nf[i])] for i in added], C=model.C, D=model.D,
+                     Ts=model.Ts, nk=structure.nk, u0=tuple(model.u0) + (0.0,) * len(added), y0=model.y0)
+
+
+def refit_with_effects(model: PolyModel, ds, effects, *, defined=(), min_segment_s: float = 30.0,
+                       max_iter: int = 100) -> PolyModel:
+    """`model` with `effects` added ("ID" or "ID=VALUE", after its own), identified by PEM on dataset ds from the
+    model itself with their coefficients at zero (`with_inputs`): a warm start, so V never rises above the model's
+    own on these samples and a few iterations usually suffice (max_iter caps them). Its effects' parameters and
+    engineer-defined effects' definitions are carried over; defined: those `effects` may name."""
+    own = effects_of_model(model)
+    defined = tuple(own) + tuple(e for e in defined if e.id not in {d.id for d in own})
+    ids = list(model.effects) + [e for e in effects if e not in model.effects]
+    fx = apply_effects(at_operating_point(ds, model), ids, model.info.get("effect_parameters"), defined=defined)
+    u = np.hstack([ds.u, fx.u])
+    n_own = len(model.B)
+    extended = fx.extend(Structure(nb=model.structure.nb[:2], nf=model.structure.nf[:2], nk=model.nk[:2],
+                                   nc=model.structure.nc, nd=model.structure.nd, na=model.structure.na))
+    segs = training_segments(ds, u, fx.y, min_segment_s)
+    start = with_inputs(model, extended)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        fit = pem(u, fx.y, extended, ds.Ts, segments=segs, u0=np.r_[model.u0[:n_own], np.zeros(u.shape[1] - n_own)],
+                  y0=model.y0, init=start, max_iter=max_iter)
+    return dataclasses.replace(
+        fit, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
+        output_name=model.output_name, output_unit=model.output_unit, effects=fx.effects,
+        info={**fit.info, "effect_parameters": fx.parameters, **effect_definitions(fx.effects, defined)})
 
 
 def effect_definitions(used, defined) -> dict:

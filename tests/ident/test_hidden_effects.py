@@ -131,20 +131,26 @@ def test_fuel_signal_lag_on_real_driving_logs(name, real_log, tmp_path):
     assert 0.0 < lag < 3.0
 
 
-@pytest.mark.parametrize("first", ["gear_shift", "overrun_cutoff"])
-def test_two_hidden_effects_are_both_named(first):
+@pytest.mark.parametrize("first, recommended", [("gear_shift", True), ("cold_engine", True),
+                                                ("overrun_cutoff", False)])
+def test_two_hidden_effects_are_both_named(first, recommended):
     """A DPF regeneration hidden with a weaker effect on the weaker one's route: forward selection re-tests every
-    candidate on the model refitted with the regeneration and names the second too (on the model as it is, the
-    second lowers the held-out error by only 1.1–1.2 %, short of the 2 % needed, and was not named before)."""
+    candidate on the model re-identified with the regeneration and names the second too (on the model as it is,
+    the second lowers the held-out error by only 1.1–1.2 %, short of the 2 % needed, and was not named before; the
+    cold engine, 1.4–1.8 % on the model linearised around the one without the regeneration, was not named given
+    it either: a demand-torque scaling was, in its place). The overrun cut-off is named but not recommended: the
+    model re-identified with it simulates this trip worse (RMS 1.901 → 1.919 L/h; and another day's trip, seed
+    3050, no better: 2.016 → 2.017 L/h)."""
     pair = (first, "dpf_regeneration")
     out, _, _ = diagnosed(pair, 3000)
     found = [r for r in out["candidates"] if r["significant"]]
     assert [r["effect"] for r in found] == ["dpf_regeneration", first], out["verdict"]
-    assert all(r["recommended"] for r in found)
+    assert found[0]["recommended"] and found[0]["refit"]["verified"]
+    assert found[1]["recommended"] == found[1]["refit"]["verified"] == recommended, found[1]["refit"]
     second = found[1]["conditional"]
     assert second["given"] == ["dpf_regeneration"] and second["rmse_drop_percent"] >= 2.0, second
     assert out["verdict"].startswith("Missing effects (2)")
-    assert all(f"add effect {e}" in out["verdict"] for e in pair)
+    assert all((f"add effect {e}" in out["verdict"]) == (e == "dpf_regeneration" or recommended) for e in pair)
 
 
 def test_ambient_air_is_recommended_only_where_it_carries_over_to_another_trip():

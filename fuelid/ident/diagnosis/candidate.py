@@ -11,7 +11,7 @@ from fuelid.ident import effects as fx
 JSON_FIELDS = ("effect", "spec", "name", "form", "signals", "spns", "statistic", "df", "p_value", "log10_p",
                "testable", "tests", "estimated_drop_percent", "size", "explanation", "physics", "p_holm",
                "test_significant", "significant", "recommended", "role", "rmse_drop_percent", "verification",
-               "conditional", "explained_by")
+               "conditional", "refit", "explained_by")
 UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "statistic", "df", "p_value",
                    "significant", "test_significant", "estimated_drop_percent", "explanation", "rmse_drop_percent",
                    "verification", "conditional", "explained_by")
@@ -62,6 +62,7 @@ class Candidate:
     rmse_drop_percent: float | None = None
     verification: dict | None = None
     conditional: dict | None = None
+    refit: dict | None = None  # forward selection's PEM refit with it: RMS simulation error without/with, verified
     explained_by: str | None = None
     role: str | None = None  # what a named candidate is: ENGINE_MAP (the engine's own curvature) or MISSING_EFFECT
     definition: fx.Effect | None = field(default=None, repr=False)

@@ -15,14 +15,19 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
 
 5. Forward selection. Bus signals are dependent (a cab temperature follows the level shift a real effect leaves
    in the error), and two effects can hide at once (the weaker one's held-out drop on the model as it is falls
-   short, the stronger one's error covering it). The confirmed candidate with the largest held-out drop
-   (`_priority`; a generic bus signal's discounted by GENERIC_WEIGHT) is accepted first; then, as long as one is
-   found, every remaining candidate is re-tested on the model refitted with those accepted (the simulation-error
-   test with their verified columns among the nuisance columns: the linearised refit of 4), Holm-corrected over
-   the candidates re-tested, must explain min_effect_percent, and is verified by the linearised refit on top of
-   those accepted (held-out drop ≥ min_drop_percent, its physics' direction, identifiable, never worse on a
-   held-out trip); the one with the largest such drop is accepted next (`select_forward`). Those confirmed on the
-   model as it is but never accepted are "explained by" the accepted ones.
+   short, the stronger one's error covering it, and the model's own parameters, fitted without the stronger one,
+   are biased by it). The confirmed candidate with the largest held-out drop (`_priority`; a generic bus signal's
+   discounted by GENERIC_WEIGHT) is accepted first and the model re-identified with it by PEM, warm-started from
+   the model itself with the effect's coefficients at zero (ident.identify.refit_with_effects: the point the
+   linearised refit of 4 starts from, so a few iterations suffice and V never rises); then, as long as one is
+   found, every remaining candidate is tested again on that re-identified model (1–3, Holm-corrected over the
+   candidates re-tested), must explain min_effect_percent and is verified on it (4: held-out drop ≥
+   min_drop_percent, its physics' direction, identifiable, never worse on a held-out trip); the one with the
+   largest drop is accepted next and the model re-identified with it too (`select_forward`). Those confirmed on
+   the model as it is but never accepted are "explained by" the accepted ones. An accepted candidate whose
+   re-identified model simulates the data worse than the model without it (RMS simulation error over the tested
+   samples: the refit cannot be verified) is named but not recommended, and the search goes on from the model
+   without it, with the next candidate found.
 
 A candidate is `significant` — a missing effect the diagnosis names — when the Holm-corrected test rejects
 AND it explains at least min_effect_percent (default 1 %) of the simulation error AND, when verified, the
@@ -32,8 +37,8 @@ those before it. The conjunction can only remove rejections, so the family-wise 
 stays ≤ α. Significant candidates are listed first, in the order accepted;
 then the rest by p-value. README gives the measured false alarms and the table per hidden effect.
 
-A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified —
-and, for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no
+A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified and
+the model re-identified with it simulates the data no worse than the model without it (5) — and, for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no
 physics for), only when the data held several trips and it held up left out of each (leave-one-trip-out). On one
 trip such a signal can stand in for whatever else moves with the operating point that day (on a real engine its
 transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined effect brings its
@@ -47,15 +52,16 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from fuelid.errors import InputError
+from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP, MISSING_EFFECT, Candidate
 from fuelid.ident.diagnosis.entries import ENTRIES
 from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid, explain
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
-from fuelid.ident.diagnosis.statistics import holm, level_test, one_blas_thread
+from fuelid.ident.diagnosis.statistics import holm
 from fuelid.ident.diagnosis.verification import held_out, held_out_scores
+from fuelid.ident.identify import refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.polymodel import PolyModel
@@ -160,6 +166,20 @@ def _worse_on_held_out_trips(v: dict) -> bool:
     return "trips" in v and v["trips"]["pooled_rmse_drop_percent"] < 0
 
 
+def _refit_verified(c: Candidate) -> bool:
+    """Whether the model re-identified with c simulates the data no worse than the model without it (forward
+    selection's refit, 5; True for one not refitted: the fuel delay, verified on its reference model)."""
+    return c.refit is None or c.refit["verified"]
+
+
+def _why_refit_not_verified(c: Candidate) -> str:
+    """What the explanation of a named candidate whose refit was not verified adds."""
+    if "error" in c.refit:
+        return f" — but the model cannot be re-identified with it ({c.refit['error']}): not recommended"
+    return f" — but the model re-identified with it (PEM, from the model without it) simulates these data worse " \
+           f"(RMS error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}): not recommended"
+
+
 def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
     """What the explanation of a verified but unconfirmed candidate adds."""
     v, drop = c.verification, c.entry.relevance(c.verification)
@@ -199,12 +219,6 @@ def _priority(c: Candidate, v: dict | None = None, estimated: float | None = Non
     return drop * (GENERIC_WEIGHT if _generic(c) else 1.0)
 
 
-def _columns(c: Candidate) -> np.ndarray:
-    """The columns (w domain) an accepted candidate adds to the model the next ones are tested on: its verified
-    ones, else its tested ones."""
-    return c.X if c.X is not None else c.w
-
-
 def _added_drop(c: Candidate) -> float | None:
     """The held-out RMS error drop [%] adding c makes: on top of the effects accepted before it when it was
     selected given them, else on the model as it is."""
@@ -212,61 +226,90 @@ def _added_drop(c: Candidate) -> float | None:
     return cond["rmse_drop_percent"] if cond.get("rmse_drop_percent") is not None else c.rmse_drop_percent
 
 
-def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, model: PolyModel, ds, alpha: float,
-                   min_effect_percent: float, min_drop_percent: float, n_verify: int) -> list[Candidate]:
-    """Forward selection (module docstring, 5): those of `first` accepted (the engine map term, or the first
-    missing effect), then, as long as one is found, the next of `pool` (the other re-testable candidates)
-    significant, relevant and verified on the model refitted with those accepted so far. Returns the accepted
-    candidates in order, `first` first; each one tested after them has its `conditional` record (the last round's
-    for those never accepted)."""
-    accepted, pool = list(first), [c for c in pool if c not in first]
-    while pool:
-        X_A = np.column_stack([_columns(a) for a in accepted])
-        with one_blas_thread():
-            QG = run.QG.extended(X_A)
-            resid = QG.project_out(run.r)
-            tests = [level_test(resid, c.w, run.lens, QG) for c in pool]
-        adj, rejected = holm([t.p_value for t, _ in tests], alpha)
-        given = [a.effect for a in accepted]
-        eligible = []
-        for c, (test, left), p_holm, rej in zip(pool, tests, adj, rejected):
-            drop = 100.0 * (1.0 - left)
-            c.conditional = {"given": given, "p_value": test.p_value, "p_holm": float(p_holm),
-                             "estimated_drop_percent": drop, "rmse_drop_percent": None}
-            # p-values below ~1e-300 underflow: Holm's first bound on log p then
-            if test.df and (rej or test.log_p < math.log(alpha / len(pool))) and drop >= min_effect_percent:
-                eligible.append(c)
-        eligible.sort(key=lambda c: -_priority(c, None, c.conditional["estimated_drop_percent"]))
-        found = [c for c in eligible if not n_verify]
-        if n_verify and eligible:
-            cv = held_out(model, run, X_A)
-            base = held_out_scores(cv, ds)
-            for c in eligible[:n_verify]:
-                kept = c.explanation, c.size, c.X
-                try:
-                    v = c.entry.verify(c, model, ds, run, base, cv["ysim"], X_A)
-                except (ValueError, np.linalg.LinAlgError) as exc:
-                    v = {"error": str(exc)}
-                c.conditional["verification"] = v
-                c.conditional["rmse_drop_percent"] = v.get("rmse_drop_percent")
-                if "error" not in v and _confirmed(c, v, min_drop_percent):
-                    found.append(c)
-                    c.conditional["explanation"] = c.explanation
-                c.explanation, c.size, c.X = kept
-            found.sort(key=lambda c: -_priority(c, c.conditional["verification"]))
-        if not found:
-            break
-        best = found[0]
-        if "explanation" in best.conditional:  # said as the refit on top of those accepted measures it
-            best.explanation = best.conditional.pop("explanation")
-            if best.verification is None or "error" in best.verification:
-                best.verification = best.conditional["verification"]
-                best.rmse_drop_percent = best.verification["rmse_drop_percent"]
-        accepted.append(best)
-        pool.remove(best)
+REFIT_MAX_ITER = 30  # Levenberg–Marquardt iterations of forward selection's warm-started PEM refit (5)
+
+
+def _simulation_rmse(run: Run, index: np.ndarray) -> float:
+    """RMS simulation error [output unit] of a run on the dataset samples `index`."""
+    return float(np.sqrt(np.mean((run.y[index] - run.ysim[index]) ** 2)))
+
+
+def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects) -> tuple[PolyModel, Run] | None:
+    """The model re-identified with c added (module docstring, 5) and its run, with c.refit its record (RMS
+    simulation error and loss V without and with, over the samples both runs test; verified: not worse); None
+    when the refit fails or is not verified."""
+    try:
+        refit = refit_with_effects(model, ds, [c.effect], defined=effects, max_iter=REFIT_MAX_ITER)
+        refit_run = run_gradients(run_model(refit, ds))
+    except (FuelidError, np.linalg.LinAlgError) as exc:
+        c.refit = {"error": str(exc), "verified": False}
+        return None
+    index = np.intersect1d(run.index, refit_run.index)
+    without, with_ = _simulation_rmse(run, index), _simulation_rmse(refit_run, index)
+    c.refit = {"rmse_without": without, "rmse_with": with_, "loss_V_without": model.info.get("loss_V"),
+               "loss_V_with": refit.info["loss_V"], "iterations": refit.info["iterations"],
+               "verified": bool(with_ <= without)}
+    return (refit, refit_run) if c.refit["verified"] else None
+
+
+def _retest(pool: list[Candidate], model: PolyModel, run: Run, ds, given: list[str], alpha: float,
+            min_effect_percent: float, min_drop_percent: float, n_verify: int) -> list[Candidate]:
+    """Those of `pool` significant, relevant and (n_verify > 0) confirmed on `model` (re-identified with the
+    effects `given`), tested and verified on it afresh (module docstring, 5), best first; each one's
+    `conditional` record is this test's, with the explanation its verification makes."""
+    rows = {r.effect: r for r in rank_candidates(model, ds, run, [c.definition for c in pool], alpha)}
+    eligible = sorted((r for r in rows.values() if r.test_significant and r.estimated_drop_percent >= min_effect_percent),
+                      key=lambda r: -_priority(r))
+    if n_verify and eligible:
+        base_ysim = held_out(model, run, np.zeros((run.r.size, 0)))["ysim"]
+        base = held_out_scores({"y": run.y, "ysim": base_ysim}, ds)
+        for r in eligible[:n_verify]:
+            _verify(r, model, ds, run, base, base_ysim)
+    found = []
     for c in pool:
-        c.conditional.pop("explanation", None)
-    return accepted
+        r = rows[c.effect]
+        c.conditional = {"given": given, "p_value": r.p_value, "p_holm": r.p_holm,
+                         "estimated_drop_percent": r.estimated_drop_percent, "rmse_drop_percent": r.rmse_drop_percent}
+        if r.verification is not None:
+            c.conditional["verification"] = r.verification
+        if r in eligible and (not n_verify or r.verification is not None and "error" not in r.verification
+                              and _confirmed(r, r.verification, min_drop_percent)):
+            c.conditional["explanation"] = r.explanation
+            found.append(c)
+    return sorted(found, key=lambda c: -_priority(rows[c.effect], rows[c.effect].verification))
+
+
+def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, model: PolyModel, ds, alpha: float,
+                   min_effect_percent: float, min_drop_percent: float, n_verify: int,
+                   effects=()) -> list[Candidate]:
+    """Forward selection (module docstring, 5): of `first` (the engine map term, or the missing effects confirmed
+    on the model as it is, best first) the first whose refit is verified, then, as long as one is found, the next
+    of `pool` (the other re-testable candidates) significant, relevant and verified on the model re-identified with
+    those accepted so far. Returns the candidates named in order, `first`'s first; each has its `refit` record (those
+    not verified are named, not recommended); each one tested after them has its `conditional` record (the last
+    round's for those never accepted). effects: the engineer-defined effects the candidates may name."""
+    named, pool, found = [], [c for c in pool if c not in first], list(first)
+    while found:
+        for c in found:
+            named.append(c)
+            if c in pool:
+                pool.remove(c)
+            if "explanation" in (c.conditional or {}):  # said as the test on the model re-identified measures it
+                c.explanation = c.conditional.pop("explanation")
+                if c.verification is None or "error" in c.verification:
+                    c.verification = c.conditional["verification"]
+                    c.rmse_drop_percent = c.verification["rmse_drop_percent"]
+            refitted = _refit(c, model, run, ds, effects)
+            if refitted is not None:
+                model, run = refitted
+                break
+        else:  # no refit verified: nothing to re-test the rest on
+            break
+        found = _retest(pool, model, run, ds, [a.effect for a in named if a.refit["verified"]], alpha,
+                        min_effect_percent, min_drop_percent, n_verify) if pool else []
+    for c in pool:
+        (c.conditional or {}).pop("explanation", None)
+    return named
 
 
 def _verify(c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray) -> None:
@@ -378,11 +421,12 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         (confirmed if _confirmed(c, c.verification, min_drop_percent) else unconfirmed).append(c)
     confirmed.sort(key=lambda c: (c.verification is None, -_priority(c)))  # verified ones first
     accepted = [c for c in confirmed if not c.entry.retested]  # the fuel delay: the signal path (delay.py)
-    first = [term] if term is not None else [c for c in confirmed if c.entry.retested][:1]
+    first = [term] if term is not None else [c for c in confirmed if c.entry.retested]
     if first:
         pool = [c for c in hidden if c.entry.retested]
-        found = select_forward(first, pool, run, model, ds, alpha, min_effect_percent, min_drop_percent, n_verify)
-        accepted += found[1:] if term is not None else found
+        found = select_forward(first, pool, run, model, ds, alpha, min_effect_percent, min_drop_percent, n_verify,
+                               effects)
+        accepted += [c for c in found if c is not term]
         explaining = ", ".join(a.effect for a in found)
         for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
             if c not in accepted and (c.test_significant or c.effect in (MAP_TERM, PRODUCT_TERM)):
@@ -390,13 +434,16 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     for c in accepted:
         c.significant, c.role = True, MISSING_EFFECT
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
-        c.recommended = c.verification is not None and "error" not in c.verification
-        if c.recommended and _generic(c) and "trips" not in c.verification:
+        c.recommended = c.verification is not None and "error" not in c.verification and _refit_verified(c)
+        if not _refit_verified(c):
+            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + _why_refit_not_verified(c)
+        elif c.recommended and _generic(c) and "trips" not in c.verification:
             c.recommended = False
             c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + ONE_TRIP_ONLY
     if term is not None:
         term.significant, term.role = True, ENGINE_MAP
-        term.recommended = term.verification is not None and "error" not in term.verification
+        term.recommended = term.verification is not None and "error" not in term.verification \
+            and _refit_verified(term)
         term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
                                                  for e in (MAP_TERM, PRODUCT_TERM)))
     for c in unconfirmed:

@@ -1,0 +1,42 @@
+"""Identification with effects (ident.identify): the model with an effect the diagnosis recommends is never worse
+than the model without it — on its own identification data (its loss V) and on another day's trip."""
+import numpy as np
+
+from fuelid.ident.identify import identify_model, refit_with_effects, with_inputs
+from fuelid.ident.polymodel import Structure, simulate
+from fuelid.ident.validation import evaluate
+from tests.ident import hidden
+
+
+def test_a_model_without_an_input_is_the_same_model_with_its_coefficients_at_zero():
+    model = hidden.TRUE
+    extended = with_inputs(model, Structure(nb=(1, 2, 2), nf=(1, 1, 1), nk=(2, 0, 0), nc=1, nd=1))
+    u = np.random.default_rng(0).normal(size=(200, 3)) + [600.0, 112.0, 0.0]
+    assert np.allclose(simulate(extended, u), simulate(model, u[:, :2]))
+
+
+def test_the_inertia_the_diagnosis_recommends_does_not_make_the_model_worse_on_another_day():
+    """The simulator's trip hiding the crankshaft's inertia (seed 3000, the acceptance benchmark's): identified
+    from the usual initialisation, the model with the J dω/dt input falls into a local minimum (a speed pole pressed
+    against the stability bound: V ≈ 3400 against 1276 without the input, 12 L/h RMS on another day's trip against
+    2.0). Started also from the model without it, the lower loss is kept: never above the model's without the
+    input, and better on the other day's trip too."""
+    ds, _, _ = hidden.simulated("inertia", 3000)
+    other_day, _, _ = hidden.simulated("inertia", 3050)
+    base = identify_model(ds, hidden.PAPER)
+    model = identify_model(ds, hidden.PAPER, ["inertia"], base=base)
+    starts = model.info["starts"]
+    assert starts["kept"] == "model without the effects", starts
+    assert model.info["loss_V"] <= base.info["loss_V"], (model.info["loss_V"], base.info["loss_V"])
+    rmse = {name: evaluate(m, other_day)["rmse"]["simulation"] for name, m in (("base", base), ("with", model))}
+    assert rmse["with"] < rmse["base"], rmse
+
+
+def test_a_warm_started_refit_never_raises_the_loss_and_carries_the_models_own_effects():
+    ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
+    base = identify_model(ds, hidden.PAPER, ["fuel_delay=0.3"])
+    refit = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=5)
+    assert refit.effects == ("fuel_delay", "dpf_regeneration")
+    assert refit.info["effect_parameters"]["fuel_delay"] == 0.3
+    assert refit.info["loss_V"] <= base.info["loss_V"]
+    assert refit.info["iterations"] <= 5
