@@ -4,14 +4,13 @@ so memory per hour of data and per file can be read off.
 
     python benchmarks/bench_job_memory.py --hours 3 12 24
 
-Each size runs in a fresh process (peak RSS only grows); prints peak RSS [MB] after each phase and CPU [s].
+Each size runs in a fresh process (peak RSS only grows; Linux: /proc); prints peak RSS [MB] after each phase and CPU [s].
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import time
@@ -31,7 +30,9 @@ from bench_dataset import converted_trip, long_recording  # noqa: E402
 
 
 def peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """This process's peak RSS [MB]: VmHWM, which starts afresh at exec (ru_maxrss would carry the parent's)."""
+    status = Path("/proc/self/status").read_text()
+    return int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmHWM:"))) / 1024
 
 
 def one_job(paths: list[str]) -> dict:
