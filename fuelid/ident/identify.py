@@ -88,8 +88,8 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
         raise FuelidError(f"too little valid data to identify {extended.n_params} parameters "
                           f"({int(ds.valid.sum())} valid samples, {len(segs)} stretches ≥ {min_segment_s:g} s)")
     u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
-    starts = {"given model" if init is not None and init.structure == extended else "initialisation":
-              init if init is not None and init.structure == extended else None}
+    given = init if init is not None and init.structure == extended else None
+    starts = {"initialisation" if given is None else "given model": given}
     with warnings.catch_warnings():  # pem records its warnings in model.info
         warnings.simplefilter("ignore", UserWarning)
         if fx.u.shape[1]:
