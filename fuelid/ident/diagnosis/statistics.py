@@ -97,7 +97,7 @@ class NuisanceBasis:
     dense: np.ndarray
     blocks: tuple[np.ndarray, ...] = ()
 
-    @property
+    @functools.cached_property  # read for every held-out block of block_cv
     def bounds(self) -> list[tuple[int, int]]:
         """Rows (start, stop) of each block."""
         ends = np.cumsum([b.shape[0] for b in self.blocks], dtype=int)
