@@ -7,10 +7,11 @@ import numpy as np
 from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.commands.identify import ORDERS_HELP
 from fuelid.errors import FuelidError
-from fuelid.ident.live import check_online, prior_estimator
+from fuelid.ident.effects import reference_torque
+from fuelid.ident.live import check_online, fuel_scale, input_scales, prior_estimator
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parse_orders
-from fuelid.ident.rpem import RPEM
+from fuelid.ident.rpem import RPEM, scaled_P0
 from fuelid.ident.validation import evaluate
 from fuelid.output import print_json
 from fuelid.progress import progress
@@ -123,10 +124,13 @@ def _pct(v) -> str:
 
 def make_estimator(args, structure, ds, prior):
     """The estimator the options ask for: from the prior (ident.live.prior_estimator), else an RPEM from scratch
-    at the data's operating point."""
+    at the data's operating point, its P0 scaled as the daemon's (ident.live: idle speed, reference torque, idle
+    fuel; the largest torque in the data when EC1 never arrived)."""
     if prior is not None:
         return prior_estimator(prior, method=args.method, forgetting=args.forgetting, drift=args.drift,
                                adapt=args.adapt)
     if args.method == "kalman":
         raise FuelidError("--method kalman needs --prior (its drift covariance is scaled from the prior's B)")
-    return RPEM(structure, ds.Ts, lam=args.forgetting, u0=ds.u0, y0=ds.y0)
+    torque_ref = 100.0 if ds.input_units[1] == "%" else reference_torque(ds) or float(np.nanmax(np.abs(ds.u[:, 1])))
+    P0 = scaled_P0(structure, input_scales(ds.u0[0], torque_ref), fuel_scale(ds.y0))
+    return RPEM(structure, ds.Ts, lam=args.forgetting, u0=ds.u0, y0=ds.y0, P0=P0)

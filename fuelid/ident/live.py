@@ -16,7 +16,10 @@ sees Ts-spaced samples of the recorded trip.
 Starting from a prior model (`from_model`) the estimator runs from the first bin. From scratch
 (`from_scratch`) the operating point (u0, y0) the model's deviations are taken from (ident.dataset: the idle
 point) is not known yet: bins are only watched until idle_min_s of complete bins with the engine speed within
-idle_tol_rpm of idle_rpm, whose mean inputs and fuel become (u0, y0); then the RPEM starts from θ = 0.
+idle_tol_rpm of idle_rpm, whose mean inputs and fuel become (u0, y0); then the RPEM starts from θ = 0 with P0 in
+the parameters' units (ident.rpem.scaled_P0: fuel per rpm scaled by the idle fuel over the idle speed, fuel per
+N·m by the idle fuel over the reference torque), not the unit-blind 100 I, which let one disturbed bin early on
+throw the estimate into a wrong minimum it never left.
 
 Every closed bin once the estimator runs gives records for the daemon to write (topic, receive time [s], record):
 
@@ -103,6 +106,18 @@ def fuel_change(theta, cov, structure, gain0, du) -> tuple[float, float]:
     return 100.0 * (gains @ du / s0 - 1.0), 196.0 * math.sqrt(max(grad @ cov @ grad, 0.0))
 
 
+def input_scales(idle_speed: float, torque_ref: float) -> np.ndarray:
+    """The magnitudes [rpm, torque unit] the RPEM from scratch scales its P0 by (ident.rpem.scaled_P0), known
+    before the engine has moved: the idle speed [rpm] and the reference torque [Nm] (100 for a torque in %)."""
+    return np.array([idle_speed, torque_ref], float)
+
+
+def fuel_scale(y0: float) -> float:
+    """The output magnitude [output unit] the RPEM from scratch scales its P0 by: the idle fuel y0; an idle engine
+    burns fuel, so a fuel signal reading ≤ 0 there is taken as 1 L/h (or kg/h), an idle's order."""
+    return y0 if y0 > 0 else 1.0
+
+
 def check_online(structure: Structure, effects=(), source: str | None = None) -> None:
     """FuelidError unless the online estimators can run a model of this structure and these effects: BJ/OE orders
     (na = 0) of engine speed and torque, no effect inputs; source (a file name) starts the message."""
@@ -134,8 +149,8 @@ class LiveEstimator:
 
     estimator       an ident.rpem.RPEM, ident.kalman.ParameterKalman or ident.kalman.GainTracker (its Ts is the
                     grid step); or None with
-    start           a function (u0 [input units], y0 [output unit]) -> estimator, called once the idle
-                    operating point is known (from scratch), and Ts [s]
+    start           a function (u0 [input units], y0 [output unit], u_scale [input units]) -> estimator, called
+                    once the idle operating point is known (from scratch; u_scale as `input_scales`), and Ts [s]
     torque_unit     'Nm' or '%': the unit of the model's torque input
     fuel            'lfe1' (LFE1.EngFuelRate, L/h) or 'flowmeter' (flow_kg_h, kg/h)
     names           parameter names for /ident/parameters (default θ0, θ1, …)
@@ -197,16 +212,16 @@ class LiveEstimator:
     def from_scratch(cls, structure, Ts: float = 0.3, *, forgetting: float | None = None, **kwargs):
         """A LiveEstimator whose RPEM starts from θ = 0 at the idle operating point (module docstring);
         forgetting: constant λ, or None for λ growing towards 1 (ident.rpem)."""
-        from fuelid.ident.rpem import RPEM  # numba-compiled: loaded with the estimator (prior_estimator)
+        from fuelid.ident.rpem import RPEM, scaled_P0  # numba-compiled: loaded with the estimator (prior_estimator)
 
-        def start(u0, y0):
-            return RPEM(structure, Ts, lam=forgetting, u0=u0, y0=y0)
+        def start(u0, y0, u_scale):
+            return RPEM(structure, Ts, lam=forgetting, u0=u0, y0=y0, P0=scaled_P0(structure, u_scale, fuel_scale(y0)))
 
         return cls(start=start, Ts=Ts, names=parameter_names(structure), **kwargs)
 
     def prepare(self) -> None:
         """Load the estimator's compiled loop now (seconds on a first run), not with the first bin."""
-        est = self.est or self._start(np.zeros(2), 0.0)
+        est = self.est or self._start(np.zeros(2), 0.0, np.ones(2))
         est.update(np.empty((0, 2)), np.empty(0))
 
     def feed(self, topic: str, t: float, record: dict) -> list[tuple[str, float, dict]]:
@@ -296,7 +311,8 @@ class LiveEstimator:
         if len(self._idle_bins) < n:
             return False
         u0y0 = np.mean(self._idle_bins, axis=0)
-        self.est = self._start(u0y0[:2], float(u0y0[2]))
+        torque_ref = 100.0 if self.torque_unit == "%" else self.ref_torque  # known: the torque in Nm needs it
+        self.est = self._start(u0y0[:2], float(u0y0[2]), input_scales(u0y0[0], torque_ref))
         self._idle_bins.clear()
         return True
 

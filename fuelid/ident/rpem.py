@@ -78,7 +78,8 @@ MAX_HALVINGS = 8  # step halvings tried before an update is rejected
 NO_STATE, NO_UPDATE, UPDATED, SHRUNK, REJECTED = -1, 0, 1, 2, 3
 
 # cfg: settings passed to the kernel
-C_LAM_INF, C_LAM0, C_R, C_TRACE_MAX, C_RADIUS, C_MAX_GAP, C_WARMUP, C_FIT_GAMMA, C_OE_UPDATES, C_N_INPUT = range(10)
+(C_LAM_INF, C_LAM0, C_R, C_TRACE_MAX, C_RADIUS, C_MAX_GAP, C_WARMUP, C_FIT_GAMMA, C_OE_UPDATES, C_N_INPUT,
+ C_FIR_UPDATES, C_N_B) = range(12)
 # st: running state
 S_LAM, S_GAP_U, S_GAP_Y, S_WARM, S_SW, S_SY, S_SYY, S_SEE, S_SVV, S_T, S_UPDATES, S_SHRUNK, S_REJECTED = range(13)
 
@@ -319,7 +320,12 @@ def _run(u, y, valid, theta, P, Q, hist, orders, nc, nd, oc, od, cfg, st, every,
                 st[S_SVV] = gamma * st[S_SVV] + v * v
                 # K = P ψ / (λ R + ψᵀ P ψ), over the input part of θ only during the output-error phase
                 _gradient(orders, nc, nd, oc, od, hist, psi)
-                n_act = theta.size if st[S_UPDATES] >= cfg[C_OE_UPDATES] else int(cfg[C_N_INPUT])
+                if st[S_UPDATES] < cfg[C_FIR_UPDATES]:
+                    n_act = int(cfg[C_N_B])
+                elif st[S_UPDATES] < cfg[C_OE_UPDATES]:
+                    n_act = int(cfg[C_N_INPUT])
+                else:
+                    n_act = theta.size
                 lam = st[S_LAM]
                 denom = gain(P, psi, lam * R, n_act, Ppsi, K)
                 if math.isfinite(denom) and denom > 0.0 and math.isfinite(e):
@@ -359,6 +365,24 @@ def _run(u, y, valid, theta, P, Q, hist, orders, nc, nd, oc, od, cfg, st, every,
         if every > 0 and st[S_T] % every == 0:
             snaps[n_snap] = theta
             n_snap += 1
+
+
+def scaled_P0(structure, u_scale, y_scale: float) -> np.ndarray:
+    """Diagonal P0 from scratch in the units of θ: (y_scale/u_scale_i)² for the b_i,l of input i
+    [(output unit per input unit)²], 1 for the dimensionless f, c, d; u_scale [input units] and y_scale [output
+    unit] the magnitudes the inputs and the output are known to have.
+
+    A unit-free P0 = p I is the textbook choice for normalised regressors. With inputs of hundreds of rpm and
+    N·m and p = 100, the a-priori spread of the prediction ψᵀP0ψ is some 10⁸ output unit², so each early update
+    fits the last few samples exactly, and one disturbed sample (a gap bridged by held inputs, a late burst of
+    frames) throws θ into a wrong minimum where P has already collapsed. Scaled, ψᵀP0ψ is of the order of
+    y_scale² times the squared input deviations in units of u_scale."""
+    s = structure
+    u_scale = np.broadcast_to(np.asarray(u_scale, float), (s.n_inputs,))
+    if not (np.all(u_scale > 0) and y_scale > 0 and np.all(np.isfinite(u_scale)) and math.isfinite(y_scale)):
+        raise ValueError(f"scales must be finite and > 0, got inputs {u_scale}, output {y_scale}")
+    b = np.repeat((y_scale / u_scale) ** 2, s.nb)
+    return np.r_[b, np.ones(s.n_params - b.size)]
 
 
 def running_fits(sw, sy, syy, see, svv) -> tuple[float, float]:
@@ -403,7 +427,7 @@ class RPEM:
     lam0        growth rate of λ(t) towards lam (default 0.9995)
     P0          initial P: scalar (× I), vector (diagonal) or d × d matrix; default from a prior its covariance
                 × R/Λ (Λ its noise variance), or (0.1 θ_j)² without one (10 % uncertainty); from scratch
-                100 I
+                100 I, unit-blind: give `scaled_P0` when the inputs' and output's magnitudes are known
     R           noise variance [output unit²] the update weighs ε against; default the prior's, else 1
     Q           random-walk covariance added to P each update: scalar (× I), vector (diagonal) or d × d
                 matrix; 0 for RPEM (ident.kalman sets it)
@@ -416,13 +440,18 @@ class RPEM:
                 updates (default 600 s from scratch, 0 from a prior). From θ = 0 the noise model would
                 otherwise explain the output as an AR process (D/C y ≈ e) before B_i/F_i has moved, a
                 local minimum with a good one-step prediction and a poor simulation.
+    poles_after_s  FIR phase: F_i too stay at their initial values for the first poles_after_s [s] of updates
+                (default 60 s from scratch, 0 from a prior), so only the B_i move: a linear regression, whose
+                estimate cannot run off. From θ = 0, B_i and F_i adapting together can reach, within seconds
+                and on a few disturbed samples, large opposite gains whose F_i cancel them on that stretch; P
+                has collapsed by then and the estimate never leaves that minimum.
     """
 
     def __init__(self, structure=None, Ts: float | None = None, *, prior=None, lam: float | None = None,
                  lam_start: float | None = None, lam0: float = 0.9995, P0=None, R: float | None = None, Q=0.0,
                  u0=None, y0: float | None = None, trace_max: float | None = None, radius: float = RADIUS,
                  max_gap_s: float = 1.0, warmup_s: float = 10.0, fit_window_s: float = 600.0,
-                 noise_after_s: float | None = None):
+                 noise_after_s: float | None = None, poles_after_s: float | None = None):
         if structure is None:
             if prior is None:
                 raise ValueError("give a structure or a prior model")
@@ -474,9 +503,12 @@ class RPEM:
         trace0 = float(np.trace(self.P))
         if noise_after_s is None:
             noise_after_s = 0.0 if prior is not None else 600.0
+        if poles_after_s is None:
+            poles_after_s = 0.0 if prior is not None else 60.0
         self._cfg = np.array([lam_inf, lam0, self.R, trace_max or 10.0 * trace0, radius, round(max_gap_s / self.Ts),
                               round(warmup_s / self.Ts), 1.0 - self.Ts / fit_window_s,
-                              round(noise_after_s / self.Ts), self._oc], float)
+                              round(noise_after_s / self.Ts), self._oc, round(poles_after_s / self.Ts), sum(s.nb)],
+                             float)
         self._st = np.zeros(13)
         self._st[S_LAM] = lam_inf if lam is not None else lam_start
         self._st[S_GAP_U] = np.inf
