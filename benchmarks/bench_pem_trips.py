@@ -28,7 +28,6 @@ CACHE = HERE / ".cache" / "pem" / "trips"
 FAMILIES = ("diesel_", "map_", "effect_", "map_effect_")
 SIMULATED = (("ambient", 2004), ("ambient", 3004), (None, 11))
 ONE_CORE_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-PAPER = {"nb": (4, 5), "nf": (5, 5), "nk": (3, 0), "nc": 11, "nd": 11}
 
 
 def save(name, u, y, segments, u0, y0):
@@ -76,7 +75,7 @@ def worker(paths, repeat: int):
     import numpy as np
 
     from fuelid.ident.pem import pem
-    from fuelid.ident.polymodel import Structure
+    from fuelid.ident.polymodel import PAPER_ORDERS, Structure
 
     for path in paths:
         d = np.load(path)
@@ -85,7 +84,7 @@ def worker(paths, repeat: int):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 t0 = time.process_time()
-                m = pem(d["u"], d["y"], Structure(**PAPER), 0.3,
+                m = pem(d["u"], d["y"], Structure(**PAPER_ORDERS), 0.3,
                         segments=[tuple(map(int, s)) for s in d["segments"]], u0=d["u0"], y0=float(d["y0"]))
                 cpu = min(cpu, time.process_time() - t0)
         info = m.info

@@ -1,17 +1,12 @@
 """The diagnosis loop end to end through the commands a user runs, on a short simulated trip with a hidden DPF
 regeneration: identify → diagnose names it → identify --effect → compare shows the error falling."""
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fuelid.cli import main
-
-
-def run_json(capsys, *args):
-    assert main([*map(str, args), "--json"]) == 0
-    return json.loads(capsys.readouterr().out)
+from tests.conftest import run_json
 
 
 @pytest.fixture(scope="module")

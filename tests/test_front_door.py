@@ -8,13 +8,9 @@ from pathlib import Path
 import pytest
 
 from fuelid.cli import main
+from tests.conftest import run_json
 
 LOGS = Path(__file__).resolve().parents[1] / "replay_logs"
-
-
-def run_json(capsys, *args):
-    assert main([*map(str, args), "--json"]) == 0
-    return json.loads(capsys.readouterr().out)
 
 
 @pytest.fixture(scope="module")

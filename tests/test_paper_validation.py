@@ -15,6 +15,7 @@ from fuelid.ident.dataset import build_dataset
 from fuelid.ident.modelfile import load_model
 from fuelid.ident.polymodel import simulate
 from fuelid.ident.validation import fit_percent
+from tests.conftest import run_json
 
 LOGS = Path(__file__).resolve().parents[1] / "replay_logs"
 CYCLES = [f"diesel_cycle_{i:02d}" for i in range(1, 12)]
@@ -30,11 +31,6 @@ class TripSet:
 
 SETS = {"paper": TripSet("diesel_ident_90min", "diesel_valid_40min", tuple(CYCLES), True),
         "map": TripSet("map_ident_90min", "map_valid_40min", tuple(f"map_cycle_{i:02d}" for i in range(1, 12)), False)}
-
-
-def run_json(capsys, *args):
-    assert main([*map(str, args), "--json"]) == 0
-    return json.loads(capsys.readouterr().out)
 
 
 @pytest.fixture(scope="module", params=list(SETS))
