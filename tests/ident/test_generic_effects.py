@@ -68,3 +68,21 @@ def test_with_nothing_hidden_the_generic_forms_name_nothing():
     ds, _, _ = hidden.simulated(None, 500, routes_of="hot_intake_air")
     out = dg.diagnose(hidden.identify(ds), ds)
     assert not [c.effect for c in out.candidates if c.significant], out.verdict
+
+
+@pytest.mark.parametrize("effect, seed, signals", [
+    ("hot_intake_air", 5000, {"ET1.EngOilTemp1", "AMB.EngAirInletTemp"}),
+    ("auxiliary_load", 5001, {"EEC3.EstEngParasiticLossesPercentTorque"}),
+])
+def test_signals_these_data_cannot_tell_apart_are_named_together(effect, seed, signals):
+    """In the simulator the oil temperature follows the same smoothed load as the intake air: on seed 5000's trip
+    each explains the other away (neither significant and relevant given the other), so the diagnosis names one
+    and lists the other as an alternative it cannot tell from it, and says so — the true signal is among them.
+    The parasitic losses have no such twin: what cannot be told apart there are forms of the same signal."""
+    ds, _, _ = hidden.simulated(effect, seed)
+    candidates = {c.effect: c for c in dg.diagnose(hidden.identify(ds), ds).candidates}
+    named = [c for c in candidates.values() if c.significant]
+    assert len(named) == 1 and named[0].alternatives, [(c.effect, c.alternatives) for c in named]
+    told_apart = [named[0], *(candidates[a] for a in named[0].alternatives)]
+    assert {s for c in told_apart for s in c.signals} == signals, [c.effect for c in told_apart]
+    assert "cannot tell them apart" in named[0].explanation

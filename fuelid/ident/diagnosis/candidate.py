@@ -11,7 +11,7 @@ from fuelid.ident import effects as fx
 JSON_FIELDS = ("effect", "spec", "name", "form", "signals", "spns", "statistic", "df", "p_value", "log10_p",
                "testable", "tests", "estimated_drop_percent", "size", "explanation", "physics", "p_holm",
                "test_significant", "significant", "recommended", "role", "rmse_drop_percent", "verification",
-               "conditional", "refit", "explained_by")
+               "conditional", "refit", "explained_by", "alternatives")
 UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "statistic", "df", "p_value",
                    "significant", "test_significant", "estimated_drop_percent", "explanation", "rmse_drop_percent",
                    "verification", "conditional", "explained_by")
@@ -64,6 +64,7 @@ class Candidate:
     conditional: dict | None = None
     refit: dict | None = None  # forward selection's PEM refit with it: RMS simulation error without/with, verified
     explained_by: str | None = None
+    alternatives: list = field(default_factory=list)  # rivals these data cannot tell it from (ranking, 5)
     role: str | None = None  # what a named candidate is: ENGINE_MAP (the engine's own curvature) or MISSING_EFFECT
     definition: fx.Effect | None = field(default=None, repr=False)
     entry: object = field(default=None, repr=False)

@@ -24,7 +24,15 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    candidates re-tested), must explain min_effect_percent and is verified on it (4: held-out drop ≥
    min_drop_percent, its physics' direction, identifiable, never worse on a held-out trip); the one with the
    largest drop is accepted next and the model re-identified with it too (`select_forward`). Those confirmed on
-   the model as it is but never accepted are "explained by" the accepted ones. An accepted candidate whose
+   the model as it is but never accepted are "explained by" the accepted ones. Explaining away can go both ways:
+   two signals that move together on these data (in the simulator, an oil temperature that follows the same
+   smoothed load as the intake air) each leave the other insignificant. So each rival confirmed in the same round
+   as the accepted candidate, with a held-out drop at least RIVAL_SHARE of its, is re-tested alone (1–3, at α) on
+   the model re-identified with the accepted one and, when it is not significant and relevant there, the other
+   way round: the accepted one on the model re-identified with the rival instead. When neither is, the data cannot
+   tell the two apart: the rival is listed in the accepted one's `alternatives` and its explanation says so (data
+   where they differ, another day, can).
+   An accepted candidate whose
    re-identified model simulates the data worse than the model without it (RMS simulation error over the tested
    samples: the refit cannot be verified) is named but not recommended, and the search goes on from the model
    without it, with the next candidate found.
@@ -68,6 +76,7 @@ from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import metrics
 
 GENERIC_WEIGHT = 0.8  # a generic bus signal must explain 25 % more than a named effect to be accepted first
+RIVAL_SHARE = 0.5  # a rival explaining less than half of what the accepted one does cannot explain it away (5)
 MAP_TERM, PRODUCT_TERM = "engine_map", "power_nonlinearity"  # the engine's curvature: its map, its product term (0)
 
 
@@ -286,11 +295,12 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     on the model as it is, best first) the first whose refit is verified, then, as long as one is found, the next
     of `pool` (the other re-testable candidates) significant, relevant and verified on the model re-identified with
     those accepted so far. Returns the candidates named in order, `first`'s first; each has its `refit` record (those
-    not verified are named, not recommended); each one tested after them has its `conditional` record (the last
-    round's for those never accepted). effects: the engineer-defined effects the candidates may name."""
+    not verified are named, not recommended) and its `alternatives` (`_indistinguishable`); each one tested after
+    them has its `conditional` record (the last round's for those never accepted). effects: the engineer-defined
+    effects the candidates may name."""
     named, pool, found = [], [c for c in pool if c not in first], list(first)
     while found:
-        for c in found:
+        for k, c in enumerate(found):
             named.append(c)
             if c in pool:
                 pool.remove(c)
@@ -301,6 +311,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
                     c.rmse_drop_percent = c.verification["rmse_drop_percent"]
             refitted = _refit(c, model, run, ds, effects)
             if refitted is not None:
+                rivals = [r for r in found[k + 1:] if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
+                c.alternatives = _indistinguishable(c, rivals, model, refitted, ds, alpha, min_effect_percent, effects)
                 model, run = refitted
                 break
         else:  # no refit verified: nothing to re-test the rest on
@@ -310,6 +322,35 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     for c in pool:
         (c.conditional or {}).pop("explanation", None)
     return named
+
+
+def _round_drop(c: Candidate) -> float | None:
+    """c's held-out drop [%] on the model of the round it was found in: its re-test's, else the model as it is."""
+    return (c.conditional or {}).get("rmse_drop_percent", c.rmse_drop_percent)
+
+
+def _relevant_given(c: Candidate, model: PolyModel, run: Run, ds, alpha: float, min_effect_percent: float) -> bool:
+    """c re-tested alone on `model` (1–3, at alpha): significant and explaining min_effect_percent."""
+    given = rank_candidates(model, ds, run, [c.definition], alpha)[0]
+    return given.test_significant and given.estimated_drop_percent >= min_effect_percent
+
+
+def _indistinguishable(c: Candidate, rivals: list[Candidate], model: PolyModel, with_c: tuple[PolyModel, Run], ds,
+                       alpha: float, min_effect_percent: float, effects=()) -> list[str]:
+    """Those of `rivals` (found on `model` beside c) that explain c away and c them (module docstring, 5): not
+    significant and relevant on `with_c`, the model re-identified with c and its run, and c not on `model`
+    re-identified with the rival instead. A rival whose refit fails cannot be compared and is left out."""
+    alike = []
+    for r in rivals:
+        if _relevant_given(r, *with_c, ds, alpha, min_effect_percent):
+            continue
+        try:
+            refit = refit_with_effects(model, ds, [r.effect], defined=effects, max_iter=REFIT_MAX_ITER)
+            if not _relevant_given(c, refit, run_gradients(run_model(refit, ds)), ds, alpha, min_effect_percent):
+                alike.append(r.effect)
+        except (FuelidError, np.linalg.LinAlgError):
+            continue
+    return alike
 
 
 def _verify(c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray) -> None:
@@ -377,6 +418,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     names), spns, statistic (the larger LM of its two tests), df, p_value (Bonferroni over the two tests),
     p_holm, test_significant (Holm at alpha), estimated_drop_percent (share of the simulation error its
     least-squares fit explains), conditional (its re-test given the effects accepted before it), explained_by,
+    alternatives (for a missing effect named, the rivals these data cannot tell it from: module docstring, 5),
     rmse_drop_percent (held-out RMS simulation error drop with it, linearised refit, None unless verified),
     verification (held-out RMSE and cycle fuel errors without/with, direction), significant (a missing effect:
     when verified, a held-out drop ≥ min_drop_percent in the direction of its physics, then accepted by
@@ -433,6 +475,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
                 c.explained_by = explaining
     for c in accepted:
         c.significant, c.role = True, MISSING_EFFECT
+        if c.alternatives:
+            c.explanation += f" — or {' or '.join(c.alternatives)}: these data cannot tell them apart (neither is " \
+                             "significant given the other; data where they differ, another day, can)"
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
         c.recommended = c.verification is not None and "error" not in c.verification and _refit_verified(c)
         if not _refit_verified(c):
