@@ -82,6 +82,16 @@ def test_on_the_map_engine_the_curvature_is_the_engines_map_term_not_a_missing_e
     assert product["explained_by"].startswith("engine_map"), product["explanation"]
 
 
+def test_without_verification_the_tests_alone_name_and_nothing_is_recommended():
+    """n_verify = 0 (`fuelid report --verify 0`): on the map engine the forward selection goes on from the map
+    term with the candidates its tests alone accept, unverified, so none is recommended."""
+    ds, _, _ = hidden.simulated(None, 11, truth="map")
+    out = dg.diagnose(hidden.identify(ds), ds, n_verify=0)
+    assert out.engine_map is not None and out.missing_effects, out.verdict
+    assert not [c.effect for c in out.candidates if c.recommended]
+    assert all(c.verification is None for c in out.missing_effects)
+
+
 def test_on_the_map_engine_a_hidden_dpf_regeneration_is_found_on_top_of_the_map_term():
     """A DPF regeneration hidden on the map engine: the map term first (the engine's), then the regeneration as
     the first missing effect, found on the model with the map term and lowering its held-out error a lot."""

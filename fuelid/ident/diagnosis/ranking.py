@@ -306,8 +306,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
                 pool.remove(c)
             if "explanation" in (c.conditional or {}):  # said as the test on the model re-identified measures it
                 c.explanation = c.conditional.pop("explanation")
-                if c.verification is None or "error" in c.verification:
-                    c.verification = c.conditional["verification"]
+                if (c.verification is None or "error" in c.verification) and "verification" in c.conditional:
+                    c.verification = c.conditional["verification"]  # (none without verification: n_verify = 0)
                     c.rmse_drop_percent = c.verification["rmse_drop_percent"]
             refitted = _refit(c, model, run, ds, effects)
             if refitted is not None:
