@@ -108,7 +108,11 @@ def fuel_change(theta, cov, structure, gain0, du) -> tuple[float, float]:
 
 def input_scales(idle_speed: float, torque_ref: float) -> np.ndarray:
     """The magnitudes [rpm, torque unit] the RPEM from scratch scales its P0 by (ident.rpem.scaled_P0), known
-    before the engine has moved: the idle speed [rpm] and the reference torque [Nm] (100 for a torque in %)."""
+    before the engine has moved: the idle speed [rpm] and the reference torque [Nm] (100 for a torque in %).
+    FuelidError when either is not a positive number (a torque that never moved from 0 gives nothing to scale)."""
+    if not (idle_speed > 0 and torque_ref is not None and torque_ref > 0):
+        raise FuelidError(f"no scale for the RPEM from scratch: idle speed {idle_speed} rpm, reference torque "
+                          f"{torque_ref} (the torque must be known and move from 0)")
     return np.array([idle_speed, torque_ref], float)
 
 

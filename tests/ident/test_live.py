@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from fuelid.cli import main
-from fuelid.ident.live import LiveEstimator
+from fuelid.errors import FuelidError
+from fuelid.ident.live import LiveEstimator, input_scales
 from fuelid.ident.polymodel import Structure
 from fuelid.logger.mcap_log import read_messages
 from tests.conftest import REPO
@@ -164,3 +165,10 @@ print('scipy.signal' in sys.modules, 'scipy.linalg' in sys.modules)"""
                          cwd=REPO, capture_output=True, text=True, check=True)
     assert out.stdout.split("\n")[:2] == ["False", "False True"]
     assert (tmp_path / "model.json").exists()
+
+
+def test_input_scales_need_a_speed_and_a_torque_that_moved():
+    assert input_scales(600.0, 1600.0).tolist() == [600.0, 1600.0]
+    for speed, torque in ((600.0, 0.0), (600.0, float("nan")), (0.0, 1600.0), (600.0, None)):
+        with pytest.raises(FuelidError, match="no scale"):
+            input_scales(speed, torque)
