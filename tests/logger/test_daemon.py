@@ -437,7 +437,9 @@ def test_identify_from_scratch_converges_in_the_log(tmp_path, trip):
     simulated = np.array([np.nan if r["simulated"] is None else r["simulated"] for r in pred])
     third = len(pred) // 3
     first, last = _fit(measured[:third], simulated[:third]), _fit(measured[-third:], simulated[-third:])
-    assert last > 75.0 and last > first + 20.0
+    # from scratch with P0 in the parameters' units and F held for the first minute (ident.rpem) the first third
+    # is already fitted at ~80 % (it was far below before): converged, and still better at the end
+    assert last > 75.0 and last > first
     model = load_model(run.config.output_dir / "model.json")  # the snapshot written at shutdown
     assert model.structure.n_params == 41 and model.input_units == ("rpm", "Nm") and model.output_unit == "L/h"
     assert model.info["updates"] >= params[-1]["updates"]
