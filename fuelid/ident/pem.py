@@ -154,8 +154,7 @@ def _least_squares(rows: np.ndarray, target: np.ndarray, used) -> np.ndarray:
 def _stable_theta(theta: np.ndarray, s: Structure) -> np.ndarray:
     """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter)."""
     p = polynomials(theta, s)
-    return np.concatenate([p.A[1:]] + [b[k:] for b, k in zip(p.B, s.nk)] + [stabilize(f)[1:] for f in p.F]
-                          + [stabilize(p.C)[1:], stabilize(p.D)[1:]])
+    return p._replace(F=[stabilize(f) for f in p.F], C=stabilize(p.C), D=stabilize(p.D)).theta(s.nk)
 
 
 def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:

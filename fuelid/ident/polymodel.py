@@ -204,9 +204,7 @@ class PolyModel:
     @property
     def theta(self) -> np.ndarray:
         """θ in the order of `parameter_names`."""
-        return np.concatenate(
-            [self.A[1:]] + [b[k:] for b, k in zip(self.B, self.nk)] + [f[1:] for f in self.F] + [self.C[1:], self.D[1:]]
-        )
+        return Polynomials(self.A, self.B, self.F, self.C, self.D).theta(self.nk)
 
     @property
     def std_errors(self) -> np.ndarray | None:
@@ -222,6 +220,11 @@ class Polynomials(NamedTuple):
     F: list[np.ndarray]
     C: np.ndarray
     D: np.ndarray
+
+    def theta(self, nk) -> np.ndarray:
+        """θ in the order of `parameter_names` (nk the input delays: the leading zeros of each B_i)."""
+        return np.concatenate([self.A[1:]] + [b[k:] for b, k in zip(self.B, nk)] + [f[1:] for f in self.F]
+                              + [self.C[1:], self.D[1:]])
 
 
 def polynomials(theta: np.ndarray, s: Structure) -> Polynomials:
