@@ -7,11 +7,13 @@ valid stretches of at least `min_segment_s` are taken, the model is estimated by
 (ident.pem.pem) and its validation metrics on the whole dataset (ident.validation.evaluate) are stored in it.
 
 With effects that add inputs, PEM is run from two starts and the lower loss V kept: the usual initialisation of
-the whole structure, and the model without the effects (given, or identified first on the same samples) with the
-effects' coefficients at zero (`with_inputs`) — the point the diagnosis linearises around, from which
-Levenberg–Marquardt only descends. So the model with the effects never has a higher V on its identification data
-than the model without them, and a start that falls into a poor local minimum (a pole pressed against the
-stability bound) is not the one kept.
+the whole structure, and the effects added in turn (`effects_added_in_turn`): the model without the effects
+(given, or identified first on the same samples), then with the first effect, the first two, … each stage
+identified from the usual initialisation and from the stage before it with the new coefficients at zero
+(`with_inputs`, from which Levenberg–Marquardt only descends), the lower V kept. So the model with the effects
+never has a higher V on its identification data than the model with any of their leading subsets — the order
+is the diagnosis's, which accepted them in turn — and a start that falls into a poor local minimum (a pole
+pressed against the stability bound, or the initialisation of many collinear inputs) is not the one kept.
 """
 from __future__ import annotations
 
@@ -92,10 +94,12 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     starts = {"initialisation" if given is None else "given model": given}
     with warnings.catch_warnings():  # pem records its warnings in model.info
         warnings.simplefilter("ignore", UserWarning)
+        stages = []
         if fx.u.shape[1]:
             if base is None or base.structure != structure:
                 base = pem(ds.u, y, structure, ds.Ts, segments=segs, u0=ds.u0, y0=ds.y0)
-            starts["model without the effects"] = with_inputs(base, extended)
+            nested, stages = effects_added_in_turn(base, u, y, fx, segs, ds.Ts, y0=ds.y0)
+            starts["effects added in turn"] = with_inputs(nested, extended)
         fits = {name: pem(u, y, extended, ds.Ts, segments=segs, u0=u0, y0=ds.y0, init=start)
                 for name, start in starts.items()}
     kept = min(fits, key=lambda name: fits[name].info["loss_V"])
@@ -104,7 +108,8 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
         model, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
         output_name=ds.output_name, output_unit=ds.output_unit, effects=fx.effects,
         info={**model.info, "effect_parameters": fx.parameters,
-              "starts": {"loss_V": {name: m.info["loss_V"] for name, m in fits.items()}, "kept": kept},
+              "starts": {"loss_V": {name: m.info["loss_V"] for name, m in fits.items()}, "kept": kept,
+                         "stages": stages},
               **effect_definitions(fx.effects, defined)},
         training={**ds.summary(), "files": list(map(str, files)),
                   "identification_samples": int(n_train), "identification_stretches": len(segs)})
@@ -112,6 +117,36 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
                                                 n_train - len(segs) * extended.n_start)
     return model
+
+
+def _first_inputs(s: Structure, m: int) -> Structure:
+    """Structure s with its first m inputs only."""
+    return Structure(nb=s.nb[:m], nf=s.nf[:m], nk=s.nk[:m], nc=s.nc, nd=s.nd, na=s.na)
+
+
+def effects_added_in_turn(base: PolyModel, u: np.ndarray, y: np.ndarray, fx: EffectInputs, segments, Ts: float, *,
+                          y0: float) -> tuple[PolyModel, list[dict]]:
+    """The model with every effect of fx that adds inputs but the last, built from `base` (the model of u's first
+    inputs, speed and torque, identified on the same samples) by adding them in turn: each stage identified by PEM
+    on u's leading columns from the usual initialisation and from the stage before with the new coefficients at
+    zero (`with_inputs`), the lower loss V kept, so no stage's V exceeds the one before it. u: N × (2 + k) inputs
+    (speed [rpm], torque, then fx.u), y: the (shifted) fuel [L/h], segments as in `pem`, Ts [s], y0 the fuel's
+    operating point [L/h]. Returns (that model, [{effects, loss_V} per stage])."""
+    model, stages = base, []
+    n_base = len(base.B)
+    full = fx.extend(base.structure)
+    ends = np.cumsum(fx.columns)
+    for j, end in enumerate(ends):
+        if not fx.columns[j] or end == fx.u.shape[1]:
+            continue
+        m = n_base + int(end)
+        sub = _first_inputs(full, m)
+        u0 = np.r_[base.u0, np.zeros(m - n_base)]
+        fits = [pem(u[:, :m], y, sub, Ts, segments=segments, u0=u0, y0=y0, init=start)
+                for start in (None, with_inputs(model, sub))]
+        model = min(fits, key=lambda fit: fit.info["loss_V"])
+        stages.append({"effects": list(fx.effects[: j + 1]), "loss_V": model.info["loss_V"]})
+    return model, stages
 
 
 def with_inputs(model: PolyModel, structure: Structure) -> PolyModel:

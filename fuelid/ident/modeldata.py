@@ -24,7 +24,8 @@ from fuelid.ident.polymodel import Structure
 @dataclass
 class EffectInputs:
     """What `apply_effects` gives a fit: extra inputs u (N × k) with names, units and orders (nb, nf, nk) per
-    column, the fuel y (advanced by the fuel-delay shift when that effect is on) and the effect parameters."""
+    column, the fuel y (advanced by the fuel-delay shift when that effect is on), the effect parameters and how
+    many columns of u each of `effects` added, in order (0 for the fuel-delay shift)."""
 
     u: np.ndarray
     names: tuple[str, ...]
@@ -33,6 +34,7 @@ class EffectInputs:
     y: np.ndarray
     effects: tuple[str, ...]
     parameters: dict
+    columns: tuple[int, ...] = ()
 
     def extend(self, structure):
         """The model structure with one more input per extra column."""
@@ -52,7 +54,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
     Raises ValueError for an unknown id or an effect whose signals are not logged.
     """
     parameters = dict(parameters or {})
-    cols, names, units, orders, used = [], [], [], [], []
+    cols, names, units, orders, used, widths = [], [], [], [], [], []
     y = np.asarray(ds.y, float)
     shift = None
     for raw in ids:
@@ -63,6 +65,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
             parameters[effect.id] = value if value is not None else parameters.get(effect.id, effect.reference(ds))
             effect = centred(effect, parameters[effect.id])
         if effect.enters == "shift":
+            widths.append(0)
             shift_id = effect.id
             shift = value if value is not None else parameters.get(effect.id, "sweep")
             continue
@@ -70,6 +73,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
         if reg is None:
             raise InputError(f"effect {effect.id}: its signals ({', '.join(effect.signals)}) are not in the data")
         cols.append(reg.x)
+        widths.append(reg.x.shape[1])
         names += [f"{effect.id}: {n}" for n in reg.names]
         units += list(reg.units)
         orders += [effect.orders] * reg.x.shape[1]
@@ -81,7 +85,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
     if shift is not None:
         parameters[shift_id] = float(shift)
         y = shift_signal(y, shift / ds.Ts, ds.segments())
-    return EffectInputs(u, tuple(names), tuple(units), tuple(orders), y, tuple(used), parameters)
+    return EffectInputs(u, tuple(names), tuple(units), tuple(orders), y, tuple(used), parameters, tuple(widths))
 
 
 def at_operating_point(ds, model):
