@@ -167,9 +167,13 @@ def _least_squares(rows: np.ndarray, target: np.ndarray, used) -> np.ndarray:
 
 
 def _stable_theta(theta: np.ndarray, s: Structure) -> np.ndarray:
-    """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter)."""
+    """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter); θ itself
+    when `stabilize` left every one as it was."""
     p = polynomials(theta, s)
-    return p._replace(F=[stabilize(f) for f in p.F], C=stabilize(p.C), D=stabilize(p.D)).theta(s.nk)
+    q = p._replace(F=[stabilize(f) for f in p.F], C=stabilize(p.C), D=stabilize(p.D))
+    if all(a is b for a, b in zip([*p.F, p.C, p.D], [*q.F, q.C, q.D])):
+        return theta
+    return q.theta(s.nk)
 
 
 def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:
