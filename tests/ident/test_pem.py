@@ -190,7 +190,8 @@ def test_roots_within_agrees_with_np_roots():
     rng = np.random.default_rng(7)
     for _ in range(500):
         n = int(rng.integers(1, 12))
-        radius = rng.choice([rng.uniform(0.2, 1.2), 1.0 - 10.0 ** rng.uniform(-6, -2), 1.0 + 10.0 ** rng.uniform(-6, -2)])
+        near = 10.0 ** rng.uniform(-6, -2)  # a root this close to the circle, inside or outside
+        radius = rng.choice([rng.uniform(0.2, 1.2), 1.0 - near, 1.0 + near])
         z = radius * np.exp(1j * rng.uniform(0, np.pi, n // 2))
         z = np.r_[z, z.conj(), rng.uniform(-1, 1, n % 2) * radius]
         p = np.real(np.poly(z))
