@@ -89,12 +89,27 @@ HIGH_ORDER_ARX = 30  # order of the ARX model behind the OE/BJ initialisation
 # off at a limit leaves the BJ fit in a valley it crawls along (shipped 20-min DPF trip: OE stopped at 100
 # iterations → BJ V = 565.6, not converged after 100; OE run to its minimum in 161 → BJ converged in 7 at 558.7).
 INIT_MAX_ITER = 500
+# `stabilize` skips np.roots when the Schur–Cohn test puts every root within rho · STABLE_MARGIN: a margin far
+# above np.roots' error (≲ 1e-8 relative for a double root), so that the roots it would compute are ≤ rho too.
+STABLE_MARGIN = 1.0 - 1e-4
+
+
+def _roots_within(p, r: float) -> bool:
+    """Whether every root of the monic polynomial p lies strictly inside |z| < r, by the Schur–Cohn (step-down)
+    test on q_k = p_k / r^k: every reflection coefficient of q of magnitude below 1 (Jury, Åström)."""
+    q = [float(c) / r**k for k, c in enumerate(p)]
+    for n in range(len(q) - 1, 0, -1):
+        k = q[n]
+        if not abs(k) < 1.0:
+            return False
+        q = [(q[i] - k * q[n - i]) / (1.0 - k * k) for i in range(n)]
+    return True
 
 
 def stabilize(p: np.ndarray, rho: float = RHO_MAX) -> np.ndarray:
     """Monic polynomial p with roots z outside the unit circle reflected to 1/z̄ and every |z| clipped to ≤ rho."""
     p = np.asarray(p, float)
-    if p.size < 2:
+    if p.size < 2 or _roots_within(p, rho * STABLE_MARGIN):
         return p
     z = np.roots(p)
     r = np.abs(z)
@@ -152,9 +167,13 @@ def _least_squares(rows: np.ndarray, target: np.ndarray, used) -> np.ndarray:
 
 
 def _stable_theta(theta: np.ndarray, s: Structure) -> np.ndarray:
-    """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter)."""
+    """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter); θ itself
+    when `stabilize` left every one as it was."""
     p = polynomials(theta, s)
-    return p._replace(F=[stabilize(f) for f in p.F], C=stabilize(p.C), D=stabilize(p.D)).theta(s.nk)
+    q = p._replace(F=[stabilize(f) for f in p.F], C=stabilize(p.C), D=stabilize(p.D))
+    if all(a is b for a, b in zip([*p.F, p.C, p.D], [*q.F, q.C, q.D])):
+        return theta
+    return q.theta(s.nk)
 
 
 def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:
@@ -167,35 +186,58 @@ def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:
     return functools.reduce(operator.add, x)
 
 
-def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobian: bool = False, starts=(0,)):
-    """ε(t, θ) for deviation data (u: N × m, y: N); with jacobian=True also Ψ (N × d), ψ = −∂ε/∂θ (module doc).
+class _Responses(NamedTuple):
+    """The filtered signals of one θ: its polynomials m, the input responses x_i = B_i/F_i u_i, the residual
+    w = A y − Σ x_i and ε = D/C w."""
 
-    starts: the indices where segments begin (the first 0); every filter restarts from zero state there.
-    Filters by 1/1 (A, C, D of an OE model) are skipped, and so are the signals of empty regressor blocks:
-    lfilter([1], [1], x) is x exactly, so ε and Ψ are the same to the bit."""
-    m = polynomials(theta, s)
+    m: object
+    x: list
+    w: np.ndarray
+    eps: np.ndarray
 
+
+def _filter(starts):
+    """lfilter(b, a, x, axis) restarted at each segment start; by 1/1 (A, C, D of an OE model) it returns x
+    itself: lfilter([1], [1], x) is x exactly, so the results are the same to the bit."""
     def filt(b, a, x, axis=-1):
         if len(b) == len(a) == 1 and b[0] == a[0] == 1.0:
             return x
         return _restarted(lambda p: lfilter(b, a, p, axis=axis), x, starts, axis)
+    return filt
 
+
+def _responses(theta, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Responses:
+    """x_i, w and ε at θ (`_Responses`) for deviation data, every filter restarting at the segment `starts`."""
+    m = polynomials(theta, s)
+    filt = _filter(starts)
     x = [filt(b, f, u[:, i]) for i, (b, f) in enumerate(zip(m.B, m.F))]
     w = filt(m.A, [1.0], y) - _sum_of_columns(x, y.size)
-    eps = filt(m.D, m.C, w)
-    if not jacobian:
-        return eps
+    return _Responses(m, x, w, filt(m.D, m.C, w))
+
+
+def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,)) -> np.ndarray:
+    """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ; the signals of empty regressor
+    blocks are not filtered."""
+    m, filt = r.m, _filter(starts)
     blocks = [(-filt(m.D, m.C, y), range(1, s.na + 1))] if s.na else []
     fx = []
     for i in range(s.n_inputs):
-        fi = filt(m.D, np.convolve(m.C, m.F[i]), np.vstack([u[:, i], x[i]]))
+        fi = filt(m.D, np.convolve(m.C, m.F[i]), np.vstack([u[:, i], r.x[i]]))
         blocks.append((fi[0], range(s.nk[i], s.nk[i] + s.nb[i])))
         fx.append((-fi[1], range(1, s.nf[i] + 1)))
     blocks += fx
     if s.nc or s.nd:
-        ew = filt([1.0], m.C, np.vstack([eps, w]))
+        ew = filt([1.0], m.C, np.vstack([r.eps, r.w]))
         blocks += [(ew[0], range(1, s.nc + 1)), (-ew[1], range(1, s.nd + 1))]
-    return eps, _regressors(blocks, y.size, starts).T
+    return _regressors(blocks, y.size, starts).T
+
+
+def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobian: bool = False, starts=(0,)):
+    """ε(t, θ) for deviation data (u: N × m, y: N); with jacobian=True also Ψ (N × d), ψ = −∂ε/∂θ (module doc).
+
+    starts: the indices where segments begin (the first 0); every filter restarts from zero state there."""
+    r = _responses(theta, s, u, y, starts)
+    return (r.eps, _jacobian(r, s, u, y, starts)) if jacobian else r.eps
 
 
 def _loss(eps: np.ndarray, used) -> float:
@@ -263,7 +305,8 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     """
     used = _used(y.size, starts, s.n_start)
     theta = _stable_theta(np.asarray(theta, float), s)
-    eps, psi = prediction_errors(theta, s, u, y, jacobian=True, starts=starts)
+    r = _responses(theta, s, u, y, starts)
+    eps, psi = r.eps, _jacobian(r, s, u, y, starts)
     dof = max(eps[used].size - s.n_params, 1)
     V, mu = _loss(eps, used), 1e-4
     history, flat, cut = [V], 0, False
@@ -276,14 +319,15 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         if flat >= FLAT_ITERATIONS and (small_step or cut):
             return LMResult(theta, V, it - 1, True, "stability_bound" if cut and not small_step else "flat_loss",
                             history, psi, eps)
-        best, all_cut = (V, None, mu, False), True
+        best, all_cut = (V, None, mu, False, None), True
         for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
             raw = theta + Q @ (g / (ell + trial * ell[-1])) / scale
             cand = _stable_theta(raw, s)
             all_cut &= not np.array_equal(cand, raw)
-            V_c = _loss(prediction_errors(cand, s, u, y, starts=starts), used)
+            r_c = _responses(cand, s, u, y, starts)
+            V_c = _loss(r_c.eps, used)
             if V_c < best[0]:
-                best = (V_c, cand, trial, not np.array_equal(cand, raw))
+                best = (V_c, cand, trial, not np.array_equal(cand, raw), r_c)
             if trial >= mu and best[1] is not None:
                 break
         if best[1] is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
@@ -291,9 +335,9 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
                 return LMResult(theta, V, it - 1, True, "stability_bound", history, psi, eps)
             return LMResult(theta, V, it - 1, bool(small_step or cut), "no_descent", history, psi, eps)
         flat = flat + 1 if V - best[0] <= ftol * V / dof else 0
-        V, theta, mu, cut = best[0], best[1], max(best[2], 1e-15), best[3]
+        V, theta, mu, cut, r = best[0], best[1], max(best[2], 1e-15), best[3], best[4]
         history.append(V)
-        eps, psi = prediction_errors(theta, s, u, y, jacobian=True, starts=starts)
+        eps, psi = r.eps, _jacobian(r, s, u, y, starts)  # the accepted trial's filtered signals, not filtered again
     return LMResult(theta, V, max_iter, False, "max_iterations", history, psi, eps)
 
 

@@ -184,6 +184,22 @@ def test_stabilize_reflects_roots():
     np.testing.assert_array_equal(stabilize([1.0, -0.5]), [1.0, -0.5])
 
 
+def test_roots_within_agrees_with_np_roots():
+    """The Schur–Cohn test `stabilize` uses to skip np.roots: on polynomials with roots scattered around the
+    circle of radius r (lightly damped pairs, near-double roots), it says 'all inside' exactly when np.roots does."""
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        n = int(rng.integers(1, 12))
+        near = 10.0 ** rng.uniform(-6, -2)  # a root this close to the circle, inside or outside
+        radius = rng.choice([rng.uniform(0.2, 1.2), 1.0 - near, 1.0 + near])
+        z = radius * np.exp(1j * rng.uniform(0, np.pi, n // 2))
+        z = np.r_[z, z.conj(), rng.uniform(-1, 1, n % 2) * radius]
+        p = np.real(np.poly(z))
+        assert pem_module._roots_within(p, 1.0) == bool(np.all(np.abs(np.roots(p)) < 1.0)), z
+    assert not pem_module._roots_within([1.0, -0.99995], pem_module.RHO_MAX * pem_module.STABLE_MARGIN)
+    assert pem_module._roots_within([1.0, -0.999], pem_module.RHO_MAX * pem_module.STABLE_MARGIN)
+
+
 def test_stability_enforced_from_unstable_start():
     """An unstable initial F, C, D (and data from an unstable noise denominator) still give a stable model."""
     truth = PolyModel(A=[1], B=[[0.5, 0.3]], F=[[1, -0.9]], C=[1, 0.5], D=[1, -1.02], Ts=1.0, nk=(0,))
