@@ -47,7 +47,9 @@ then the rest by p-value. README gives the measured false alarms and the table p
 
 A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified and
 the model re-identified with it simulates the data no worse than the model without it (5) — and, for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no
-physics for), only when the data held several trips and it held up left out of each (leave-one-trip-out). On one
+physics for), only when the data held several trips and it held up left out of each (leave-one-trip-out): in the
+linearised refit (4) and, once accepted, with its own dynamics and the model re-identified by PEM on the other trips
+(diagnosis.carryover: its refit counts as not verified when the pooled error on the trips left out rises). On one
 trip such a signal can stand in for whatever else moves with the operating point that day (on a real engine its
 transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined effect brings its
 physics (sign, form) and is recommended from one trip.
@@ -63,6 +65,7 @@ from scipy.signal import lfilter
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP, MISSING_EFFECT, Candidate
+from fuelid.ident.diagnosis.carryover import WAYS, left_out_trips
 from fuelid.ident.diagnosis.entries import ENTRIES
 from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid, explain
 from fuelid.ident.diagnosis.failures import where_it_fails
@@ -185,6 +188,15 @@ def _why_refit_not_verified(c: Candidate) -> str:
     """What the explanation of a named candidate whose refit was not verified adds."""
     if "error" in c.refit:
         return f" — but the model cannot be re-identified with it ({c.refit['error']}): not recommended"
+    if "trips" in c.refit:
+        t = c.refit["trips"]
+        if "error" in t:
+            return f" — but the model cannot be re-identified with it leaving a trip out ({t['error']}): " \
+                   "not recommended"
+        worse = [f"{WAY_WORDS[way]}, RMS error {t[way]['rmse_without']:.3f} → {t[way]['rmse_with']:.3f}"
+                 for way in WAYS if t[way]["rmse_with"] > t[way]["rmse_without"]]
+        return f" — but fitted on the other trips it makes the trips left out worse ({'; '.join(worse)}, pooled, " \
+               "leave-one-trip-out by PEM): not recommended"
     return f" — but the model re-identified with it (PEM, from the model without it) simulates these data worse " \
            f"(RMS error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}): not recommended"
 
@@ -207,6 +219,8 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
            f"{-v['trips']['pooled_rmse_drop_percent']:+.1f} %, leave-one-trip-out): not recommended"
 
 
+WAY_WORDS = {"own_dynamics": "its own dynamics fitted to the model's errors",
+             "re_identified": "the model re-identified with it"}  # carryover.WAYS, as the explanation says them
 ONE_TRIP_ONLY = ("; not recommended: a bus signal fuelid knows no physics for, found on one trip (diagnose it "
                  "with other days' files to see whether it carries over)")
 """Why a generic bus-signal candidate found on one trip is named but not recommended (module docstring)."""
@@ -258,6 +272,11 @@ def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects) -> tuple[PolyM
     c.refit = {"rmse_without": without, "rmse_with": with_, "loss_V_without": model.info.get("loss_V"),
                "loss_V_with": refit.info["loss_V"], "iterations": refit.info["iterations"],
                "verified": bool(with_ <= without)}
+    if c.refit["verified"] and _generic(c):
+        carry = left_out_trips(c.effect, model, ds, run, defined=effects, max_iter=REFIT_MAX_ITER)
+        if carry is not None:
+            c.refit["trips"] = carry
+            c.refit["verified"] = carry["carries_over"]
     return (refit, refit_run) if c.refit["verified"] else None
 
 

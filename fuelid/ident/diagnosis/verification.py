@@ -107,17 +107,22 @@ def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S
     return {"ysim": ysim, "y": run.y, "beta": beta}
 
 
-def trip_groups(ds, run: Run, break_s: float = TRIP_BREAK_S) -> list[np.ndarray]:
-    """Positions in the stacked run (run.r) of each trip: the run's segments, grouped where the log breaks for at
-    least break_s [s]."""
-    ends = np.cumsum(run.lens)
-    groups, current = [], []
+def trips(ds, run: Run, break_s: float = TRIP_BREAK_S) -> list[list[int]]:
+    """The indices into run.segs of each trip: the run's segments, grouped where the log breaks for at least
+    break_s [s]."""
+    groups = []
     for k, seg in enumerate(run.segs):
-        if current and ds.t[seg.start] - ds.t[run.segs[k - 1].stop - 1] >= break_s:
-            groups.append(np.concatenate(current))
-            current = []
-        current.append(np.arange(ends[k] - run.lens[k], ends[k]))
-    return groups + [np.concatenate(current)] if current else groups
+        if not groups or ds.t[seg.start] - ds.t[run.segs[k - 1].stop - 1] >= break_s:
+            groups.append([])
+        groups[-1].append(k)
+    return groups
+
+
+def trip_groups(ds, run: Run, break_s: float = TRIP_BREAK_S) -> list[np.ndarray]:
+    """Positions in the stacked run (run.r) of each trip (`trips`)."""
+    ends = np.cumsum(run.lens)
+    return [np.concatenate([np.arange(ends[k] - run.lens[k], ends[k]) for k in trip])
+            for trip in trips(ds, run, break_s)]
 
 
 def trip_cv(r: np.ndarray, Z: np.ndarray, groups) -> np.ndarray:
