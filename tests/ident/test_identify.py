@@ -1,8 +1,10 @@
 """Identification with effects (ident.identify): the model with an effect the diagnosis recommends is never worse
 than the model without it — on its own identification data (its loss V) and on another day's trip."""
+from types import SimpleNamespace
+
 import numpy as np
 
-from fuelid.ident.identify import identify_model, refit_with_effects, with_inputs
+from fuelid.ident.identify import identify_model, kept_fit, refit_with_effects, with_inputs
 from fuelid.ident.polymodel import Structure, simulate
 from fuelid.ident.validation import evaluate
 from tests.ident import hidden
@@ -42,39 +44,43 @@ def test_a_warm_started_refit_never_raises_the_loss_and_carries_the_models_own_e
     assert refit.info["iterations"] <= 5
 
 
-def test_effects_are_added_in_turn_so_each_one_added_never_simulates_worse():
+def test_effects_are_added_in_turn_so_each_one_added_never_raises_the_loss():
     """On the VECTO map engine's trip hiding the inertia (seed 3000), the diagnosis recommends the engine's map
     term, then the inertia. Identified from the usual initialisation, the seven inputs (four of them the map
     term's collinear products) start far off (V ≈ 9·10⁵), and from the model without any effect the fit stalls at
     V ≈ 2700, above the map term's own model (876): the inertia recommended then doubled another day's error.
-    Added in turn — the map term's model, then the inertia on it — the model with both simulates the trip better
-    than the map term's own, and another day's trip too."""
+    Added in turn — the map term's model, then the inertia on it — the model with both has a lower loss than the
+    map term's own, and simulates another day's trip better."""
     ds, _, _ = hidden.simulated("inertia", 3000, truth="map")
     other_day, _, _ = hidden.simulated("inertia", 3050, truth="map")
     map_only = identify_model(ds, hidden.PAPER, ["engine_map"])
     both = identify_model(ds, hidden.PAPER, ["engine_map", "inertia"])
     stages, starts = both.info["starts"]["stages"], both.info["starts"]
     assert [s["effects"] for s in stages] == [["engine_map"]]
-    best_map_only = min(map_only.info["starts"]["simulation_rmse"].values())
-    assert stages[0]["simulation_rmse"] == best_map_only
+    assert stages[0]["loss_V"] == map_only.info["loss_V"]  # the same fits, the same one kept
     assert starts["kept"] == "effects added in turn", starts
-    assert starts["simulation_rmse"]["effects added in turn"] <= best_map_only
+    assert both.info["loss_V"] <= map_only.info["loss_V"]
     rmse = {name: evaluate(m, other_day)["rmse"]["simulation"] for name, m in (("map", map_only), ("both", both))}
     assert rmse["both"] < rmse["map"], rmse
 
 
 def test_of_two_minima_the_one_that_simulates_better_is_kept_not_the_lower_loss():
     """The map engine's trip hiding a cold engine and a regeneration (seed 3000), identified with the five effects
-    the diagnosis recommended. Kept by the lower loss V, the effects added in turn won (V = 318 against 347 from the
-    usual initialisation), yet simulated the trip at 1.69 L/h RMS against 0.50, and another day's trip at 1.75
-    against 0.77. The model is used in simulation, so the fit that simulates the identification data better is
-    kept, at every stage too."""
+    the diagnosis recommended. Kept by the lower loss V alone, the effects added in turn won (V = 318 against 347
+    from the usual initialisation), yet simulated the trip at 1.69 L/h RMS against 0.50, and another day's trip at
+    1.75 against 0.77. The model is used in simulation: a fit that simulates the identification data better by more
+    than SIMULATION_MARGIN is kept over the lower V, at every stage too."""
     pair = ("cold_engine", "dpf_regeneration")
     ds, _, _ = hidden.simulated(pair, 3000, truth="map")
     other_day, _, _ = hidden.simulated(pair, 3050, truth="map")
     model = identify_model(ds, hidden.PAPER, ["engine_map", "dpf_regeneration", "cold_engine", "overrun_cutoff",
                                                "gear_shift"])
     starts = model.info["starts"]
-    assert starts["kept"] == min(starts["simulation_rmse"], key=starts["simulation_rmse"].get), starts
     assert starts["simulation_rmse"][starts["kept"]] < 0.6, starts
     assert evaluate(model, other_day)["rmse"]["simulation"] < 1.0
+
+
+def test_the_lower_loss_is_kept_unless_another_fit_simulates_grossly_better():
+    fits = [SimpleNamespace(info={"loss_V": 318.0}), SimpleNamespace(info={"loss_V": 347.0})]
+    assert kept_fit(fits, [1.69, 0.50]) == 1  # 3.4× better in simulation [L/h RMS]: the noise model carried the rest
+    assert kept_fit(fits, [1.646, 1.636]) == 0  # alike in simulation: PEM's own criterion decides
