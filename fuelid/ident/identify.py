@@ -15,12 +15,9 @@ poor local minimum (a pole pressed against the stability bound, or the initialis
 is not the one kept.
 Which fit: the lower loss V, PEM's own criterion — unless another simulates the identification data better by more
 than SIMULATION_MARGIN (RMS simulation error, `simulation_rmse`). The model is used and judged in simulation (fit
-%, cycle fuel error), and of two local minima the lower V can simulate far worse, the 11th-order noise model then
-carrying what the inputs' part should: the map engine's trip hiding a cold engine and a regeneration, five effects
-added, V 318 against 347 but simulation RMS 1.69 against 0.50 L/h on the trip, 1.75 against 0.77 on another day's.
-Where the two simulate alike, the lower V is the better model: on the paper engine (its model class) minima a
-fraction of a % apart in both, the better-simulating one was worse on another day's trip (1.82 against 1.74,
-2.09 against 1.99 L/h), so the simulation error overrides V only when it differs grossly.
+%, cycle fuel error), and of two local minima the lower V can simulate far worse, the high-order noise model then
+carrying what the inputs' part should; where the two simulate alike, the lower V has been the better model on
+another day's data, so the simulation error overrides V only when it differs grossly (README: the cases measured).
 """
 from __future__ import annotations
 
@@ -158,9 +155,9 @@ def effects_added_in_turn(base: PolyModel, u: np.ndarray, y: np.ndarray, fx: Eff
     """The model with every effect of fx that adds inputs but the last, built from `base` (the model of u's first
     inputs, speed and torque, identified on the same samples) by adding them in turn: each stage identified by PEM
     on u's leading columns from the usual initialisation and from the stage before with the new coefficients at
-    zero (`with_inputs`), one kept by `kept_fit` (module docstring). u:
-    N × (2 + k) inputs (speed [rpm], torque, then fx.u), y: the (shifted) fuel [L/h], segments as in `pem`, Ts [s],
-    y0 the fuel's operating point [L/h]. Returns (that model, [{effects, loss_V, simulation_rmse} per stage])."""
+    zero (`with_inputs`), one kept by `kept_fit` (module docstring). u: N × (2 + k) inputs (speed [rpm], torque,
+    then fx.u), y: the (shifted) fuel [L/h], segments as in `pem`, Ts [s], y0 the fuel's operating point [L/h].
+    Returns (that model, [{effects, loss_V, simulation_rmse} per stage])."""
     model, stages = base, []
     n_base = len(base.B)
     full = fx.extend(base.structure)

@@ -17,11 +17,10 @@ fitted on the other trips and scored on k:
                      iteration limit); scored: the two models' simulation errors
 
 and it carries over when, both ways, the RMS error pooled over the held-out trips, √(Σ_k Σ_{t∈k} e_k²/N), is no
-higher with it than without (`left_out_trips`). Each way alone lets through a signal the other stops (on the
-VECTO map engine: an EEC1 demand-torque level passes on its own dynamics and not re-identified; a desired-speed
-scaling, the other way round); both raised another day's error once added. Neither needs the model's own
-parameters to be determined by one trip: on two trips in different weather they are not (the ambient effect),
-which only the re-identified way feels, alike without and with the candidate.
+higher with it than without (`left_out_trips`). Each way alone has let through a signal the other stopped and that
+raised another day's error once added (README). The own-dynamics way does not need the model's own parameters to
+be determined by the other trips alone — on two trips in different weather they are not (an ambient effect) — and
+the re-identified way feels that alike without and with the candidate.
 """
 from __future__ import annotations
 
