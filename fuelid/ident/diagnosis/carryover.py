@@ -29,7 +29,7 @@ import warnings
 
 import numpy as np
 
-from fuelid.errors import FuelidError
+from fuelid.errors import FuelidError, InputError
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.verification import trips
 from fuelid.ident.effectfile import effects_of_model
@@ -53,12 +53,23 @@ def _held_out_masks(ds, run: Run) -> list[np.ndarray]:
     return masks
 
 
+def _other_trips(ds, held: np.ndarray):
+    """ds with the held-out samples no longer valid; InputError when no stretch of MIN_SEGMENT_S is left to fit on."""
+    fit_on = dataclasses.replace(ds, valid=ds.valid & ~held)
+    if not fit_on.segments(MIN_SEGMENT_S):
+        raise InputError(f"the other trips hold no valid stretch of {MIN_SEGMENT_S:g} s to fit on")
+    return fit_on
+
+
 def _own_dynamics_errors(effect: str, model: PolyModel, ds, run: Run, held: np.ndarray, defined, max_iter: int):
     """(r, r − Σ_j B_j/F_j x_j) on the held-out samples, the candidate's dynamics fitted to the model's simulation
     errors r on the others (module docstring)."""
     fx = apply_effects(at_operating_point(ds, model), [effect], model.info.get("effect_parameters"), defined=defined)
     r = run.y - run.ysim  # NaN off the tested segments
-    segs = training_segments(dataclasses.replace(ds, valid=ds.valid & ~held), fx.u, r, MIN_SEGMENT_S)
+    segs = training_segments(_other_trips(ds, held), fx.u, r, MIN_SEGMENT_S)
+    if not segs:
+        raise InputError(f"the other trips hold no stretch of {MIN_SEGMENT_S:g} s where the candidate's signals "
+                         "and the model's errors are all known")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         g = pem(fx.u, r, fx.extend(Structure(nb=(), nf=(), nk=())), ds.Ts, segments=segs, max_iter=max_iter)
@@ -73,7 +84,7 @@ def _own_dynamics_errors(effect: str, model: PolyModel, ds, run: Run, held: np.n
 def _reidentified_errors(effect: str, model: PolyModel, ds, run: Run, held: np.ndarray, defined, max_iter: int):
     """The simulation errors on the held-out samples of the model re-identified on the others without and with the
     candidate (module docstring)."""
-    fit_on = dataclasses.replace(ds, valid=ds.valid & ~held)
+    fit_on = _other_trips(ds, held)
     without = refit_with_effects(model, fit_on, [], defined=defined, max_iter=max_iter)
     with_ = refit_with_effects(without, fit_on, [effect], defined=defined, max_iter=max_iter)
     scored = dataclasses.replace(ds, valid=ds.valid & held)
@@ -103,7 +114,7 @@ def left_out_trips(effect: str, model: PolyModel, ds, run: Run, *, defined=(), m
         for held in masks:
             try:
                 e = errors(effect, model, ds, run, held, defined, max_iter)
-            except (FuelidError, ValueError, np.linalg.LinAlgError) as exc:
+            except (FuelidError, np.linalg.LinAlgError) as exc:
                 return {"error": f"{way.replace('_', ' ')}: {exc}", "carries_over": False}
             for acc, x in zip(pooled, e):
                 acc.append(x ** 2)
