@@ -9,7 +9,7 @@ from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis import confirmed_effects
 from fuelid.ident.effectfile import defined_effects
-from fuelid.ident.identify import identify_model
+from fuelid.ident.identify import MIN_SEGMENT_S, identify_model
 from fuelid.ident.modelfile import save_model
 from fuelid.ident.orders import search_dataset_orders
 from fuelid.ident.polymodel import Structure, parse_orders
@@ -30,8 +30,8 @@ def add_arguments(p):
                         "definitions; repeatable")
     p.add_argument("--effects-from", metavar="DIAGNOSIS.json",
                    help="also add every effect named significant in a saved `fuelid diagnose --json` result")
-    p.add_argument("--min-segment", type=float, default=30.0, metavar="S",
-                   help="leave out valid stretches shorter than this [s] (default 30)")
+    p.add_argument("--min-segment", type=float, default=MIN_SEGMENT_S, metavar="S",
+                   help=f"leave out valid stretches shorter than this [s] (default {MIN_SEGMENT_S:g})")
     add_dataset_arguments(p)
     p.add_argument("--verbose", action="store_true",
                    help="print the estimator's details (pole-zero cancellations, stability bound, stopping)")

@@ -34,6 +34,8 @@ from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure, simulate
 from fuelid.ident.validation import evaluate, rmse
 
+MIN_SEGMENT_S = 30.0  # [s] shortest valid stretch a model is fitted on (`fuelid identify --min-segment`)
+
 
 def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
     """Seed 2's sweep with the model itself: for each advance τ [s] the fuel is shifted, the model of `structure`
@@ -72,7 +74,7 @@ def training_segments(ds, u, y, min_s: float) -> list[slice]:
     return dataclasses.replace(ds, valid=finite).segments(min_s)
 
 
-def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float = 30.0, files=(),
+def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float = MIN_SEGMENT_S, files=(),
                    init: PolyModel | None = None, defined=(), base: PolyModel | None = None) -> PolyModel:
     """The PolyModel of `structure` (speed, torque inputs) plus `effects` ("ID" or "ID=VALUE") identified on
     dataset ds, with names, units, training summary (`files` recorded) and validation metrics filled in.
@@ -192,7 +194,7 @@ def with_inputs(model: PolyModel, structure: Structure) -> PolyModel:
                      Ts=model.Ts, nk=structure.nk, u0=tuple(model.u0) + (0.0,) * len(added), y0=model.y0)
 
 
-def refit_with_effects(model: PolyModel, ds, effects, *, defined=(), min_segment_s: float = 30.0,
+def refit_with_effects(model: PolyModel, ds, effects, *, defined=(), min_segment_s: float = MIN_SEGMENT_S,
                        max_iter: int = 100) -> PolyModel:
     """`model` with `effects` added ("ID" or "ID=VALUE", after its own), identified by PEM on dataset ds from the
     model itself with their coefficients at zero (`with_inputs`): a warm start, so V never rises above the model's

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fuelid.errors import FuelidError
-from fuelid.ident.identify import training_segments
+from fuelid.ident.identify import MIN_SEGMENT_S, training_segments
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure, as_inputs, residuals
 from fuelid.ident.validation import autocorr_test, crosscorr_test
@@ -111,7 +111,7 @@ def search_orders(u, y, Ts: float, *, segments=None, nk=None, u0=None, y0: float
             return OrderSearch(s, model, False, trials)
 
 
-def search_dataset_orders(ds, min_segment_s: float = 30.0) -> OrderSearch:
+def search_dataset_orders(ds, min_segment_s: float = MIN_SEGMENT_S) -> OrderSearch:
     """`search_orders` on a Dataset's engine speed and torque → fuel, on the stretches `fuelid identify` fits
     (valid, at least min_segment_s [s] long), each a segment. Raises FuelidError when there are none."""
     segs = training_segments(ds, ds.u, ds.y, min_segment_s)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from collections.abc import Callable
 
 import numpy as np
 
@@ -33,13 +34,11 @@ from fuelid.errors import FuelidError, InputError
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.verification import trips
 from fuelid.ident.effectfile import effects_of_model
-from fuelid.ident.identify import refit_with_effects, training_segments
+from fuelid.ident.identify import MIN_SEGMENT_S, refit_with_effects, training_segments
 from fuelid.ident.modeldata import apply_effects, at_operating_point
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure, simulate
-
-MIN_SEGMENT_S = 30.0  # [s] shortest stretch the candidate's dynamics are fitted on (as `fuelid identify`)
 
 
 def _held_out_masks(ds, run: Run) -> list[np.ndarray]:
@@ -96,7 +95,15 @@ def _reidentified_errors(effect: str, model: PolyModel, ds, run: Run, held: np.n
     return errors[0][ok], errors[1][ok]
 
 
-WAYS = {"own_dynamics": _own_dynamics_errors, "re_identified": _reidentified_errors}
+@dataclasses.dataclass(frozen=True)
+class Way:
+    """One way to leave a trip out: the held-out errors (without, with) it returns, and how an explanation says it."""
+    errors: Callable[..., tuple[np.ndarray, np.ndarray]]
+    words: str
+
+
+WAYS = {"own_dynamics": Way(_own_dynamics_errors, "its own dynamics fitted to the model's errors"),
+        "re_identified": Way(_reidentified_errors, "the model re-identified with it")}
 
 
 def left_out_trips(effect: str, model: PolyModel, ds, run: Run, *, defined=(), max_iter: int) -> dict | None:
@@ -109,17 +116,17 @@ def left_out_trips(effect: str, model: PolyModel, ds, run: Run, *, defined=(), m
         return None
     defined = tuple(effects_of_model(model)) + tuple(defined)
     out = {}
-    for way, errors in WAYS.items():
+    for name, way in WAYS.items():
         pooled, per_trip = ([], []), []
         for held in masks:
             try:
-                e = errors(effect, model, ds, run, held, defined, max_iter)
+                e = way.errors(effect, model, ds, run, held, defined, max_iter)
             except (FuelidError, np.linalg.LinAlgError) as exc:
-                return {"error": f"{way.replace('_', ' ')}: {exc}", "carries_over": False}
+                return {"error": f"{name.replace('_', ' ')}: {exc}", "carries_over": False}
             for acc, x in zip(pooled, e):
                 acc.append(x ** 2)
             per_trip.append([float(np.sqrt(np.mean(x ** 2))) for x in e])
         without, with_ = (float(np.sqrt(np.mean(np.concatenate(acc)))) for acc in pooled)
-        out[way] = {"rmse_without": without, "rmse_with": with_, "per_trip": per_trip}
-    out["carries_over"] = all(out[way]["rmse_with"] <= out[way]["rmse_without"] for way in WAYS)
+        out[name] = {"rmse_without": without, "rmse_with": with_, "per_trip": per_trip}
+    out["carries_over"] = all(out[name]["rmse_with"] <= out[name]["rmse_without"] for name in WAYS)
     return out

@@ -193,8 +193,8 @@ def _why_refit_not_verified(c: Candidate) -> str:
         if "error" in t:
             return f" — but the model cannot be re-identified with it leaving a trip out ({t['error']}): " \
                    "not recommended"
-        worse = [f"{WAY_WORDS[way]}, RMS error {t[way]['rmse_without']:.3f} → {t[way]['rmse_with']:.3f}"
-                 for way in WAYS if t[way]["rmse_with"] > t[way]["rmse_without"]]
+        worse = [f"{way.words}, RMS error {t[name]['rmse_without']:.3f} → {t[name]['rmse_with']:.3f}"
+                 for name, way in WAYS.items() if t[name]["rmse_with"] > t[name]["rmse_without"]]
         return f" — but fitted on the other trips it makes the trips left out worse ({'; '.join(worse)}, pooled, " \
                "leave-one-trip-out by PEM): not recommended"
     return f" — but the model re-identified with it (PEM, from the model without it) simulates these data worse " \
@@ -219,8 +219,6 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
            f"{-v['trips']['pooled_rmse_drop_percent']:+.1f} %, leave-one-trip-out): not recommended"
 
 
-WAY_WORDS = {"own_dynamics": "its own dynamics fitted to the model's errors",
-             "re_identified": "the model re-identified with it"}  # carryover.WAYS, as the explanation says them
 ONE_TRIP_ONLY = ("; not recommended: a bus signal fuelid knows no physics for, found on one trip (diagnose it "
                  "with other days' files to see whether it carries over)")
 """Why a generic bus-signal candidate found on one trip is named but not recommended (module docstring)."""
