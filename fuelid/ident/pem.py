@@ -71,7 +71,7 @@ import warnings
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import eigh, lstsq
+from scipy.linalg import lapack, lstsq
 from scipy.signal import lfilter
 
 from fuelid.errors import InputError
@@ -249,6 +249,27 @@ def _loss(eps: np.ndarray, used) -> float:
     return v if np.isfinite(v) else np.inf
 
 
+@functools.lru_cache(maxsize=None)
+def _syevr_workspace(n: int) -> tuple[int, int]:
+    """(lwork, liwork) of LAPACK's dsyevr for an n × n matrix, from its workspace query as scipy.linalg.eigh
+    makes it."""
+    work, iwork, info = lapack.dsyevr_lwork(n, lower=1)
+    if info:
+        raise np.linalg.LinAlgError(f"dsyevr workspace query failed (info {info})")
+    return int(work), int(iwork)
+
+
+def _eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ℓ ascending, Q) of the symmetric float64 matrix a: scipy.linalg.eigh's own call (dsyevr on the lower triangle
+    with the workspace its query gives), so the same to the bit, without eigh's checks and a query every call (the
+    LM decomposes a d × d matrix every iteration)."""
+    lwork, liwork = _syevr_workspace(a.shape[0])
+    ell, Q, _, _, info = lapack.dsyevr(a, compute_v=1, lower=1, lwork=lwork, liwork=liwork)
+    if info:
+        raise np.linalg.LinAlgError(f"dsyevr failed (info {info})")
+    return ell, Q
+
+
 def _scaled_normal_equations(psi: np.ndarray, eps: np.ndarray, used):
     """(S, Q, ℓ, g) over the used samples: S the column norms of Ψ, Q diag(ℓ) Qᵀ = S⁻¹ΨᵀΨS⁻¹
     (eigendecomposition), g = Qᵀ S⁻¹ Ψᵀ ε."""
@@ -256,7 +277,7 @@ def _scaled_normal_equations(psi: np.ndarray, eps: np.ndarray, used):
     gram = J.T @ J
     scale = np.sqrt(np.diag(gram)).copy()
     scale[scale == 0] = 1.0
-    ell, Q = eigh(gram / np.outer(scale, scale), check_finite=False)
+    ell, Q = _eigh(gram / np.outer(scale, scale))
     return scale, Q, np.maximum(ell, 0.0), Q.T @ ((J.T @ r) / scale)
 
 
