@@ -483,8 +483,9 @@ class _Binned:
             raise _OutOfOrder
         for counter, new in ((self._steps, steps), (self._values, v)):
             if counter is not None:
-                for x, c in zip(*np.unique(new, return_counts=True)):
-                    counter[x.item()] = counter.get(x.item(), 0) + int(c)
+                keys, counts = np.unique(new, return_counts=True)
+                for x, c in zip(keys.tolist(), counts.tolist()):
+                    counter[x] = counter.get(x, 0) + c
         self.n += len(t)
         self.t_min = int(t[0]) if self.t_min is None else self.t_min
         self.t_last = int(t[-1])

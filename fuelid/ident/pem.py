@@ -71,12 +71,12 @@ import warnings
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import eigh, lstsq
+from scipy.linalg import lapack, lstsq
 from scipy.signal import lfilter
 
 from fuelid.errors import InputError
-from fuelid.ident.polymodel import (PolyModel, Structure, as_inputs, from_theta, input_responses, parameter_names,
-                                    polynomials)
+from fuelid.ident.polymodel import (Polynomials, PolyModel, Structure, as_inputs, from_theta, input_responses,
+                                    parameter_names, polynomials)
 
 try:  # BLAS threads only cost time on N × d problems this narrow (8× slower on 2 cores, measured)
     from threadpoolctl import threadpool_limits
@@ -138,13 +138,13 @@ def _used(n: int, starts, n0: int):
     return keep
 
 
-def _regressors(blocks, n: int, starts=(0,)) -> np.ndarray:
+def _regressors(blocks, n: int, starts=(0,), out: np.ndarray | None = None) -> np.ndarray:
     """The d × N matrix whose rows are sig(t − l), zero before the start of t's segment, for each (sig, lags)
-    block in turn (segments begin at `starts`).
+    block in turn (segments begin at `starts`); written into `out` when given.
 
     Rows, so every copy is contiguous; the N × d regressor matrix is its transpose (a view).
     """
-    rows = np.empty((sum(len(lags) for _, lags in blocks), n))
+    rows = np.empty((sum(len(lags) for _, lags in blocks), n)) if out is None else out
     r = 0
     for sig, lags in blocks:
         for lag in lags:
@@ -166,14 +166,15 @@ def _least_squares(rows: np.ndarray, target: np.ndarray, used) -> np.ndarray:
     return lstsq(R @ R.T, R @ target[used], check_finite=False)[0] / scale
 
 
-def _stable_theta(theta: np.ndarray, s: Structure) -> np.ndarray:
-    """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter); θ itself
-    when `stabilize` left every one as it was."""
+def _stable_theta(theta: np.ndarray, s: Structure) -> tuple[np.ndarray, Polynomials]:
+    """θ with F_i, C and D stabilised (A needs no stability: it enters the predictor as an FIR filter), and its
+    polynomials; θ itself when `stabilize` left every one as it was."""
     p = polynomials(theta, s)
     q = p._replace(F=[stabilize(f) for f in p.F], C=stabilize(p.C), D=stabilize(p.D))
     if all(a is b for a, b in zip([*p.F, p.C, p.D], [*q.F, q.C, q.D])):
-        return theta
-    return q.theta(s.nk)
+        return theta, p
+    theta = q.theta(s.nk)
+    return theta, polynomials(theta, s)
 
 
 def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:
@@ -206,37 +207,39 @@ def _filter(starts):
     return filt
 
 
-def _responses(theta, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Responses:
-    """x_i, w and ε at θ (`_Responses`) for deviation data, every filter restarting at the segment `starts`."""
-    m = polynomials(theta, s)
+def _responses(m: Polynomials, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Responses:
+    """x_i, w and ε of the polynomials m of θ (`_Responses`) for deviation data, every filter restarting at the
+    segment `starts`."""
     filt = _filter(starts)
     x = [filt(b, f, u[:, i]) for i, (b, f) in enumerate(zip(m.B, m.F))]
     w = filt(m.A, [1.0], y) - _sum_of_columns(x, y.size)
     return _Responses(m, x, w, filt(m.D, m.C, w))
 
 
-def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,)) -> np.ndarray:
-    """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ; the signals of empty regressor
-    blocks are not filtered."""
+def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,),
+              out: np.ndarray | None = None) -> np.ndarray:
+    """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ, its transpose written into `out`
+    (d × N) when given; the signals of empty regressor blocks are not filtered."""
     m, filt = r.m, _filter(starts)
     blocks = [(-filt(m.D, m.C, y), range(1, s.na + 1))] if s.na else []
     fx = []
-    for i in range(s.n_inputs):
-        fi = filt(m.D, np.convolve(m.C, m.F[i]), np.vstack([u[:, i], r.x[i]]))
-        blocks.append((fi[0], range(s.nk[i], s.nk[i] + s.nb[i])))
-        fx.append((-fi[1], range(1, s.nf[i] + 1)))
+    for i in range(s.n_inputs):  # one signal per call: stacking two costs a copy, and lfilter filters rows alike
+        den = np.convolve(m.C, m.F[i])
+        blocks.append((filt(m.D, den, u[:, i]), range(s.nk[i], s.nk[i] + s.nb[i])))
+        fx.append((-filt(m.D, den, r.x[i]), range(1, s.nf[i] + 1)))
     blocks += fx
-    if s.nc or s.nd:
-        ew = filt([1.0], m.C, np.vstack([r.eps, r.w]))
-        blocks += [(ew[0], range(1, s.nc + 1)), (-ew[1], range(1, s.nd + 1))]
-    return _regressors(blocks, y.size, starts).T
+    if s.nc:
+        blocks.append((filt([1.0], m.C, r.eps), range(1, s.nc + 1)))
+    if s.nd:
+        blocks.append((-filt([1.0], m.C, r.w), range(1, s.nd + 1)))
+    return _regressors(blocks, y.size, starts, out).T
 
 
 def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobian: bool = False, starts=(0,)):
     """ε(t, θ) for deviation data (u: N × m, y: N); with jacobian=True also Ψ (N × d), ψ = −∂ε/∂θ (module doc).
 
     starts: the indices where segments begin (the first 0); every filter restarts from zero state there."""
-    r = _responses(theta, s, u, y, starts)
+    r = _responses(polynomials(theta, s), u, y, starts)
     return (r.eps, _jacobian(r, s, u, y, starts)) if jacobian else r.eps
 
 
@@ -246,6 +249,27 @@ def _loss(eps: np.ndarray, used) -> float:
     return v if np.isfinite(v) else np.inf
 
 
+@functools.lru_cache(maxsize=None)
+def _syevr_workspace(n: int) -> tuple[int, int]:
+    """(lwork, liwork) of LAPACK's dsyevr for an n × n matrix, from its workspace query as scipy.linalg.eigh
+    makes it."""
+    work, iwork, info = lapack.dsyevr_lwork(n, lower=1)
+    if info:
+        raise np.linalg.LinAlgError(f"dsyevr workspace query failed (info {info})")
+    return int(work), int(iwork)
+
+
+def _eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ℓ ascending, Q) of the symmetric float64 matrix a: scipy.linalg.eigh's own call (dsyevr on the lower triangle
+    with the workspace its query gives), so the same to the bit, without eigh's checks and a query every call (the
+    LM decomposes a d × d matrix every iteration)."""
+    lwork, liwork = _syevr_workspace(a.shape[0])
+    ell, Q, _, _, info = lapack.dsyevr(a, compute_v=1, lower=1, lwork=lwork, liwork=liwork)
+    if info:
+        raise np.linalg.LinAlgError(f"dsyevr failed (info {info})")
+    return ell, Q
+
+
 def _scaled_normal_equations(psi: np.ndarray, eps: np.ndarray, used):
     """(S, Q, ℓ, g) over the used samples: S the column norms of Ψ, Q diag(ℓ) Qᵀ = S⁻¹ΨᵀΨS⁻¹
     (eigendecomposition), g = Qᵀ S⁻¹ Ψᵀ ε."""
@@ -253,7 +277,7 @@ def _scaled_normal_equations(psi: np.ndarray, eps: np.ndarray, used):
     gram = J.T @ J
     scale = np.sqrt(np.diag(gram)).copy()
     scale[scale == 0] = 1.0
-    ell, Q = eigh(gram / np.outer(scale, scale), check_finite=False)
+    ell, Q = _eigh(gram / np.outer(scale, scale))
     return scale, Q, np.maximum(ell, 0.0), Q.T @ ((J.T @ r) / scale)
 
 
@@ -304,9 +328,11 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     max_iter iterations.
     """
     used = _used(y.size, starts, s.n_start)
-    theta = _stable_theta(np.asarray(theta, float), s)
-    r = _responses(theta, s, u, y, starts)
-    eps, psi = r.eps, _jacobian(r, s, u, y, starts)
+    theta, m = _stable_theta(np.asarray(theta, float), s)
+    r = _responses(m, u, y, starts)
+    # Ψ of every iteration is written into this one array: a new one each iteration costs page faults
+    rows = np.empty((s.n_params, y.size))
+    eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)
     dof = max(eps[used].size - s.n_params, 1)
     V, mu = _loss(eps, used), 1e-4
     history, flat, cut = [V], 0, False
@@ -322,12 +348,13 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         best, all_cut = (V, None, mu, False, None), True
         for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
             raw = theta + Q @ (g / (ell + trial * ell[-1])) / scale
-            cand = _stable_theta(raw, s)
-            all_cut &= not np.array_equal(cand, raw)
-            r_c = _responses(cand, s, u, y, starts)
+            cand, m_c = _stable_theta(raw, s)
+            cut_c = cand is not raw and not np.array_equal(cand, raw)
+            all_cut &= cut_c
+            r_c = _responses(m_c, u, y, starts)
             V_c = _loss(r_c.eps, used)
             if V_c < best[0]:
-                best = (V_c, cand, trial, not np.array_equal(cand, raw), r_c)
+                best = (V_c, cand, trial, cut_c, r_c)
             if trial >= mu and best[1] is not None:
                 break
         if best[1] is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
@@ -337,7 +364,7 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         flat = flat + 1 if V - best[0] <= ftol * V / dof else 0
         V, theta, mu, cut, r = best[0], best[1], max(best[2], 1e-15), best[3], best[4]
         history.append(V)
-        eps, psi = r.eps, _jacobian(r, s, u, y, starts)  # the accepted trial's filtered signals, not filtered again
+        eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)  # the accepted trial's signals, not filtered again
     return LMResult(theta, V, max_iter, False, "max_iterations", history, psi, eps)
 
 

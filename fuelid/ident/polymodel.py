@@ -19,6 +19,7 @@ outputs. All filters start from zero initial state (the data are deviations from
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -229,24 +230,30 @@ class Polynomials(NamedTuple):
 
 def polynomials(theta: np.ndarray, s: Structure) -> Polynomials:
     """The polynomials of structure s with parameter vector θ (order of `parameter_names`), without the checks
-    and metadata of a PolyModel (the PEM evaluates them for every trial step)."""
+    and metadata of a PolyModel (the PEM evaluates them for every trial step): views into one array, gathered
+    from [1, 0, θ] in one step (`_layout`)."""
     theta = np.asarray(theta, float)
     if theta.size != s.n_params:
         raise ValueError(f"θ has {theta.size} entries, structure {s} needs {s.n_params}")
-    ends = np.cumsum([s.na, *s.nb, *s.nf, s.nc, s.nd]).tolist()
-    pieces = [theta[a:b] for a, b in zip([0, *ends[:-1]], ends)]
+    source, spans = _layout(s)
+    full = np.concatenate(([1.0, 0.0], theta))[source]
+    p = [full[a:b] for a, b in spans]
     m = s.n_inputs
-    return Polynomials(A=_padded(1.0, pieces[0]), B=[_padded(0.0, b, k) for b, k in zip(pieces[1 : 1 + m], s.nk)],
-                       F=[_padded(1.0, f) for f in pieces[1 + m : 1 + 2 * m]], C=_padded(1.0, pieces[-2]),
-                       D=_padded(1.0, pieces[-1]))
+    return Polynomials(A=p[0], B=p[1 : 1 + m], F=p[1 + m : 1 + 2 * m], C=p[-2], D=p[-1])
 
 
-def _padded(lead: float, x: np.ndarray, n: int = 1) -> np.ndarray:
-    """x after n copies of lead (np.r_ without its parsing: polynomials runs in the PEM's inner loop)."""
-    out = np.empty(n + x.size)
-    out[:n] = lead
-    out[n:] = x
-    return out
+@functools.lru_cache(maxsize=None)
+def _layout(s: Structure) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """Where each coefficient of A, B_1…B_m, F_1…F_m, C, D, laid end to end, comes from in [1, 0, θ] (the leading
+    1 of A, F_i, C, D; the nk_i leading zeros of B_i; θ's entries in order), and each polynomial's (start, stop)
+    in that layout."""
+    source, spans, k = [], [], 2
+    for lead, n, count in ([(0, 1, s.na)] + [(1, nk, nb) for nb, nk in zip(s.nb, s.nk)] + [(0, 1, nf) for nf in s.nf]
+                           + [(0, 1, s.nc), (0, 1, s.nd)]):
+        spans.append((len(source), len(source) + n + count))
+        source += [lead] * n + list(range(k, k + count))
+        k += count
+    return np.array(source, dtype=np.intp), spans
 
 
 def from_theta(theta: np.ndarray, s: Structure, Ts: float, **meta) -> PolyModel:

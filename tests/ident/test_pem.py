@@ -5,11 +5,12 @@ import warnings
 
 import numpy as np
 import pytest
+from scipy.linalg import eigh
 from scipy.signal import lfilter
 
 from fuelid.ident.modelfile import PAPER_MODELS, load_paper_model
 from fuelid.ident import pem as pem_module
-from fuelid.ident.pem import _sum_of_columns, at_stability_bound, pem, prediction_errors, stabilize
+from fuelid.ident.pem import _eigh, _sum_of_columns, at_stability_bound, pem, prediction_errors, stabilize
 from fuelid.ident.polymodel import PolyModel, Structure, from_theta, residuals, simulate
 from fuelid.ident.validation import fit_percent
 from tests.ident.synthetic import minimal_truth, paper_data, true_model
@@ -64,15 +65,25 @@ def test_prediction_errors_are_the_model_filters_to_the_bit(structure):
 
 
 def test_an_output_error_model_filters_only_through_b_and_f(monkeypatch):
-    """ε and Ψ of an OE model cost one filter B_i/F_i per input and one 1/F_i (of two signals) per input: A = C =
-    D = 1 filter nothing (they run in every LM iteration of the initialisation's OE fit, hundreds on a real trip)."""
+    """ε and Ψ of an OE model cost one filter B_i/F_i per input and 1/F_i of u_i and of x_i: A = C = D = 1 filter
+    nothing (they run in every LM iteration of the initialisation's OE fit, hundreds on a real trip)."""
     calls = []
     monkeypatch.setattr(pem_module, "lfilter", lambda b, a, x, axis=-1: calls.append(1) or lfilter(b, a, x, axis=axis))
     s = Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0))
     rng = np.random.default_rng(0)
     prediction_errors(0.05 * rng.normal(size=s.n_params), s, rng.normal(size=(500, 2)), rng.normal(size=500),
                       jacobian=True)
-    assert len(calls) == 2 * s.n_inputs
+    assert len(calls) == 3 * s.n_inputs
+
+
+@pytest.mark.parametrize("d", [1, 19, 41])
+def test_the_lm_eigendecomposition_is_scipys_eigh_to_the_bit(d):
+    J = np.random.default_rng(d).normal(size=(500, d)) * np.logspace(0, 6, d)  # ill-conditioned like Ψ
+    gram = J.T @ J
+    ell, Q = _eigh(gram)
+    want_ell, want_Q = eigh(gram, check_finite=False)
+    np.testing.assert_array_equal(ell, want_ell)
+    np.testing.assert_array_equal(Q, want_Q)
 
 
 @pytest.mark.parametrize("m", range(11))

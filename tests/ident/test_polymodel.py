@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from fuelid.ident.polymodel import PolyModel, Structure, from_theta, parameter_names, predict, residuals, simulate
+from fuelid.ident.polymodel import (PolyModel, Structure, from_theta, parameter_names, polynomials, predict, residuals,
+                                    simulate)
 
 
 def model(**kw):
@@ -40,6 +41,15 @@ def test_theta_round_trip_and_structure():
     back = from_theta(m.theta, m.structure, m.Ts)
     for a, b in zip([back.A, *back.B, *back.F, back.C, back.D], [m.A, *m.B, *m.F, m.C, m.D]):
         np.testing.assert_array_equal(a, b)
+
+
+def test_polynomials_of_theta_in_the_order_of_parameter_names():
+    s = Structure(nb=(2, 1), nf=(1, 0), nk=(2, 0), nc=1, nd=0, na=1)
+    p = polynomials(np.arange(1.0, s.n_params + 1), s)  # a1 b1_2 b1_3 b2_0 f1_1 c1
+    for got, want in zip([p.A, *p.B, *p.F, p.C, p.D], [[1, 1], [0, 0, 2, 3], [4], [1, 5], [1], [1, 6], [1]]):
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="needs 6"):
+        polynomials(np.zeros(5), s)
 
 
 def test_invalid_polynomials_rejected():
