@@ -52,7 +52,11 @@ linearised refit (4) and, once accepted, with its own dynamics and the model re-
 (diagnosis.carryover: its refit counts as not verified when the pooled error on the trips left out rises). On one
 trip such a signal can stand in for whatever else moves with the operating point that day (on a real engine its
 transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined effect brings its
-physics (sign, form) and is recommended from one trip.
+physics (sign, form) and is recommended from one trip. Forward selection still re-identifies the model with such a
+signal when it accepts one (so that it explains away its twins and what it stands in for), but what is recommended
+must have been verified on the model `fuelid identify --effects-from` builds: an effect found given a signal that
+is not added is named, not recommended (`_given_not_added`; one accepted that way and added without it can make
+the model worse on another day: README).
 """
 from __future__ import annotations
 
@@ -341,6 +345,11 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     return named
 
 
+def _given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
+    """The effects c was found and verified given (its conditional record's) that are not among `recommended`."""
+    return [e for e in (c.conditional or {}).get("given", []) if e not in recommended]
+
+
 def _round_drop(c: Candidate) -> float | None:
     """c's held-out drop [%] on the model of the round it was found in: its re-test's, else the model as it is."""
     return (c.conditional or {}).get("rmse_drop_percent", c.rmse_drop_percent)
@@ -490,7 +499,14 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
             if c not in accepted and (c.test_significant or c.effect in (MAP_TERM, PRODUCT_TERM)):
                 c.explained_by = explaining
-    for c in accepted:
+    if term is not None:
+        term.significant, term.role = True, ENGINE_MAP
+        term.recommended = term.verification is not None and "error" not in term.verification \
+            and _refit_verified(term)
+        term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
+                                                 for e in (MAP_TERM, PRODUCT_TERM)))
+    recommended = {term.effect} if term is not None and term.recommended else set()
+    for c in accepted:  # in the order accepted, so that what each was found given is decided before it
         c.significant, c.role = True, MISSING_EFFECT
         if c.alternatives:
             c.explanation += f" — or {' or '.join(c.alternatives)}: these data cannot tell them apart (neither is " \
@@ -502,12 +518,12 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         elif c.recommended and _generic(c) and "trips" not in c.verification:
             c.recommended = False
             c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + ONE_TRIP_ONLY
-    if term is not None:
-        term.significant, term.role = True, ENGINE_MAP
-        term.recommended = term.verification is not None and "error" not in term.verification \
-            and _refit_verified(term)
-        term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
-                                                 for e in (MAP_TERM, PRODUCT_TERM)))
+        elif c.recommended and (missing := _given_not_added(c, recommended)):
+            c.recommended = False
+            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + \
+                f" — but it was found given {', '.join(missing)}, which is not added: not recommended"
+        if c.recommended:
+            recommended.add(c.effect)
     for c in unconfirmed:
         if not c.significant:
             c.explanation += _why_not_confirmed(c, min_drop_percent)
