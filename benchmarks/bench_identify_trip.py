@@ -16,12 +16,10 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
-ONE_CORE_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-
+from versions import worker_results
 
 def worker(path: str):
     """Build the dataset and identify the model with the fuelid this interpreter imports; one JSON line."""
@@ -47,9 +45,7 @@ def worker(path: str):
 
 def run(python: str, path: Path) -> dict:
     """`worker` run by `python` (cwd outside the checkout: it imports its own fuelid)."""
-    out = subprocess.run([python, __file__, "--worker", str(path)], capture_output=True, text=True, cwd="/",
-                         env={**os.environ, **ONE_CORE_ENV}, check=True).stdout
-    return json.loads(out.splitlines()[-1])
+    return worker_results(python, __file__, ["--worker", str(path)])[-1]
 
 
 def main():

@@ -22,12 +22,13 @@ import sys
 import time
 from pathlib import Path
 
+from versions import worker_results
+
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 CACHE = HERE / ".cache" / "pem" / "trips"
 FAMILIES = ("diesel_", "map_", "effect_", "map_effect_")
 SIMULATED = (("ambient", 2004), ("ambient", 3004), (None, 11))
-ONE_CORE_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 def save(name, u, y, segments, u0, y0):
@@ -95,9 +96,7 @@ def worker(paths, repeat: int):
 
 def fitted(python: str, paths, repeat: int) -> dict:
     """{problem: result} of `worker` run by `python` (cwd outside the checkout: it imports its own fuelid)."""
-    out = subprocess.run([python, __file__, "--repeat", str(repeat), "--worker", *map(str, paths)], capture_output=True, text=True,
-                         cwd="/", env={**os.environ, **ONE_CORE_ENV}, check=True).stdout
-    return {r["problem"]: r for r in map(json.loads, out.splitlines())}
+    return {r["problem"]: r for r in worker_results(python, __file__, ["--repeat", str(repeat), "--worker", *map(str, paths)])}
 
 
 def main():

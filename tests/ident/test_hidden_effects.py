@@ -104,8 +104,6 @@ def test_on_the_map_engine_a_hidden_dpf_regeneration_is_found_on_top_of_the_map_
     assert dpf["conditional"]["rmse_drop_percent"] >= 25.0, dpf["conditional"]
 
 
-
-
 def test_on_the_map_engine_no_effect_recommended_raises_another_days_error():
     """A fan and a fuel delay hidden at once on the map engine (seed 4000, one trip): bus signals fuelid has no
     physics for are named on one trip, never recommended, and each effect recommended was verified on a model made
@@ -130,6 +128,7 @@ def test_on_the_map_engine_no_effect_recommended_raises_another_days_error():
     assert with_all < evaluate(hidden.identify(ds), val)["rmse"]["simulation"]
     for e in recommended:
         assert rmse([o for o in recommended if o != e]) > with_all, e
+
 
 def test_hidden_inertia_is_found_within_20_percent_of_its_J():
     """The J of the fitted inertia effect (diagnose's refit) against the J the simulator's bus nets out (the
