@@ -5,7 +5,7 @@ import warnings
 
 import numpy as np
 import pytest
-from scipy.linalg import block_diag
+from scipy.linalg import block_diag, solve_toeplitz
 from scipy.signal import lfilter
 from scipy.stats import chi2, kstest
 
@@ -250,3 +250,17 @@ def test_an_untested_candidate_lists_only_what_was_found():
     assert list(c.to_json()) == ["effect", "name", "form", "signals", "spns", "testable", "statistic", "df",
                                  "p_value", "significant", "test_significant", "estimated_drop_percent",
                                  "explanation", "rmse_drop_percent", "verification", "conditional", "explained_by"]
+
+
+@pytest.mark.parametrize("n", [2989, 11989])  # 2n − 1 and 2n with a large prime factor (11989 = 19 · 631)
+def test_the_whitener_is_yule_walker_on_the_linear_autocovariances(n):
+    """ar_whitener's FFT autocovariances are the biased linear ones (no circular wrap-around), so its a(q) is the
+    Yule–Walker AR fit: for an AR(2) series it recovers the coefficients and whitens the series."""
+    rng = np.random.default_rng(n)
+    v = lfilter([1.0], [1.0, -1.2, 0.5], rng.standard_normal(n))
+    order = 100
+    d = v - v.mean()
+    acov = np.array([d[: n - k] @ d[k:] for k in range(order + 1)]) / n
+    a = st.ar_whitener(v, order)
+    np.testing.assert_allclose(a, np.r_[1.0, -solve_toeplitz(acov[:order], acov[1:])], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a[1:3], [-1.2, 0.5], atol=0.06)

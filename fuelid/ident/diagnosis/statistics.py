@@ -50,6 +50,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.fft import irfft, next_fast_len, rfft
 from scipy.linalg import qr, solve_toeplitz, svd
 from scipy.signal import lfilter
 from scipy.stats import chi2
@@ -183,8 +184,11 @@ def ar_whitener(v: np.ndarray, order: int) -> np.ndarray:
     FFT, Levinson solve), so that a(q) v is approximately white; always stable."""
     v = np.asarray(v, float) - np.mean(v)
     n = v.size
-    spec = np.fft.rfft(v, 2 * n)
-    acov = np.fft.irfft(spec * np.conj(spec))[: order + 1] / n
+    # zero-padded to ≥ 2n − 1 the circular correlation is the linear one; a length of small prime factors, since
+    # 2n has a large one for most n (pocketfft then falls back to Bluestein, many times slower)
+    fft_len = next_fast_len(2 * n - 1, real=True)
+    spec = rfft(v, fft_len)
+    acov = irfft(spec * np.conj(spec), fft_len)[: order + 1] / n
     if acov[0] <= 0:
         return np.ones(1)
     return np.r_[1.0, -solve_toeplitz(acov[:order], acov[1:order + 1], check_finite=False)]
