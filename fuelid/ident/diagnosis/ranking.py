@@ -35,7 +35,13 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    An accepted candidate whose
    re-identified model simulates the data worse than the model without it (RMS simulation error over the tested
    samples: the refit cannot be verified) is named but not recommended, and the search goes on from the model
-   without it, with the next candidate found.
+   without it, with the next candidate found. The warm-started refits are the search, not the model `fuelid
+   identify --effects-from` builds: that one is identified by PEM from its own initialisation and from the
+   effects added in turn (ident.identify.identify_model), and the two can end in minima far apart (a warm start
+   keeps the dynamics of the model without the effects). So what is to be recommended is checked once more, in the
+   order found, on the model identify builds (`_Built`, `refit.built`): built from the effects recommended before
+   it plus the candidate, it must simulate the data no worse than built without it; otherwise the candidate is
+   named, not recommended, and those found given it are not recommended either (`_given_not_added`).
 
 A candidate is `significant` — a missing effect the diagnosis names — when the Holm-corrected test rejects
 AND it explains at least min_effect_percent (default 1 %) of the simulation error AND, when verified, the
@@ -45,8 +51,9 @@ those before it. The conjunction can only remove rejections, so the family-wise 
 stays ≤ α. Significant candidates are listed first, in the order accepted;
 then the rest by p-value. README gives the measured false alarms and the table per hidden effect.
 
-A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified and
-the model re-identified with it simulates the data no worse than the model without it (5) — and, for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no
+A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified, the
+model re-identified with it simulates the data no worse than the model without it, and so does the model `fuelid
+identify` builds with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no
 physics for), only when the data held several trips and it held up left out of each (leave-one-trip-out): in the
 linearised refit (4) and, once accepted, with its own dynamics and the model re-identified by PEM on the other trips
 (diagnosis.carryover: its refit counts as not verified when the pooled error on the trips left out rises). On one
@@ -76,10 +83,10 @@ from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm
 from fuelid.ident.diagnosis.verification import held_out, held_out_scores
-from fuelid.ident.identify import refit_with_effects
+from fuelid.ident.identify import identify_model, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.modelrun import ModelRun, run_model
-from fuelid.ident.polymodel import PolyModel
+from fuelid.ident.polymodel import PolyModel, Structure
 from fuelid.ident.validation import metrics
 
 GENERIC_WEIGHT = 0.8  # a generic bus signal must explain 25 % more than a named effect to be accepted first
@@ -190,6 +197,14 @@ def _refit_verified(c: Candidate) -> bool:
 
 def _why_refit_not_verified(c: Candidate) -> str:
     """What the explanation of a named candidate whose refit was not verified adds."""
+    if "built" in c.refit:
+        b = c.refit["built"]
+        after = f", after {', '.join(b['effects'])}" if b["effects"] else ""
+        if "error" in b:
+            return f" — but `fuelid identify` cannot build the model with it{after} ({b['error']}): not recommended"
+        return f" — but the model `fuelid identify --effects-from` builds with it{after} (PEM from its own " \
+               f"initialisation) simulates these data worse (RMS error {b['rmse_without']:.3f} → " \
+               f"{b['rmse_with']:.3f}): not recommended"
     if "error" in c.refit:
         return f" — but the model cannot be re-identified with it ({c.refit['error']}): not recommended"
     if "trips" in c.refit:
@@ -343,6 +358,50 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     for c in pool:
         (c.conditional or {}).pop("explanation", None)
     return named
+
+
+def _own_structure(model: PolyModel) -> Structure:
+    """The orders of model's speed and torque inputs and noise model: the structure `fuelid identify` extends with
+    the effects."""
+    s = model.structure
+    return Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
+
+
+class _Built:
+    """The model `fuelid identify --effects-from` builds on the diagnosed data from the effects recommended so far
+    (ident.identify.identify_model: PEM from its own initialisation and from the effects added in turn, not from
+    the model diagnosed), kept with its RMS simulation error [output unit] on those data (module docstring, 5)."""
+
+    def __init__(self, model: PolyModel, ds, effects=()):
+        self.structure, self.ds, self.defined = _own_structure(model), ds, effects
+        self.base = model if not model.effects else None  # its second start (identify_model), when it is one
+        self.specs, self.rmse = list(model.effects), None
+
+    def _rmse(self, specs: list[str]) -> float:
+        built = identify_model(self.ds, self.structure, specs, defined=self.defined, base=self.base)
+        return built.validation["rmse"]["simulation"]
+
+    def add(self, c: Candidate) -> bool:
+        """Whether the model built with c added to the effects so far simulates the data no worse than the one
+        without it; recorded in c.refit["built"] (or its error), c added when so."""
+        try:
+            if self.rmse is None:
+                self.rmse = self._rmse(self.specs)
+            with_ = self._rmse(self.specs + [c.spec])
+        except (FuelidError, np.linalg.LinAlgError) as exc:
+            c.refit["built"] = {"effects": list(self.specs), "error": str(exc)}
+            return False
+        c.refit["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_}
+        if with_ > self.rmse:
+            return False
+        self.specs.append(c.spec)
+        self.rmse = with_
+        return True
+
+    def given(self, c: Candidate) -> None:
+        """Add c (the fuel delay: verified on its reference model, delay.py) without checking it."""
+        self.specs.append(c.spec)
+        self.rmse = None
 
 
 def _given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
@@ -499,12 +558,17 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
             if c not in accepted and (c.test_significant or c.effect in (MAP_TERM, PRODUCT_TERM)):
                 c.explained_by = explaining
+    built = _Built(model, ds, effects)  # what is recommended is verified on the model identify builds of it (5)
     if term is not None:
         term.significant, term.role = True, ENGINE_MAP
         term.recommended = term.verification is not None and "error" not in term.verification \
             and _refit_verified(term)
         term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
                                                  for e in (MAP_TERM, PRODUCT_TERM)))
+        if term.recommended and term.refit is not None and not built.add(term):
+            term.recommended = term.refit["verified"] = False
+            term.explanation = term.explanation.replace(f"; add effect {term.effect}", "") \
+                + _why_refit_not_verified(term)
     recommended = {term.effect} if term is not None and term.recommended else set()
     for c in accepted:  # in the order accepted, so that what each was found given is decided before it
         c.significant, c.role = True, MISSING_EFFECT
@@ -522,6 +586,11 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             c.recommended = False
             c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + \
                 f" — but it was found given {', '.join(missing)}, which is not added: not recommended"
+        if c.recommended and c.refit is None:
+            built.given(c)
+        elif c.recommended and not built.add(c):
+            c.recommended = c.refit["verified"] = False
+            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + _why_refit_not_verified(c)
         if c.recommended:
             recommended.add(c.effect)
     for c in unconfirmed:
