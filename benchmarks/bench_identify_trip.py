@@ -21,6 +21,7 @@ from pathlib import Path
 
 from versions import worker_results
 
+
 def worker(path: str):
     """Build the dataset and identify the model with the fuelid this interpreter imports; one JSON line."""
     import time

@@ -404,6 +404,12 @@ class _Built:
         self.rmse = None
 
 
+def _not_recommended(c: Candidate, why: str) -> None:
+    """c named but not recommended: its explanation's advice to add it replaced by `why` (a clause saying why)."""
+    c.recommended = False
+    c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + why
+
+
 def _given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
     """The effects c was found and verified given (its conditional record's) that are not among `recommended`."""
     return [e for e in (c.conditional or {}).get("given", []) if e not in recommended]
@@ -566,9 +572,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
                                                  for e in (MAP_TERM, PRODUCT_TERM)))
         if term.recommended and term.refit is not None and not built.add(term):
-            term.recommended = term.refit["verified"] = False
-            term.explanation = term.explanation.replace(f"; add effect {term.effect}", "") \
-                + _why_refit_not_verified(term)
+            term.refit["verified"] = False
+            _not_recommended(term, _why_refit_not_verified(term))
     recommended = {term.effect} if term is not None and term.recommended else set()
     for c in accepted:  # in the order accepted, so that what each was found given is decided before it
         c.significant, c.role = True, MISSING_EFFECT
@@ -578,19 +583,16 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
         c.recommended = c.verification is not None and "error" not in c.verification and _refit_verified(c)
         if not _refit_verified(c):
-            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + _why_refit_not_verified(c)
+            _not_recommended(c, _why_refit_not_verified(c))
         elif c.recommended and _generic(c) and "trips" not in c.verification:
-            c.recommended = False
-            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + ONE_TRIP_ONLY
+            _not_recommended(c, ONE_TRIP_ONLY)
         elif c.recommended and (missing := _given_not_added(c, recommended)):
-            c.recommended = False
-            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + \
-                f" — but it was found given {', '.join(missing)}, which is not added: not recommended"
+            _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
         if c.recommended and c.refit is None:
             built.given(c)
         elif c.recommended and not built.add(c):
-            c.recommended = c.refit["verified"] = False
-            c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + _why_refit_not_verified(c)
+            c.refit["verified"] = False
+            _not_recommended(c, _why_refit_not_verified(c))
         if c.recommended:
             recommended.add(c.effect)
     for c in unconfirmed:
