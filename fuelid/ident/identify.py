@@ -18,10 +18,16 @@ than SIMULATION_MARGIN (RMS simulation error, `simulation_rmse`). The model is u
 %, cycle fuel error), and of two local minima the lower V can simulate far worse, the high-order noise model then
 carrying what the inputs' part should; where the two simulate alike, the lower V has been the better model on
 another day's data, so the simulation error overrides V only when it differs grossly (README: the cases measured).
+
+Callers that identify nested sets of effects on one dataset (the diagnosis builds the model with effects E, then with
+E and one more, whose in-turn stages are the fits of E again) pass one `FitMemo` to every call: PEM is
+deterministic, so a fit asked for again from the same data and start is served, the same to the bit.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
+import hashlib
 import warnings
 
 import numpy as np
@@ -35,6 +41,40 @@ from fuelid.ident.polymodel import PolyModel, Structure, simulate
 from fuelid.ident.validation import evaluate, rmse
 
 MIN_SEGMENT_S = 30.0  # [s] shortest valid stretch a model is fitted on (`fuelid identify --min-segment`)
+
+
+class FitMemo:
+    """PEM fits (ident.pem.pem) kept by everything each was fitted from: inputs u (N × m), output y (N), structure,
+    Ts [s], segments, operating point u0, y0 and start (init's θ, or the initialisation). pem is deterministic, so a
+    fit asked for again from the same is the model already fitted; served as a copy (a caller changing it cannot
+    change the next one's). A memo serves one process's calls and is never stored."""
+
+    def __init__(self):
+        self._fits: dict[bytes, PolyModel] = {}
+
+    def __len__(self) -> int:
+        """The number of fits made."""
+        return len(self._fits)
+
+    @staticmethod
+    def _key(u, y, structure: Structure, Ts: float, segments, u0, y0: float, init: PolyModel | None) -> bytes:
+        """A digest of everything pem's result depends on (the start: init's θ, which is all pem takes of it)."""
+        h = hashlib.blake2b(digest_size=32)
+        for a in [u, y, u0] + ([] if init is None else [init.theta]):
+            a = np.ascontiguousarray(a, dtype=float)
+            h.update(repr(a.shape).encode())
+            h.update(a.tobytes())
+        h.update(repr((structure, float(Ts), [(s.start, s.stop) for s in segments], float(y0),
+                       None if init is None else init.structure)).encode())
+        return h.digest()
+
+    def pem(self, u, y, structure: Structure, Ts: float, *, segments, u0, y0: float,
+            init: PolyModel | None = None) -> PolyModel:
+        """pem(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=init), fitted once per distinct call."""
+        key = self._key(u, y, structure, Ts, segments, u0, y0, init)
+        if key not in self._fits:
+            self._fits[key] = pem(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=init)
+        return copy.deepcopy(self._fits[key])
 
 
 def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
@@ -75,7 +115,8 @@ def training_segments(ds, u, y, min_s: float) -> list[slice]:
 
 
 def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float = MIN_SEGMENT_S, files=(),
-                   init: PolyModel | None = None, defined=(), base: PolyModel | None = None) -> PolyModel:
+                   init: PolyModel | None = None, defined=(), base: PolyModel | None = None,
+                   memo: FitMemo | None = None) -> PolyModel:
     """The PolyModel of `structure` (speed, torque inputs) plus `effects` ("ID" or "ID=VALUE") identified on
     dataset ds, with names, units, training summary (`files` recorded) and validation metrics filled in.
 
@@ -86,6 +127,7 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     defined: effects the engineer defined (ident.effectfile) that `effects` may name; the model carries the
     definitions of those it uses (info["effect_definitions"]), so it runs without their file.
     info["starts"] records the loss V and simulation RMS error each start reached, which was kept, and the stages.
+    memo: PEM fits of earlier calls on these data, served instead of fitted again (`FitMemo`; the same model).
     Raises FuelidError for an unusable effect, too little valid data, or a failed estimation."""
     fx = effect_inputs(ds, effects, structure, defined)
     u, y = np.hstack([ds.u, fx.u]), fx.y
@@ -98,15 +140,16 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
     given = init if init is not None and init.structure == extended else None
     starts = {"initialisation" if given is None else "given model": given}
+    fit = (memo if memo is not None else FitMemo()).pem
     with warnings.catch_warnings():  # pem records its warnings in model.info
         warnings.simplefilter("ignore", UserWarning)
         stages = []
         if fx.u.shape[1]:
             if base is None or base.structure != structure:
-                base = pem(ds.u, y, structure, ds.Ts, segments=segs, u0=ds.u0, y0=ds.y0)
-            nested, stages = effects_added_in_turn(base, u, y, fx, segs, ds.Ts, y0=ds.y0)
+                base = fit(ds.u, y, structure, ds.Ts, segments=segs, u0=ds.u0, y0=ds.y0)
+            nested, stages = effects_added_in_turn(base, u, y, fx, segs, ds.Ts, y0=ds.y0, fit=fit)
             starts["effects added in turn"] = with_inputs(nested, extended)
-        fits = {name: pem(u, y, extended, ds.Ts, segments=segs, u0=u0, y0=ds.y0, init=start)
+        fits = {name: fit(u, y, extended, ds.Ts, segments=segs, u0=u0, y0=ds.y0, init=start)
                 for name, start in starts.items()}
     scores = {name: simulation_rmse(m, u, y, segs) for name, m in fits.items()}
     kept = list(fits)[kept_fit(list(fits.values()), list(scores.values()))]
@@ -153,13 +196,13 @@ def simulation_rmse(model: PolyModel, u: np.ndarray, y: np.ndarray, segments) ->
 
 
 def effects_added_in_turn(base: PolyModel, u: np.ndarray, y: np.ndarray, fx: EffectInputs, segments, Ts: float, *,
-                          y0: float) -> tuple[PolyModel, list[dict]]:
+                          y0: float, fit=pem) -> tuple[PolyModel, list[dict]]:
     """The model with every effect of fx that adds inputs but the last, built from `base` (the model of u's first
     inputs, speed and torque, identified on the same samples) by adding them in turn: each stage identified by PEM
     on u's leading columns from the usual initialisation and from the stage before with the new coefficients at
     zero (`with_inputs`), one kept by `kept_fit` (module docstring). u: N × (2 + k) inputs (speed [rpm], torque,
-    then fx.u), y: the (shifted) fuel [L/h], segments as in `pem`, Ts [s], y0 the fuel's operating point [L/h].
-    Returns (that model, [{effects, loss_V, simulation_rmse} per stage])."""
+    then fx.u), y: the (shifted) fuel [L/h], segments as in `pem`, Ts [s], y0 the fuel's operating point [L/h];
+    fit: `pem` or a `FitMemo`'s. Returns (that model, [{effects, loss_V, simulation_rmse} per stage])."""
     model, stages = base, []
     n_base = len(base.B)
     full = fx.extend(base.structure)
@@ -170,9 +213,9 @@ def effects_added_in_turn(base: PolyModel, u: np.ndarray, y: np.ndarray, fx: Eff
         m = n_base + int(end)
         sub = _first_inputs(full, m)
         u0 = np.r_[base.u0, np.zeros(m - n_base)]
-        fits = [pem(u[:, :m], y, sub, Ts, segments=segments, u0=u0, y0=y0, init=start)
+        fits = [fit(u[:, :m], y, sub, Ts, segments=segments, u0=u0, y0=y0, init=start)
                 for start in (None, with_inputs(model, sub))]
-        scores = [simulation_rmse(fit, u[:, :m], y, segments) for fit in fits]
+        scores = [simulation_rmse(f, u[:, :m], y, segments) for f in fits]
         k = kept_fit(fits, scores)
         model = fits[k]
         stages.append({"effects": list(fx.effects[: j + 1]), "loss_V": model.info["loss_V"],

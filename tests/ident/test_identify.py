@@ -4,7 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from fuelid.ident.identify import identify_model, kept_fit, refit_with_effects, with_inputs
+from fuelid.ident.identify import FitMemo, identify_model, kept_fit, refit_with_effects, with_inputs
 from fuelid.ident.polymodel import Structure, simulate
 from fuelid.ident.validation import evaluate
 from tests.ident import hidden
@@ -15,6 +15,33 @@ def test_a_model_without_an_input_is_the_same_model_with_its_coefficients_at_zer
     extended = with_inputs(model, Structure(nb=(1, 2, 2), nf=(1, 1, 1), nk=(2, 0, 0), nc=1, nd=1))
     u = np.random.default_rng(0).normal(size=(200, 3)) + [600.0, 112.0, 0.0]
     assert np.allclose(simulate(extended, u), simulate(model, u[:, :2]))
+
+
+def test_a_model_built_through_a_memo_of_the_fits_before_it_is_the_same_to_the_bit():
+    """The diagnosis builds the model with effects E, then with E and one more (ranking._Built): the second build's
+    effects added in turn are the first's fits again, and a FitMemo serves them instead of fitting them anew."""
+    ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
+    memo = FitMemo()
+    identify_model(ds, hidden.PAPER, ["dpf_regeneration"], memo=memo)
+    assert len(memo) == 3  # the model without the effect, and the one with it from both starts
+    served = identify_model(ds, hidden.PAPER, ["dpf_regeneration", "gear_shift"], memo=memo)
+    assert len(memo) == 3 + 2  # only the two fits of the whole structure are new
+    fitted = identify_model(ds, hidden.PAPER, ["dpf_regeneration", "gear_shift"])
+    assert np.array_equal(served.theta, fitted.theta)
+    assert served.info["starts"] == fitted.info["starts"]
+    assert served.validation == fitted.validation
+
+
+def test_a_memo_serves_a_copy_so_a_caller_cannot_change_the_next_fit():
+    u = hidden.TRUE.u0 + np.random.default_rng(1).normal(size=(3000, 2)) * [100.0, 300.0]  # [rpm, N·m]
+    y = simulate(hidden.TRUE, u) + np.random.default_rng(2).normal(0.0, 0.1, 3000)  # [L/h]
+    memo, whole, halves = FitMemo(), [slice(0, 3000)], [slice(0, 1500), slice(1500, 3000)]
+    first = memo.pem(u, y, hidden.STRUCTURE, hidden.TS, segments=whole, u0=hidden.TRUE.u0, y0=hidden.TRUE.y0)
+    first.info["loss_V"] = -1.0
+    again = memo.pem(u, y, hidden.STRUCTURE, hidden.TS, segments=whole, u0=hidden.TRUE.u0, y0=hidden.TRUE.y0)
+    assert len(memo) == 1 and again.info["loss_V"] > 0.0
+    memo.pem(u, y, hidden.STRUCTURE, hidden.TS, segments=halves, u0=hidden.TRUE.u0, y0=hidden.TRUE.y0)
+    assert len(memo) == 2  # other segments: another fit
 
 
 def test_the_inertia_the_diagnosis_recommends_does_not_make_the_model_worse_on_another_day():

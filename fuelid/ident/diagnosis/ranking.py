@@ -83,7 +83,7 @@ from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm
 from fuelid.ident.diagnosis.verification import held_out, held_out_scores
-from fuelid.ident.identify import identify_model, refit_with_effects
+from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.polymodel import PolyModel, Structure
@@ -376,9 +376,10 @@ class _Built:
         self.structure, self.ds, self.defined = _own_structure(model), ds, effects
         self.base = model if not model.effects else None  # its second start (identify_model), when it is one
         self.specs, self.rmse = list(model.effects), None
+        self.memo = FitMemo()  # the model with E + [c] is built through the fits of E's: fitted once
 
     def _rmse(self, specs: list[str]) -> float:
-        built = identify_model(self.ds, self.structure, specs, defined=self.defined, base=self.base)
+        built = identify_model(self.ds, self.structure, specs, defined=self.defined, base=self.base, memo=self.memo)
         return built.validation["rmse"]["simulation"]
 
     def add(self, c: Candidate) -> bool:
