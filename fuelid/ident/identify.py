@@ -64,7 +64,8 @@ class FitMemo:
             a = np.ascontiguousarray(a, dtype=float)
             h.update(repr(a.shape).encode())
             h.update(a.tobytes())
-        h.update(repr((structure, float(Ts), [(s.start, s.stop) for s in segments], float(y0),
+        spans = [(s.start, s.stop) if isinstance(s, slice) else tuple(map(int, s)) for s in segments]
+        h.update(repr((structure, float(Ts), spans, float(y0),
                        None if init is None else init.structure)).encode())
         return h.digest()
 
