@@ -141,7 +141,7 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
     given = init if init is not None and init.structure == extended else None
     starts = {"initialisation" if given is None else "given model": given}
-    fit = (memo if memo is not None else FitMemo()).pem
+    fit = memo.pem if memo is not None else pem
     with warnings.catch_warnings():  # pem records its warnings in model.info
         warnings.simplefilter("ignore", UserWarning)
         stages = []

@@ -197,7 +197,7 @@ def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:
     for i in range(16, whole, 8):
         for j in range(8):
             r[j] += x[i + j]
-    total, pair = r[0] + r[1], r[2] + r[3]
+    total, pair = r[0] + r[1], r[2] + r[3]  # two temporaries for the join: each new n-array costs page faults
     total += pair
     np.add(r[4], r[5], out=pair)
     pair += r[6] + r[7]
