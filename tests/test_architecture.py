@@ -150,7 +150,7 @@ def test_logger_imports_nothing_from_ident():
 
 
 # Each layer (docs/architecture.md) and the layers it may import; the command line on top may import them all.
-FOUNDATION = {"fuelid", "fuelid.errors", "fuelid.output", "fuelid.paths", "fuelid.progress"}
+FOUNDATION = {"fuelid", "fuelid.blas", "fuelid.errors", "fuelid.output", "fuelid.paths", "fuelid.progress"}
 LAYERS = {
     "foundation": set(),
     "dbc": {"foundation"},

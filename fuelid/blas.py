@@ -1,0 +1,44 @@
+"""The same numbers on every x86-64 CPU: which OpenBLAS kernels numpy and scipy run.
+
+OpenBLAS (in numpy's and scipy's wheels) picks its kernels by CPU when it is loaded: AVX-512 ones (SkylakeX) on a
+CPU that has AVX-512, AVX2 ones (Haswell) on AMD Zen and older Intel. The two sum the products of a matrix product
+in a different order, so ΨᵀΨ, the LM step and every later iterate differ in the last bits; on the ill-conditioned
+fits of real trips (condition numbers near 10¹⁴) the PEM's path and the minimum it ends in follow those bits, and
+with them the diagnosis's verdicts on borderline cases. A fleet whose workers are mixed CPUs would then give the
+same truck's data different models. So fuelid asks OpenBLAS for its Haswell kernels wherever the CPU runs them
+(AVX2 and FMA), before numpy first loads it: `fuelid/__init__.py` calls `pin_kernels` on import. What it does
+not reach: a process that imported numpy before fuelid keeps the kernels chosen then (threadpoolctl's
+`threadpool_info()` says which), a CPU without AVX2, and other platforms (aarch64, macOS on Apple silicon), whose
+BLAS differs anyway.
+"""
+from __future__ import annotations
+
+import os
+import platform
+from collections.abc import MutableMapping
+
+CORETYPE = "Haswell"  # OpenBLAS's AVX2 kernels: the ones it picks by itself on AMD Zen
+NEEDS = frozenset({"avx2", "fma"})  # what those kernels execute
+
+
+def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
+    """The CPU's feature flags as Linux lists them (empty where the file cannot be read: not Linux)."""
+    try:
+        with open(cpuinfo) as f:
+            for line in f:
+                if line.startswith("flags"):
+                    return frozenset(line.partition(":")[2].split())
+    except OSError:
+        pass
+    return frozenset()
+
+
+def pin_kernels(environ: MutableMapping[str, str] = os.environ, machine: str | None = None,
+                flags: frozenset[str] | None = None) -> str | None:
+    """Set OPENBLAS_CORETYPE to CORETYPE in `environ` on an x86-64 CPU with AVX2 and FMA, unless it is set already
+    (the user's choice wins); the core type in effect after the call (None: OpenBLAS chooses)."""
+    machine = (machine or platform.machine()).lower()
+    if "OPENBLAS_CORETYPE" not in environ and machine in ("x86_64", "amd64") \
+            and NEEDS <= (cpu_flags() if flags is None else flags):
+        environ["OPENBLAS_CORETYPE"] = CORETYPE
+    return environ.get("OPENBLAS_CORETYPE")
