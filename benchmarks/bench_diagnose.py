@@ -22,15 +22,15 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fuelid.ident import diagnosis as dg  # noqa: E402
+from fuelid.ident import diagnosis as dg  # noqa: E402  (fuelid before numpy: it pins the BLAS kernels, fuelid.blas)
 from fuelid.ident import effects as fx  # noqa: E402
 from fuelid.ident.identify import identify_model  # noqa: E402
 from fuelid.ident.validation import evaluate  # noqa: E402
 from tests.ident import hidden  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 EFFECTS = ["dpf_regeneration", "inertia", "power_nonlinearity", "overrun_cutoff", "cold_engine", "engine_fan",
            "gear_shift", "ambient", "fuel_delay"]

@@ -73,10 +73,10 @@ def worker(paths, repeat: int):
     CPU time)."""
     import warnings
 
-    import numpy as np
-
-    from fuelid.ident.pem import pem
+    from fuelid.ident.pem import pem  # before numpy: fuelid pins the BLAS kernels (fuelid.blas)
     from fuelid.ident.polymodel import PAPER_ORDERS, Structure
+
+    import numpy as np
 
     for path in paths:
         d = np.load(path)

@@ -7,14 +7,16 @@ fits of real trips (condition numbers near 10¹⁴) the PEM's path and the minim
 with them the diagnosis's verdicts on borderline cases. A fleet whose workers are mixed CPUs would then give the
 same truck's data different models. So fuelid asks OpenBLAS for its Haswell kernels wherever the CPU runs them
 (AVX2 and FMA), before numpy first loads it: `fuelid/__init__.py` calls `pin_kernels` on import. What it does
-not reach: a process that imported numpy before fuelid keeps the kernels chosen then (threadpoolctl's
-`threadpool_info()` says which), a CPU without AVX2, and other platforms (aarch64, macOS on Apple silicon), whose
-BLAS differs anyway.
+not reach: a process that imported numpy before fuelid keeps the kernels chosen then, and is warned (pinning
+then would give scipy's OpenBLAS other kernels than numpy's: a third set of numbers); a CPU without AVX2; other
+platforms (aarch64, macOS on Apple silicon), whose BLAS builds differ anyway.
 """
 from __future__ import annotations
 
 import os
 import platform
+import sys
+import warnings
 from collections.abc import MutableMapping
 
 CORETYPE = "Haswell"  # OpenBLAS's AVX2 kernels: the ones it picks by itself on AMD Zen
@@ -33,12 +35,20 @@ def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
     return frozenset()
 
 
+LATE = ("numpy was imported before fuelid, so OpenBLAS keeps the kernels it chose for this CPU: results may differ "
+        "in the last bits from other machines' (import fuelid first; fuelid.blas)")
+
+
 def pin_kernels(environ: MutableMapping[str, str] = os.environ, machine: str | None = None,
-                flags: frozenset[str] | None = None) -> str | None:
+                flags: frozenset[str] | None = None, numpy_loaded: bool | None = None) -> str | None:
     """Set OPENBLAS_CORETYPE to CORETYPE in `environ` on an x86-64 CPU with AVX2 and FMA, unless it is set already
-    (the user's choice wins); the core type in effect after the call (None: OpenBLAS chooses)."""
+    (the user's choice wins) or numpy is loaded already (a warning: too late); the core type in effect after the
+    call (None: OpenBLAS chooses)."""
     machine = (machine or platform.machine()).lower()
     if "OPENBLAS_CORETYPE" not in environ and machine in ("x86_64", "amd64") \
             and NEEDS <= (cpu_flags() if flags is None else flags):
-        environ["OPENBLAS_CORETYPE"] = CORETYPE
+        if "numpy" in sys.modules if numpy_loaded is None else numpy_loaded:
+            warnings.warn(LATE, stacklevel=3)
+        else:
+            environ["OPENBLAS_CORETYPE"] = CORETYPE
     return environ.get("OPENBLAS_CORETYPE")

@@ -12,8 +12,16 @@ from fuelid.blas import CORETYPE, NEEDS, cpu_flags, pin_kernels
 
 def test_an_x86_64_cpu_with_avx2_gets_the_haswell_kernels():
     env = {}
-    assert pin_kernels(env, "x86_64", frozenset({"sse2", "avx", "avx2", "fma", "avx512f"})) == "Haswell"
+    assert pin_kernels(env, "x86_64", frozenset({"sse2", "avx", "avx2", "fma", "avx512f"}), False) == "Haswell"
     assert env == {"OPENBLAS_CORETYPE": "Haswell"}
+
+
+def test_too_late_once_numpy_is_loaded_and_the_user_is_told():
+    """Pinned after numpy loaded its OpenBLAS, only scipy's would change: a third set of numbers."""
+    env = {}
+    with pytest.warns(UserWarning, match="numpy was imported before fuelid"):
+        assert pin_kernels(env, "x86_64", NEEDS, True) is None
+    assert env == {}
 
 
 @pytest.mark.parametrize("machine, flags", [("x86_64", {"sse2", "avx"}), ("aarch64", {"fp", "asimd"}),
@@ -21,12 +29,12 @@ def test_an_x86_64_cpu_with_avx2_gets_the_haswell_kernels():
 def test_other_cpus_keep_what_openblas_chooses(machine, flags):
     """No AVX2 (the kernels would not run), another architecture, or flags that cannot be read."""
     env = {}
-    assert pin_kernels(env, machine, frozenset(flags)) is None and env == {}
+    assert pin_kernels(env, machine, frozenset(flags), False) is None and env == {}
 
 
 def test_a_core_type_the_user_set_is_kept():
     env = {"OPENBLAS_CORETYPE": "SkylakeX"}
-    assert pin_kernels(env, "x86_64", NEEDS) == "SkylakeX" and env == {"OPENBLAS_CORETYPE": "SkylakeX"}
+    assert pin_kernels(env, "x86_64", NEEDS, True) == "SkylakeX" and env == {"OPENBLAS_CORETYPE": "SkylakeX"}
 
 
 def test_cpu_flags_reads_the_flags_line(tmp_path):
