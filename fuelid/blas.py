@@ -21,6 +21,8 @@ from collections.abc import MutableMapping
 
 CORETYPE = "Haswell"  # OpenBLAS's AVX2 kernels: the ones it picks by itself on AMD Zen
 NEEDS = frozenset({"avx2", "fma"})  # what those kernels execute
+LATE = ("numpy was imported before fuelid, so OpenBLAS keeps the kernels it chose for this CPU: results may differ "
+        "in the last bits from other machines' (import fuelid first; fuelid.blas)")
 
 
 def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
@@ -35,10 +37,6 @@ def cpu_flags(cpuinfo: str = "/proc/cpuinfo") -> frozenset[str]:
     return frozenset()
 
 
-LATE = ("numpy was imported before fuelid, so OpenBLAS keeps the kernels it chose for this CPU: results may differ "
-        "in the last bits from other machines' (import fuelid first; fuelid.blas)")
-
-
 def pin_kernels(environ: MutableMapping[str, str] = os.environ, machine: str | None = None,
                 flags: frozenset[str] | None = None, numpy_loaded: bool | None = None) -> str | None:
     """Set OPENBLAS_CORETYPE to CORETYPE in `environ` on an x86-64 CPU with AVX2 and FMA, unless it is set already
@@ -47,7 +45,8 @@ def pin_kernels(environ: MutableMapping[str, str] = os.environ, machine: str | N
     machine = (machine or platform.machine()).lower()
     if "OPENBLAS_CORETYPE" not in environ and machine in ("x86_64", "amd64") \
             and NEEDS <= (cpu_flags() if flags is None else flags):
-        if "numpy" in sys.modules if numpy_loaded is None else numpy_loaded:
+        too_late = "numpy" in sys.modules if numpy_loaded is None else numpy_loaded
+        if too_late:
             warnings.warn(LATE, stacklevel=3)
         else:
             environ["OPENBLAS_CORETYPE"] = CORETYPE
