@@ -118,7 +118,7 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
     verified — besides, the held-out RMS error falls by ≥ 25 % or to within 5 % of the noise floor; all — besides,
     the cycle fuel error falls (RMS over the cycles, 0.1 percentage point tolerance). Then two effects hidden at
     once (PAIRS, issue 16): both named, and the validation error with what was recommended. Then the false-alarm
-    rate on trips with nothing hidden: single trips, and pairs of trips in the ambient effect's two weathers
+    rate on trips with nothing hidden: single trips, and sets of trips in the ambient effect's three weathers
     identified together. For every case with a recommendation (issue 16, item 3): the RMS error on another day's
     trip (seed + 50) of the model as it is and with everything recommended added; worse = it rose, or one of the
     effects added raised it (everything recommended but that one does better: "raised by"). effects,
@@ -183,7 +183,7 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
                   f"  both {'yes' if all(named) else 'no':>3s}  " + checked(pair, seed, None, ds, model, out),
                   flush=True)
     print(f"two effects at once: both named in {sum(both)} of {len(both)}")
-    for routes_of, what, n in ((None, "trips", null_seeds), ("ambient", "pairs of trips in different weather",
+    for routes_of, what, n in ((None, "trips", null_seeds), ("ambient", "sets of trips in different weather",
                                                              null_pairs)):
         alarms = maps = 0
         for seed in range(first_null_seed, first_null_seed + n):

@@ -2,7 +2,7 @@
 
 Identification and validation trips after the seed paper (1.5 h identification, a different validation trip),
 a gas-truck pair with flow-meter captures, eleven 30-minute diesel drive cycles like the paper's Table I, one
-trip per physical effect (two for ambient air), and a one-minute sample for the README's quick start; the
+trip per physical effect (three for ambient air), and a one-minute sample for the README's quick start; the
 identification, validation and effect trips again on the map engine (VECTO's 325 kW engine).
 """
 from dataclasses import replace
@@ -14,8 +14,10 @@ CYCLE_ROTATION = ("urban", "rural", "motorway", "mixed")
 
 # Where each effect shows best: hills for the fan and overrun, stop-and-go for inertia and shifts, a cold
 # morning for the cold engine. Air density differs between days and places far more than within a 20-minute
-# trip, so the ambient effect takes two trips identified together: a winter morning in the lowlands (200 m,
-# -2 °C) and a summer afternoon in the mountains (1400 m, 30 °C), air 23 % thinner.
+# trip, so the ambient effect takes trips identified together: a winter morning in the lowlands (200 m, -2 °C),
+# a summer afternoon in the mountains (1400 m, 30 °C), air 23 % thinner, and a spring day in the hills (700 m,
+# 12 °C). Three, so that whichever is left out to check that the effect carries over (ident.diagnosis,
+# leave-one-trip-out), the other two still differ in their weather.
 EFFECT_TRIPS = {
     "fuel_delay": (dict(cycle="mixed"),),
     "inertia": (dict(cycle="urban"),),
@@ -26,7 +28,8 @@ EFFECT_TRIPS = {
     "engine_fan": (dict(cycle="rural", hilliness=1.8, ambient_c=28.0),),
     "gear_shift": (dict(cycle="urban"),),
     "ambient": (dict(cycle="rural", hilliness=1.5, altitude_m=200.0, ambient_c=-2.0),
-                dict(cycle="rural", hilliness=1.5, altitude_m=1400.0, ambient_c=30.0)),
+                dict(cycle="rural", hilliness=1.5, altitude_m=1400.0, ambient_c=30.0),
+                dict(cycle="rural", hilliness=1.5, altitude_m=700.0, ambient_c=12.0)),
 }
 """Per hidden effect, the routes and weather of the trip(s) that show it (TripConfig fields)."""
 # The generic effects (sim.effects.GENERIC_EFFECTS, no entry in fuelid's effect catalogue): hot intake air on a

@@ -157,8 +157,8 @@ def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float
     """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
     hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS;
     a tuple of ids hides them all) on the routes the trips of effect `routes_of` (default: `effect`, the first of
-    them) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, two for ambient air, on days seed,
-    seed + SECOND_TRIP_SEED; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
+    them) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, three for ambient air, on days seed,
+    seed + SECOND_TRIP_SEED, …; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
     arrays of several trips are concatenated, the summary is the first trip's; cached. `truth`: the engine's
     fuel truth (the paper's diesel model, or "map": the VECTO 325 kW engine's map, sim.mapfuel)."""
     from fuelid.ident.dataset import build_dataset
@@ -182,9 +182,9 @@ def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float
     return ds, arrays, trips[0].summary
 
 
-def first_trip(ds, break_s: float = 600.0):
-    """ds up to its first break of the log of at least break_s [s]: the first trip of a set (`simulated`)."""
-    k = int(np.flatnonzero(np.diff(ds.t) >= break_s)[0]) + 1
+def first_trips(ds, n: int = 1, break_s: float = 600.0):
+    """ds up to its n-th break of the log of at least break_s [s]: the first n trips of a set (`simulated`)."""
+    k = int(np.flatnonzero(np.diff(ds.t) >= break_s)[n - 1]) + 1
     return dataclasses.replace(ds, t=ds.t[:k], u=ds.u[:k], y=ds.y[:k], valid=ds.valid[:k], cycle=ds.cycle[:k],
                                extra={name: x[:k] for name, x in ds.extra.items()})
 

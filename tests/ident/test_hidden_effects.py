@@ -1,6 +1,6 @@
-"""Issue 7's acceptance tests on the truck simulator: a 20-minute diesel trip with one hidden physical effect (two,
-a winter lowland and a summer mountain one, identified together, for ambient air: sim.catalog.EFFECT_TRIPS),
-through the bus and fuelid's decoder, identified with the paper's orders and diagnosed.
+"""Issue 7's acceptance tests on the truck simulator: a 20-minute diesel trip with one hidden physical effect (three,
+a winter lowland, a summer mountain and a spring hill one, identified together, for ambient air:
+sim.catalog.EFFECT_TRIPS), through the bus and fuelid's decoder, identified with the paper's orders and diagnosed.
 
 For each effect the simulator can hide (two seeds each here; `python benchmarks/bench_diagnose.py
 --acceptance` runs three more per effect, 20 trips and 10 pairs of trips with nothing hidden) the top significant
@@ -61,7 +61,7 @@ def test_hidden_effect_is_named_and_adding_it_lowers_the_error(effect, seed):
 
 @pytest.mark.parametrize("seed, routes_of", [(11, None), (12, None), (13, None), (11, "ambient")])
 def test_with_nothing_hidden_no_candidate_is_significant(seed, routes_of):
-    """One trip, or the ambient effect's two trips in different weather identified together."""
+    """One trip, or the ambient effect's three trips in different weather identified together."""
     out, _, _ = diagnosed(None, seed, routes_of)
     assert not any(r["significant"] for r in out["candidates"]), out["verdict"]
     assert out["verdict"].startswith("No significant candidate")
@@ -135,18 +135,14 @@ def test_on_the_map_engine_no_effect_recommended_raises_another_days_error():
 
 
 def test_on_the_map_engine_what_is_recommended_is_verified_on_the_model_identify_builds():
-    """Ambient air hidden on the map engine, two trips in different weather (seed 4000): forward selection's
-    warm-started refits stay far from the model `fuelid identify` builds of the same effects (RMS 3.30 against 0.58
-    L/h with the map term and ambient air), and on them the idle fuelling lowered the error a little. Built as
-    `identify --effects-from` builds it, it raises the error on these trips, and another day's by half (0.58 →
-    0.87 L/h): named, not recommended. Each effect recommended lowers the error of the model built with it, here
-    and on another day's trips."""
+    """Ambient air hidden on the map engine, three trips in different weather (seed 4000): forward selection's
+    warm-started refits can stay far from the model `fuelid identify` builds of the same effects, so each effect
+    recommended was checked on that model too (refit.built: built with it and the effects recommended before it, it
+    simulates these trips no worse than without it). Each lowers the error of the model built with it on another
+    day's trips (seed 4050) too, given the others, and together they lower it against the model without them."""
     out, _, _ = diagnosed("ambient", 4000, truth="map")
     recommended = dg.confirmed_effects(out["candidates"])
     assert recommended[:2] == ["engine_map", "ambient"], out["verdict"]
-    idle = next(c for c in out["candidates"] if c["effect"] == "idle_fuelling")
-    assert idle["significant"] and not idle["recommended"], idle["explanation"]
-    assert idle["refit"]["built"]["rmse_with"] > idle["refit"]["built"]["rmse_without"], idle["refit"]
     for c in out["candidates"]:
         if c.get("recommended") and c.get("refit"):
             assert c["refit"]["built"]["rmse_with"] <= c["refit"]["built"]["rmse_without"], c["refit"]
@@ -155,7 +151,7 @@ def test_on_the_map_engine_what_is_recommended_is_verified_on_the_model_identify
     rmse = functools.partial(built_rmse, ds, val, FitMemo())
 
     with_all = rmse(recommended)
-    assert with_all < rmse(recommended + ["idle_fuelling"])
+    assert with_all < evaluate(hidden.identify(ds), val)["rmse"]["simulation"]
     for e in recommended:
         assert rmse([o for o in recommended if o != e]) > with_all, e
 
@@ -205,43 +201,53 @@ def test_two_hidden_effects_are_both_named(first, recommended):
     candidate on the model re-identified with the regeneration and names the second too (on the model as it is,
     the second lowers the held-out error by only 1.1–1.2 %, short of the 2 % needed, and was not named before; the
     cold engine, 1.4–1.8 % on the model linearised around the one without the regeneration, was not named given
-    it either: a demand-torque scaling was, in its place). The overrun cut-off is named but not recommended: the
+    it either: a demand-torque scaling was, in its place). After both, bus signals fuelid has no physics for may be
+    named too, found on one trip: evidence, never recommended. The overrun cut-off is named but not recommended: the
     model re-identified with it simulates this trip worse (RMS 1.901 → 1.919 L/h; and another day's trip, seed
     3050, no better: 2.016 → 2.017 L/h)."""
     pair = (first, "dpf_regeneration")
     out, _, _ = diagnosed(pair, 3000)
     found = [r for r in out["candidates"] if r["significant"]]
-    assert [r["effect"] for r in found] == ["dpf_regeneration", first], out["verdict"]
+    assert [r["effect"] for r in found][:2] == ["dpf_regeneration", first], out["verdict"]
+    assert all(":" in r["effect"] and not r["recommended"] for r in found[2:]), out["verdict"]
     assert found[0]["recommended"] and found[0]["refit"]["verified"]
     assert found[1]["recommended"] == found[1]["refit"]["verified"] == recommended, found[1]["refit"]
     second = found[1]["conditional"]
     assert second["given"] == ["dpf_regeneration"] and second["rmse_drop_percent"] >= 2.0, second
-    assert out["verdict"].startswith("Missing effects (2)")
+    assert out["verdict"].startswith("Missing effects (")
     assert all((f"add effect {e}" in out["verdict"]) == (e == "dpf_regeneration" or recommended) for e in pair)
 
 
 def test_ambient_air_is_recommended_only_where_it_carries_over_to_another_trip():
-    """Two trips in different weather: ambient air found, and fitted on either trip it lowers the other's error
-    (leave-one-trip-out). The first trip alone: its air density hardly varies, so its scaling of the fuel is
-    barely told apart from the model's own gains and is not recommended."""
+    """Three trips in different weather: ambient air found, and fitted on any two it lowers the third's error
+    (leave-one-trip-out). Two of them: each fit has one trip, whose air density hardly varies, so a fit hardly
+    determines the effect beside the model's own gains: what it does not determine is left at 0, not extrapolated
+    to the other trip (which moved its error by hundreds of % either way), so the check changes neither trip's error
+    by more than a trace: it cannot show that the effect carries over. The first trip alone: its scaling of the
+    fuel is barely told apart from the model's own gains and is not recommended."""
     out, _, _ = diagnosed("ambient", 2004)
     top = out["candidates"][0]
     assert top["effect"] == "ambient" and top["recommended"], out["verdict"]
     trips = top["verification"]["trips"]
-    assert len(trips["rmse_with"]) == 2 and min(trips["rmse_drop_percent"]) > 0, trips
+    assert len(trips["rmse_with"]) == 3 and min(trips["rmse_drop_percent"]) > 0 and all(trips["determined"]), trips
     assert top["verification"]["identifiable"]
 
     ds, _, _ = hidden.simulated("ambient", 2004)
-    one = hidden.first_trip(ds)
+    two = hidden.first_trips(ds, 2)
+    out_two = dg.diagnose(hidden.identify(two), two).to_json()
+    trips = next(r for r in out_two["candidates"] if r["effect"] == "ambient")["verification"]["trips"]
+    assert max(abs(d) for d in trips["rmse_drop_percent"]) < 0.1, trips
+
+    one = hidden.first_trips(ds)
     model = hidden.identify(one)
     alone = dg.diagnose(model, one)
     row = next(r for r in alone.candidates if r.effect == "ambient")
     assert not row.recommended and not row.significant
     share = {}
-    for name, d in (("one", one), ("two", ds)):
+    for name, d in (("one", one), ("three", ds)):
         m = hidden.identify(d)
         run = dg.run_gradients(run_model(m, d))
         c = dg.rank_candidates(m, d, run, [fx.EFFECTS["ambient"]])[0]
         share[name] = identifiability(run, *ENTRIES["scales_fuel"].varying_column(c, run))
     print(share)
-    assert share["one"] < MIN_IDENTIFIABILITY <= share["two"], share
+    assert share["one"] < MIN_IDENTIFIABILITY <= share["three"], share

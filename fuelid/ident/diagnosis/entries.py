@@ -106,10 +106,11 @@ class Additive:
         if len(groups) > 1:  # the refit fitted on the other trips, scored on each one
             without, with_ = leave_one_trip_out(model, run, given, groups), leave_one_trip_out(model, run, X, groups)
             n = np.array([g.size for g in groups])
-            pooled = [np.sqrt(n @ np.square(e) / n.sum()) for e in (without, with_)]
-            v["trips"] = {"rmse_without": without, "rmse_with": with_,
-                          "rmse_drop_percent": [100.0 * (1.0 - b / a) for a, b in zip(without, with_)],
-                          "pooled_rmse_drop_percent": float(100.0 * (1.0 - pooled[1] / pooled[0]))}
+            pooled = [np.sqrt(n @ np.square(e) / n.sum()) for e in (without.rmse, with_.rmse)]
+            v["trips"] = {"rmse_without": without.rmse, "rmse_with": with_.rmse,
+                          "rmse_drop_percent": [100.0 * (1.0 - b / a) for a, b in zip(without.rmse, with_.rmse)],
+                          "pooled_rmse_drop_percent": float(100.0 * (1.0 - pooled[1] / pooled[0])),
+                          "determined": with_.determined}
         if v["rmse_drop_percent"] > 0:  # the held-out-checked refit measures it better
             effect = c.definition
             gains = beta[:c.x.shape[1]].reshape(len(effect.lags), -1).sum(axis=0)

@@ -53,11 +53,13 @@ then the rest by p-value. README gives the measured false alarms and the table p
 
 A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified, the
 model re-identified with it simulates the data no worse than the model without it, and so does the model `fuelid
-identify` builds with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no
-physics for), only when the data held several trips and it held up left out of each (leave-one-trip-out): in the
-linearised refit (4) and, once accepted, with its own dynamics and the model re-identified by PEM on the other trips
-(diagnosis.carryover: its refit counts as not verified when the pooled error on the trips left out rises). On one
-trip such a signal can stand in for whatever else moves with the operating point that day (on a real engine its
+identify` builds with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic
+form (level, rate, scales, torque, state of a signal fuelid has no physics for), only when the data held several
+trips and it held up left out of each (leave-one-trip-out): in the linearised refit (4; NOT_DETERMINED_BY_OTHER_TRIPS
+when no trip's fold determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on
+the other trips (diagnosis.carryover: its refit counts as not verified when the pooled error on the trips left out
+rises).
+On one trip such a signal can stand in for whatever else moves with the operating point that day (on a real engine its
 transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined effect brings its
 physics (sign, form) and is recommended from one trip. Forward selection still re-identifies the model with such a
 signal when it accepts one (so that it explains away its twins and what it stands in for), but what is recommended
@@ -241,6 +243,10 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
 ONE_TRIP_ONLY = ("; not recommended: a bus signal fuelid knows no physics for, found on one trip (diagnose it "
                  "with other days' files to see whether it carries over)")
 """Why a generic bus-signal candidate found on one trip is named but not recommended (module docstring)."""
+NOT_DETERMINED_BY_OTHER_TRIPS = ("; not recommended: a bus signal fuelid knows no physics for, whose effect no "
+                                 "trip left out had determined by the others (its carry-over is untested: diagnose "
+                                 "it with more days' files)")
+"""Why a generic bus-signal candidate is named but not recommended when no leave-one-trip-out fit determined it."""
 
 
 def _generic(c: Candidate) -> bool:
@@ -334,7 +340,7 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     not verified are named, not recommended) and its `alternatives` (`_indistinguishable`); each one tested after
     them has its `conditional` record (the last round's for those never accepted). effects: the engineer-defined
     effects the candidates may name."""
-    named, pool, found = [], [c for c in pool if c not in first], list(first)
+    named, pool, found = [], list(pool), list(first)  # the confirmed ones not accepted first are re-tested too
     while found:
         for k, c in enumerate(found):
             named.append(c)
@@ -587,6 +593,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             _not_recommended(c, _why_refit_not_verified(c))
         elif c.recommended and _generic(c) and "trips" not in c.verification:
             _not_recommended(c, ONE_TRIP_ONLY)
+        elif c.recommended and _generic(c) and not any(c.verification["trips"]["determined"]):
+            _not_recommended(c, NOT_DETERMINED_BY_OTHER_TRIPS)
         elif c.recommended and (missing := _given_not_added(c, recommended)):
             _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
         if c.recommended and c.refit is None:

@@ -35,9 +35,15 @@
    condition): whether the effect carries over to another day. So, when the data hold several trips (the run's
    segments grouped at breaks of the log of at least TRIP_BREAK_S, `trip_groups`: other files, other days), the
    refit is also scored leaving one trip out at a time (`leave_one_trip_out`: fitted by least squares on the other
-   trips, minimum norm, so a direction they do not determine stays at 0), and a candidate is confirmed only if the
-   RMS error over the held-out trips (pooled) does not rise with it. And a candidate whose coefficient these data cannot determine is
-   reported as not identifiable from these data instead of confirmed (`identifiability` below 1/√10, a variance
+   trips, the model's own directions by minimum norm, the candidate's only in the directions the other trips
+   determine beside them, `fold_directions`), and a candidate is confirmed only if the RMS error over the held-out
+   trips (pooled) does not rise with it. The candidate's coefficient is not extrapolated from trips that hardly
+   determine it: an ambient condition nearly constant on each trip is, on one trip, a change of the model's own
+   gains, and a fit on that trip alone puts an arbitrary size on it (on two trips in different weather each fold
+   has one trip, so the check needs three: each fold then holds two weathers). A candidate no fold determines
+   changes no held-out trip (`determined` False on every trip): its carry-over is untested. And a candidate whose
+   coefficient these data cannot determine is reported as not identifiable from these data instead of confirmed
+   (`identifiability` below 1/√10, a variance
    inflation factor above 10): the share of its decisive column (x; x·ŷ for an effect that scales the fuel) that
    the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after projecting out an offset and the segments'
    initial states. An effect that scales the fuel with x nearly constant is a change of the model's own gains;
@@ -53,6 +59,8 @@
    B_x/F_x and noise model), which `fuelid compare` and the report then score.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import lstsq, svd
@@ -125,28 +133,64 @@ def trip_groups(ds, run: Run, break_s: float = TRIP_BREAK_S) -> list[np.ndarray]
             for trip in trips(ds, run, break_s)]
 
 
-def trip_cv(r: np.ndarray, Z: np.ndarray, groups) -> np.ndarray:
-    """Leave-one-trip-out errors of the least-squares fit of r (N) on the columns Z (N × p): on each group g of
-    positions, r − Z c_(−g), c_(−g) the minimum-norm fit on the samples outside g (columns scaled to unit norm
-    there; one that is zero there gets 0)."""
-    out = r.copy()
+def trip_cv(r: np.ndarray, G: np.ndarray, X: np.ndarray, groups) -> tuple[np.ndarray, list[bool]]:
+    """Leave-one-trip-out errors of the least-squares fit of r (N) on the model's orthonormal columns G (N × q) and
+    the extra columns X (N × p): on each group g of positions, r − [G X] c_(−g), c_(−g) fitted on the samples
+    outside g — G by minimum norm (columns scaled to unit norm there; one that is zero there gets 0), X only in the
+    directions those samples determine (`fold_directions`): a coefficient the other trips hardly determine (a signal
+    nearly constant on each of them, confounded with the model's own gains) is not extrapolated to the trip left
+    out, it stays at 0 as in the model without it. Also, per group, whether the others determined any direction."""
+    U = _beyond(G, X)
+    out, determined = r.copy(), []
     for g in groups:
         fit = np.ones(r.size, bool)
         fit[g] = False
+        V = fold_directions(G[fit], U[fit])
+        determined.append(V.shape[1] > 0)
+        Z = np.column_stack([G, U @ V])
         norms = np.linalg.norm(Z[fit], axis=0)
         scale = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
         coef = lstsq(Z[fit] * scale, r[fit], cond=1e-8, check_finite=False)[0] * scale
         out[g] = r[g] - Z[g] @ coef
-    return out
+    return out, determined
 
 
-def leave_one_trip_out(model: PolyModel, run: Run, X: np.ndarray, groups) -> list[float]:
-    """RMS simulation error [output unit] on each trip of `groups` (trip_groups) of the linearised refit with the
-    extra columns X (w domain, stacked like run.r), fitted on the other trips."""
+def _beyond(G: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """An orthonormal basis U of what the columns X add to the orthonormal G over all the samples, P⊥_G X (columns
+    scaled to unit norm first; directions below 10⁻⁴ of that dropped: the tests' rank rule)."""
+    Xt = X - G @ (G.T @ X)
+    U, sig, _ = svd(Xt / np.maximum(np.linalg.norm(X, axis=0), 1e-300), full_matrices=False, check_finite=False)
+    return U[:, sig > 1e-4]
+
+
+def fold_directions(G: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """The directions V (columns, orthonormal) of the extra columns U (orthonormal over all samples, ⊥ G) that the
+    samples given (rows of G and U) determine beside the model's own columns G: the eigenvectors of WᵀW, W = P⊥_G U
+    on those samples, whose eigenvalue — the share of the direction's variation over all samples that these hold
+    and G does not explain there — is at least MIN_IDENTIFIABILITY² (a variance inflation factor of at most 10,
+    the rule `identifiability` applies to all the data)."""
+    if U.shape[1] == 0:
+        return np.zeros((0, 0))
+    W = U - G @ lstsq(G, U, cond=1e-8, check_finite=False)[0]
+    share, V = np.linalg.eigh(W.T @ W)
+    return V[:, share >= MIN_IDENTIFIABILITY ** 2]
+
+
+class TripScores(NamedTuple):
+    """`leave_one_trip_out` per trip: the RMS simulation error [output unit], and whether the other trips determined
+    any direction of the extra columns (False: they were left at 0, the trip scored as without them)."""
+
+    rmse: list[float]
+    determined: list[bool]
+
+
+def leave_one_trip_out(model: PolyModel, run: Run, X: np.ndarray, groups) -> TripScores:
+    """The linearised refit with the extra columns X (w domain, stacked like run.r) on each trip of `groups`
+    (trip_groups), fitted on the other trips (trip_cv)."""
     with one_blas_thread():
-        err = trip_cv(run.r, np.column_stack([run.QG.dense, X]), groups)
+        err, determined = trip_cv(run.r, run.QG.dense, X, groups)
     err = _through_1_over_A(model, run, err)
-    return [float(np.sqrt(np.mean(err[g] ** 2))) for g in groups]
+    return TripScores([float(np.sqrt(np.mean(err[g] ** 2))) for g in groups], determined)
 
 
 def identifiability(run: Run, varying: np.ndarray, column: np.ndarray,
