@@ -43,10 +43,9 @@
    has one trip, so the check needs three: each fold then holds two weathers). A candidate no fold determines
    changes no held-out trip (`determined` False on every trip): its carry-over is untested. And a candidate whose
    coefficient these data cannot determine is reported as not identifiable from these data instead of confirmed
-   (`identifiability` below 1/√10, a variance
-   inflation factor above 10): the share of its decisive column (x; x·ŷ for an effect that scales the fuel) that
-   the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after projecting out an offset and the segments'
-   initial states. An effect that scales the fuel with x nearly constant is a change of the model's own gains;
+   (`identifiability` below 1/√10, a variance inflation factor above 10): the share of its decisive column (x;
+   x·ŷ for an effect that scales the fuel) that the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after
+   projecting out an offset and the segments' initial states. An effect that scales the fuel with x nearly constant is a change of the model's own gains;
    a signal that moves only with the trip's start is told apart from its initial state by nothing. For a bus
    signal whose physics is not known (a generic candidate, Effect.zero False) each trip's level and slow drifts
    over it are projected out too (`slow_drifts`): a signal that differs between days only in its level, or only
@@ -105,8 +104,7 @@ def held_out(model: PolyModel, run: Run, X: np.ndarray, block_s: float = BLOCK_S
     block = round(block_s / model.Ts)
     with one_blas_thread():
         Xt = run.QG.project_out(X)
-        U, sig, _ = svd(Xt / np.maximum(np.linalg.norm(X, axis=0), 1e-300), full_matrices=False, check_finite=False)
-        Q = NuisanceBasis(np.column_stack([run.QG.dense, U[:, sig > 1e-4]]))  # the same rank rule as the tests
+        Q = NuisanceBasis(np.column_stack([run.QG.dense, _added_directions(Xt, X)]))
         err = block_cv(run.r, Q, block, round(buffer_s / model.Ts))
         beta = lstsq(Xt, run.r, cond=1e-10, check_finite=False)[0] if X.shape[1] else np.zeros(0)
     err = _through_1_over_A(model, run, err)  # the step is linear in w = A·(simulation error)
@@ -140,7 +138,7 @@ def trip_cv(r: np.ndarray, G: np.ndarray, X: np.ndarray, groups) -> tuple[np.nda
     directions those samples determine (`fold_directions`): a coefficient the other trips hardly determine (a signal
     nearly constant on each of them, confounded with the model's own gains) is not extrapolated to the trip left
     out, it stays at 0 as in the model without it. Also, per group, whether the others determined any direction."""
-    U = _beyond(G, X)
+    U = _added_directions(X - G @ (G.T @ X), X)
     out, determined = r.copy(), []
     for g in groups:
         fit = np.ones(r.size, bool)
@@ -155,10 +153,9 @@ def trip_cv(r: np.ndarray, G: np.ndarray, X: np.ndarray, groups) -> tuple[np.nda
     return out, determined
 
 
-def _beyond(G: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """An orthonormal basis U of what the columns X add to the orthonormal G over all the samples, P⊥_G X (columns
-    scaled to unit norm first; directions below 10⁻⁴ of that dropped: the tests' rank rule)."""
-    Xt = X - G @ (G.T @ X)
+def _added_directions(Xt: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of Xt, the part of the columns X that the model's columns do not explain, each scaled by
+    its column of X first; directions below 10⁻⁴ of that dropped (the same rank rule as the tests)."""
     U, sig, _ = svd(Xt / np.maximum(np.linalg.norm(X, axis=0), 1e-300), full_matrices=False, check_finite=False)
     return U[:, sig > 1e-4]
 
