@@ -1,6 +1,8 @@
-"""fuelid warmup: compile and cache the online estimators' numba kernels (ident.warmup), e.g. in an image build."""
+"""fuelid warmup: compile and cache the online estimators' numba kernels (ident.warmup), e.g. in an image build, and
+say whether the install built the offline fits' compiled filter (ident.filters)."""
 import os
 
+from fuelid.ident.filters import compiled
 from fuelid.ident.warmup import compile_estimators
 from fuelid.output import print_json
 
@@ -13,7 +15,10 @@ def run(args) -> int:
     seconds = compile_estimators()
     where = os.environ.get("NUMBA_CACHE_DIR") or "__pycache__ beside fuelid/ident (or numba's user cache directory)"
     if args.json:
-        print_json({"seconds": seconds, "cache": where})
+        print_json({"seconds": seconds, "cache": where, "compiled_filter": compiled()})
     else:
         print(f"online estimators compiled and cached in {seconds:.1f} s ({where})")
+        print("offline fits' filter: compiled (fuelid/ident/_iir.c)" if compiled() else
+              "offline fits' filter: not compiled (the install found no C compiler: gcc and python3-dev on Debian); "
+              "identify and diagnose use scipy's loop, slower, with the same results")
     return 0

@@ -59,7 +59,7 @@ B_i/F_i by Steiglitz–McBride iterations and refined by the same LM as an OE mo
 A_h ≈ H⁻¹ (prefiltering by the inverse noise model makes the OE criterion the BJ one with H fixed, Ljung
 sec. 14.4); then the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
 w = A y − Σ B_i/F_i u_i, refined by LM as an ARMA model. Hand-written because SciPy has no PEM; the linear
-algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter.
+algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter's (ident.filters: the same numbers, compiled).
 """
 from __future__ import annotations
 
@@ -72,9 +72,9 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import lapack, lstsq
-from scipy.signal import lfilter
 
 from fuelid.errors import InputError
+from fuelid.ident.filters import lfilter
 from fuelid.ident.polymodel import (Polynomials, PolyModel, Structure, as_inputs, from_theta, input_responses,
                                     parameter_names, polynomials)
 

@@ -27,6 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fuelid.errors import FuelidError
+from fuelid.ident.filters import lfilter
 
 
 @dataclass(frozen=True)
@@ -268,14 +269,6 @@ def as_inputs(u, m: int | None = None) -> np.ndarray:
     if u.ndim != 2 or (m is not None and u.shape[1] != m):
         raise ValueError(f"u must be (N, {m or 'm'}), got shape {np.shape(u)}")
     return u
-
-
-def lfilter(b, a, x):
-    """scipy.signal.lfilter, imported on first use: the in-cab live estimator makes, reads and writes models
-    without loading SciPy's signal package."""
-    from scipy.signal import lfilter as scipy_lfilter
-
-    return scipy_lfilter(b, a, x)
 
 
 def input_responses(model: PolyModel, u) -> np.ndarray:

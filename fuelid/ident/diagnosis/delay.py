@@ -21,7 +21,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.run import Run
@@ -29,6 +28,7 @@ from fuelid.ident.diagnosis.statistics import (NuisanceBasis, ScoreTest, free_re
                                                score_test)
 from fuelid.ident.diagnosis.verification import (BLOCK_S, BUFFER_S, block_cv, held_out, held_out_scores,
                                                  without_with)
+from fuelid.ident.filters import lfilter
 from fuelid.ident.fueldelay import DELAY_REFERENCE, shift_signal, sweep_fuel_shift
 from fuelid.ident.pem import pem, prediction_errors
 from fuelid.ident.polymodel import PolyModel

@@ -13,7 +13,6 @@ class here and its name in ENTRIES.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import Candidate, Evidence
@@ -23,6 +22,7 @@ from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import lagged, level_test, one_blas_thread, score_test
 from fuelid.ident.diagnosis.verification import (MIN_IDENTIFIABILITY, identifiability, leave_one_trip_out,
                                                  slow_drifts, trip_groups, verify)
+from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
 

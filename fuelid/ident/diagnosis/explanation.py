@@ -3,10 +3,10 @@ contribution [output unit] and gains."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.run import Run
+from fuelid.ident.filters import lfilter
 from fuelid.ident.polymodel import PolyModel
 
 

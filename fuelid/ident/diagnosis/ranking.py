@@ -72,7 +72,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
@@ -84,6 +83,7 @@ from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm
 from fuelid.ident.diagnosis.verification import held_out, held_out_scores
+from fuelid.ident.filters import lfilter
 from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.modelrun import ModelRun, run_model

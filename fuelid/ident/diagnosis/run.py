@@ -6,9 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from fuelid.ident.diagnosis.statistics import NuisanceBasis, free_responses, nuisance_basis, one_blas_thread
+from fuelid.ident.filters import lfilter
 from fuelid.ident.modelrun import ModelRun
 from fuelid.ident.pem import prediction_errors
 from fuelid.ident.polymodel import Structure

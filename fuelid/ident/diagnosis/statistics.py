@@ -52,8 +52,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.fft import irfft, next_fast_len, rfft
 from scipy.linalg import qr, solve_toeplitz, svd
-from scipy.signal import lfilter
 from scipy.stats import chi2
+
+from fuelid.ident.filters import lfilter
 
 try:  # BLAS threads only cost time on N × k problems this narrow (as in ident.pem)
     from threadpoolctl import ThreadpoolController

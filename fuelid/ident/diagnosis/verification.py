@@ -63,10 +63,10 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import lstsq, svd
-from scipy.signal import lfilter
 
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import NuisanceBasis, one_blas_thread
+from fuelid.ident.filters import lfilter
 from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import cycle_fuel_error, error_table
 

@@ -1,0 +1,75 @@
+"""ident.filters: scipy.signal.lfilter to the last bit, by the compiled IIR kernel (fuelid/ident/_iir.c) where it
+applies and by scipy itself elsewhere."""
+import shutil
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+from scipy.signal import lfilter as scipy_lfilter
+
+from fuelid.ident import filters
+
+finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
+
+
+def same_bits(x, y) -> bool:
+    x, y = np.asarray(x), np.asarray(y)
+    return x.shape == y.shape and x.dtype == y.dtype and np.array_equal(x.view(np.int64), y.view(np.int64))
+
+
+@st.composite
+def stable_filters(draw, max_taps: int = filters.MAX_TAPS):
+    """(b, a): a's roots drawn inside |z| < 0.99 (a₀ not always 1), b any length up to max_taps."""
+    poles = draw(st.lists(st.tuples(st.floats(0.0, 0.99), st.floats(-np.pi, np.pi)), min_size=1,
+                          max_size=max_taps - 1))
+    a = np.real(np.poly([r * np.exp(1j * phi) for r, phi in poles])) * draw(st.sampled_from([1.0, 2.5, -0.7]))
+    b = np.array(draw(st.lists(finite, min_size=1, max_size=max_taps)))
+    return b, a
+
+
+@settings(max_examples=300, deadline=None)
+@given(stable_filters(), hnp.arrays(np.float64, st.integers(0, 400), elements=finite))
+def test_a_1d_signal_is_filtered_to_the_bit(ba, x):
+    b, a = ba
+    assert same_bits(filters.lfilter(b, a, x), scipy_lfilter(b, a, x))
+
+
+@settings(max_examples=100, deadline=None)
+@given(stable_filters(max_taps=9), hnp.arrays(np.float64, st.tuples(st.integers(0, 200), st.integers(1, 4)),
+                                               elements=finite), st.sampled_from([0, -1]))
+def test_the_columns_or_rows_of_a_2d_array_are_filtered_to_the_bit(ba, x, axis):
+    b, a = ba
+    assert same_bits(filters.lfilter(b, a, x, axis=axis), scipy_lfilter(b, a, x, axis=axis))
+
+
+def test_views_lists_and_integers_are_taken_as_scipy_takes_them():
+    x = np.arange(60, dtype=float)[::3]  # not contiguous
+    assert same_bits(filters.lfilter([1.0], [1.0, -0.5], x), scipy_lfilter([1.0], [1.0, -0.5], x))
+    ints = np.arange(20)
+    assert same_bits(filters.lfilter([1, 2], [1, -0.25], ints), scipy_lfilter([1, 2], [1, -0.25], ints))
+    assert same_bits(filters.lfilter([1.0], [1.0, 0.5], np.array([])), scipy_lfilter([1.0], [1.0, 0.5], np.array([])))
+
+
+def test_what_the_kernel_does_not_take_goes_to_scipy_alike():
+    """FIR filters (scipy convolves), filters longer than MAX_TAPS, complex data: scipy's own result."""
+    x = np.random.default_rng(0).normal(size=300)
+    long_a = np.real(np.poly(np.full(filters.MAX_TAPS, 0.5)))
+    for b, a, xx in (([0.5, 0.25, 0.125], [1.0], x), ([1.0], long_a, x), ([1.0], [1.0, -0.5], x + 1j * x)):
+        assert same_bits(filters.lfilter(b, a, xx), scipy_lfilter(b, a, xx))
+
+
+def test_without_the_kernel_scipy_gives_the_same_numbers(monkeypatch):
+    x = np.random.default_rng(1).normal(size=500)
+    a = np.real(np.poly([0.9, 0.5 + 0.3j, 0.5 - 0.3j]))
+    compiled = filters.lfilter([1.0, 0.2], a, x)
+    monkeypatch.setattr(filters, "_iir", None)
+    assert not filters.compiled() and same_bits(filters.lfilter([1.0, 0.2], a, x), compiled)
+
+
+@pytest.mark.skipif(shutil.which("cc") is None, reason="no C compiler: the install cannot build the kernel")
+def test_an_install_with_a_c_compiler_has_the_kernel():
+    """The extension is optional (pyproject.toml); where a compiler was there, an install that lost it is a slow
+    one — re-run `pip install -e .`."""
+    assert filters.compiled()
