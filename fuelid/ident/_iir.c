@@ -106,7 +106,7 @@ static PyObject *iir(PyObject *self, PyObject *args) {
 }
 
 static PyMethodDef METHODS[] = {
-    {"iir", iir, METH_VARARGS, "iir(b, a, x, y): y <- scipy.signal.lfilter(b, a, x) for normalised, equal-length b, a."},
+    {"iir", iir, METH_VARARGS, "iir(b, a, x, y): y <- scipy.signal.lfilter(b, a, x); b, a normalised, equal length."},
     {NULL, NULL, 0, NULL},
 };
 

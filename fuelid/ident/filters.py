@@ -1,4 +1,4 @@
-"""lfilter: scipy.signal.lfilter(b, a, x) to the bit, by a compiled kernel for the IIR filters of 1-D data.
+"""lfilter: scipy.signal.lfilter(b, a, x) to the bit, by a compiled kernel for IIR filters of 1-D and 2-D data.
 
 The prediction-error fits filter short polynomials (2–9 coefficients) through 10⁴–10⁵ samples thousands of times
 (pem: u_i/F_i, x_i/F_i and B_i/F_i u_i in every Levenberg–Marquardt trial), and there scipy's generic loop, which

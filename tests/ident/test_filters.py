@@ -21,10 +21,13 @@ def same_bits(x, y) -> bool:
 
 @st.composite
 def stable_filters(draw, max_taps: int = filters.MAX_TAPS):
-    """(b, a): a's roots drawn inside |z| < 0.99 (a₀ not always 1), b any length up to max_taps."""
-    poles = draw(st.lists(st.tuples(st.floats(0.0, 0.99), st.floats(-np.pi, np.pi)), min_size=1,
-                          max_size=max_taps - 1))
-    a = np.real(np.poly([r * np.exp(1j * phi) for r, phi in poles])) * draw(st.sampled_from([1.0, 2.5, -0.7]))
+    """(b, a): a with real roots and complex-conjugate pairs inside |z| < 0.99 and a₀ not always 1, b any length up
+    to max_taps."""
+    roots = []
+    while not roots or draw(st.booleans()) and len(roots) < max_taps - 2:
+        r, phi = draw(st.floats(0.0, 0.99)), draw(st.floats(0.0, np.pi))
+        roots += [r * np.exp(1j * phi), r * np.exp(-1j * phi)] if draw(st.booleans()) else [r * np.cos(phi)]
+    a = np.real(np.poly(roots)) * draw(st.sampled_from([1.0, 2.5, -0.7]))
     b = np.array(draw(st.lists(finite, min_size=1, max_size=max_taps)))
     return b, a
 
