@@ -66,42 +66,30 @@ static int doubles(PyObject *obj, Py_buffer *view, int writable, const char *nam
 
 /* iir(b, a, x, y): y ← the filter b/a (same length n, 2 ≤ n ≤ MAX_TAPS, a[0] = 1) applied to x, from zero state. */
 static PyObject *iir(PyObject *self, PyObject *args) {
-    PyObject *ob, *oa, *ox, *oy;
-    Py_buffer b, a, x, y;
-    if (!PyArg_ParseTuple(args, "OOOO", &ob, &oa, &ox, &oy))
-        return NULL;
-    if (!doubles(ob, &b, 0, "b"))
-        return NULL;
-    if (!doubles(oa, &a, 0, "a")) {
-        PyBuffer_Release(&b);
-        return NULL;
-    }
-    if (!doubles(ox, &x, 0, "x")) {
-        PyBuffer_Release(&b);
-        PyBuffer_Release(&a);
-        return NULL;
-    }
-    if (!doubles(oy, &y, 1, "y")) {
-        PyBuffer_Release(&b);
-        PyBuffer_Release(&a);
-        PyBuffer_Release(&x);
-        return NULL;
-    }
+    static const char *const NAMES[4] = {"b", "a", "x", "y"};
+    PyObject *objs[4];
+    Py_buffer v[4];  /* b, a, x, y */
+    int held = 0;
     PyObject *result = NULL;
-    Py_ssize_t n = b.shape[0], len = x.shape[0];
-    if (a.shape[0] != n || n < 2 || n > MAX_TAPS || y.shape[0] != len) {
+    if (!PyArg_ParseTuple(args, "OOOO", &objs[0], &objs[1], &objs[2], &objs[3]))
+        return NULL;
+    for (; held < 4; held++)
+        if (!doubles(objs[held], &v[held], held == 3, NAMES[held]))
+            goto release;
+    Py_ssize_t n = v[0].shape[0], len = v[2].shape[0];
+    if (v[1].shape[0] != n || n < 2 || n > MAX_TAPS || v[3].shape[0] != len) {
         PyErr_Format(PyExc_ValueError, "iir: b and a of one length in 2..%d and y as long as x are needed", MAX_TAPS);
-    } else {
-        Py_BEGIN_ALLOW_THREADS
-        KERNELS[n]((const double *)b.buf, (const double *)a.buf, (const double *)x.buf, (double *)y.buf, len);
-        Py_END_ALLOW_THREADS
-        result = Py_None;
-        Py_INCREF(result);
+        goto release;
     }
-    PyBuffer_Release(&b);
-    PyBuffer_Release(&a);
-    PyBuffer_Release(&x);
-    PyBuffer_Release(&y);
+    Py_BEGIN_ALLOW_THREADS
+    const double *b = v[0].buf, *a = v[1].buf, *x = v[2].buf;
+    KERNELS[n](b, a, x, (double *)v[3].buf, len);
+    Py_END_ALLOW_THREADS
+    result = Py_None;
+    Py_INCREF(result);
+release:
+    while (held > 0)
+        PyBuffer_Release(&v[--held]);
     return result;
 }
 
