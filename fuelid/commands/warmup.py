@@ -14,11 +14,12 @@ def add_arguments(p):
 def run(args) -> int:
     seconds = compile_estimators()
     where = os.environ.get("NUMBA_CACHE_DIR") or "__pycache__ beside fuelid/ident (or numba's user cache directory)"
+    filter_compiled = compiled()
     if args.json:
-        print_json({"seconds": seconds, "cache": where, "compiled_filter": compiled()})
+        print_json({"seconds": seconds, "cache": where, "compiled_filter": filter_compiled})
     else:
         print(f"online estimators compiled and cached in {seconds:.1f} s ({where})")
-        print("offline fits' filter: compiled (fuelid/ident/_iir.c)" if compiled() else
+        print("offline fits' filter: compiled (fuelid/ident/_iir.c)" if filter_compiled else
               "offline fits' filter: not compiled (the install found no C compiler: gcc and python3-dev on Debian); "
               "identify and diagnose use scipy's loop, slower, with the same results")
     return 0

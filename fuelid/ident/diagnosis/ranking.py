@@ -59,8 +59,8 @@ trips and it held up left out of each (leave-one-trip-out): in the linearised re
 when no trip's fold determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on
 the other trips (diagnosis.carryover: its refit counts as not verified when the pooled error on the trips left out
 rises). On one trip such a signal can stand in for whatever else moves with the operating point that day (on a
-real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined effect brings its
-physics (sign, form) and is recommended from one trip. Forward selection still re-identifies the model with such a
+real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined
+effect brings its physics (sign, form) and is recommended from one trip. Forward selection still re-identifies the model with such a
 signal when it accepts one (so that it explains away its twins and what it stands in for), but what is recommended
 must have been verified on the model `fuelid identify --effects-from` builds: an effect found given a signal that
 is not added is named, not recommended (`_given_not_added`; one accepted that way and added without it can make

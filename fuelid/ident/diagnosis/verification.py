@@ -45,12 +45,13 @@
    coefficient these data cannot determine is reported as not identifiable from these data instead of confirmed
    (`identifiability` below 1/√10, a variance inflation factor above 10): the share of its decisive column (x;
    x·ŷ for an effect that scales the fuel) that the signal's variation makes, (x − x̄) or (x − x̄)·ŷ, left after
-   projecting out an offset and the segments' initial states. An effect that scales the fuel with x nearly constant is a change of the model's own gains;
-   a signal that moves only with the trip's start is told apart from its initial state by nothing. For a bus
-   signal whose physics is not known (a generic candidate, Effect.zero False) each trip's level and slow drifts
-   over it are projected out too (`slow_drifts`): a signal that differs between days only in its level, or only
-   warms up with the trip, is confounded with everything else that differs between days or drifts, and its
-   origin (0 °C) is arbitrary, so it is measured against its own deviation (x − x̄)·ŷ.
+   projecting out an offset and the segments' initial states. An effect that scales the fuel with x nearly
+   constant is a change of the model's own gains; a signal that moves only with the trip's start is told apart
+   from its initial state by nothing. For a bus signal whose physics is not known (a generic candidate,
+   Effect.zero False) each trip's level and slow drifts over it are projected out too (`slow_drifts`): a signal
+   that differs between days only in its level, or only warms up with the trip, is confounded with everything else
+   that differs between days or drifts, and its origin (0 °C) is arbitrary, so it is measured against its own
+   deviation (x − x̄)·ŷ.
    Linearising is sound here because the effect enters at β = 0 and the base model is at its optimum: a full PEM
    refit would move θ by δ ~ the effect's size, where the first-order model is accurate; it is also stabler,
    since a refit of the 30+ parameters on half the data adds its own noise to the comparison. A full refit is
