@@ -153,14 +153,16 @@ def _records(cfg):
 
 @functools.lru_cache(maxsize=None)
 def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float = 1200.0,
-              magnitude: float | None = None, routes_of: str | None = None, truth: str = "diesel_p320"):
+              magnitude: float | None = None, routes_of: str | None = None, truth: str = "diesel_p320",
+              engine: str = ""):
     """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
     hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS;
     a tuple of ids hides them all) on the routes the trips of effect `routes_of` (default: `effect`, the first of
     them) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, three for ambient air, on days seed,
     seed + SECOND_TRIP_SEED, …; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
     arrays of several trips are concatenated, the summary is the first trip's; cached. `truth`: the engine's
-    fuel truth (the paper's diesel model, or "map": the VECTO 325 kW engine's map, sim.mapfuel)."""
+    fuel truth (the paper's diesel model, or "map": a VECTO engine's map, sim.mapfuel); `engine`: the map truth's
+    VECTO engine set (a .veng path or a shipped set's name; default the 325 kW engine)."""
     from fuelid.ident.dataset import build_dataset
     from fuelid.sim.catalog import ALL_EFFECT_TRIPS, SECOND_TRIP_SEED
     from fuelid.sim.effects import ALL_EFFECTS
@@ -172,7 +174,7 @@ def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float
     records, trips = [], []
     for j, route in enumerate(routes):
         recs, trip = _records(TripConfig(truth=truth, duration_s=duration_s, seed=seed + j * SECOND_TRIP_SEED,
-                                         effects=effects, **route))
+                                         effects=effects, engine=engine, **route))
         records += recs
         trips.append(trip)
     with warnings.catch_warnings():

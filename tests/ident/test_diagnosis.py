@@ -218,6 +218,16 @@ def test_a_fuel_signal_delay_is_named_with_its_size_though_the_model_absorbs_it(
     assert "lags speed and torque" in top.explanation
 
 
+def test_an_effect_named_by_its_tests_alone_is_not_recommended_and_says_why():
+    """With no verification budget (`fuelid diagnose --verify 0`) the delay is still named by its tests, but what
+    was never verified is no advice to add it."""
+    ds = hidden.make("fuel_delay", seed=1, delay_s=0.4)
+    top = dg.diagnose(fitted(ds), ds, n_verify=0).candidates[0]
+    assert top.effect == "fuel_delay" and top.significant and top.verification is None
+    assert not top.recommended and "add effect" not in top.explanation
+    assert top.explanation.endswith(" — not verified (`fuelid diagnose --verify 0`): not recommended")
+
+
 def test_a_candidate_fitted_against_its_physics_is_not_confirmed():
     """Fuel 11 % lower while SPN 3700 says 'regenerating' is something, but not a DPF regeneration."""
     ds = hidden.make("dpf_regeneration", seed=1, size=-0.11)

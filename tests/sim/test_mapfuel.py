@@ -42,6 +42,15 @@ def test_transient_fuelling_is_zero_when_steady_and_at_most_twice_the_urban_whtc
     assert 1.0 < ramp.max() < 1.0 + 0.1 * c_max
 
 
+def test_the_benchmarks_steady_engine_is_the_same_map_without_transient_fuelling(vecto):
+    steady = read_engine(Path(__file__).resolve().parents[2] / "benchmarks" / "engines" / "325kW_steady.veng")
+    np.testing.assert_array_equal(steady.map_g_h, vecto.map_g_h)
+    np.testing.assert_array_equal(steady.full_load_nm, vecto.full_load_nm)
+    assert (steady.idle_speed_rpm, steady.inertia_kgm2) == (vecto.idle_speed_rpm, vecto.inertia_kgm2)
+    step = np.r_[np.full(200, 200.0), np.full(800, 2000.0)]
+    assert np.all(mapfuel.transient_factor(steady, step, DT) == 1.0)
+
+
 def test_the_ecu_reports_each_update_periods_mean_one_period_late():
     f = np.r_[np.full(50, 10.0), np.full(50, 20.0)]
     out = mapfuel.ecu_reported(f, DT, 0.1)

@@ -588,7 +588,11 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
                              "significant given the other; data where they differ, another day, can)"
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
         c.recommended = c.verification is not None and "error" not in c.verification and _refit_verified(c)
-        if not _refit_verified(c):
+        if c.verification is None:  # significant by its tests alone: what they found is no advice to add it
+            _not_recommended(c, " — not verified (`fuelid diagnose --verify 0`): not recommended" if not n_verify else
+                             f" — not verified: the {n_verify} verifications (`fuelid diagnose --verify`) went to "
+                             "candidates with larger estimated drops; verify more to have it checked: not recommended")
+        elif not _refit_verified(c):
             _not_recommended(c, _why_refit_not_verified(c))
         elif c.recommended and _generic(c) and "trips" not in c.verification:
             _not_recommended(c, ONE_TRIP_ONLY)
