@@ -172,8 +172,8 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
     does (ORACLE_IDS). effects, pairs: the single effects and pairs to run (default all); engine: the map truth's
     VECTO engine set (hidden.simulated)."""
     print("effect               seed  top candidate                       named  held-out drop  RMSE/floor  "
-          "cycle err %  pass  hidden effect's rank  engine map term  missing effects  validation RMS base -> with  worse"
-          "  oracle")
+          "cycle err %  pass  hidden effect's rank  engine map term  missing effects  validation RMS base -> with  "
+          "worse  oracle")
     counts, worse, shares = {}, [], []
 
     def checked(case, seed, routes_of, ds, model, out) -> str:
@@ -261,9 +261,9 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
     print(f"recommendations that raise the validation-trip RMS error (all of them, or one given the others): "
           f"{sum(worse)} of {len(worse)} cases with one")
     met = [s for s in shares if s is not None]
-    print(f"issue 16's oracle (the recommendation lowers the validation error beyond the engine's term by at least 70 % "
-          f"of what the true effects would): {sum(s >= 0.7 for s in met)} of {len(met)} cases whose hidden effects "
-          f"lower it by at least {100 * ORACLE_MIN_DROP:g} % ({len(shares) - len(met)} where they do not)")
+    print(f"issue 16's oracle (the recommendation lowers the validation error beyond the engine's term by at least "
+          f"70 % of what the true effects would): {sum(s >= 0.7 for s in met)} of {len(met)} cases whose hidden "
+          f"effects lower it by at least {100 * ORACLE_MIN_DROP:g} % ({len(shares) - len(met)} where they do not)")
 
 
 if __name__ == "__main__":

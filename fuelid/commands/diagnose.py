@@ -15,8 +15,8 @@ def add_arguments(p):
                    help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
     p.add_argument("--verify", type=int, default=10, metavar="N",
                    help="verify up to N candidates that pass the tests: the held-out error drop of a linearised "
-                        "refit, scored on 60-s blocks left out of it (default 10; 0 skips, and names effects on "
-                        "the tests alone)")
+                        "refit, scored on 60-s blocks left out of it (default 10; the fuel delay besides; 0 skips, "
+                        "and names effects on the tests alone, none recommended)")
     p.add_argument("--min-drop", type=float, default=2.0, metavar="PERCENT",
                    help="smallest fall of the held-out RMS error [%%] that confirms a verified effect (default 2)")
     p.add_argument("--min-effect", type=float, default=1.0, metavar="PERCENT",

@@ -218,6 +218,40 @@ def test_a_fuel_signal_delay_is_named_with_its_size_though_the_model_absorbs_it(
     assert "lags speed and torque" in top.explanation
 
 
+def test_a_fuel_delay_shorter_than_one_sample_is_not_a_missing_effect():
+    """0.2 s at Ts = 0.3 s: the reference model fits better with it, but the model's own input taps hold a
+    sub-sample delay (to first order a two-tap filter), so it is evidence, not advice."""
+    ds = hidden.make("fuel_delay", seed=1, delay_s=0.2, noise=0.1)
+    delay = next(c for c in dg.diagnose(fitted(ds), ds).candidates if c.effect == "fuel_delay")
+    v = delay.verification
+    assert delay.test_significant and 0.1 < v["reference"]["delay_s"] < 0.3 and v["within_one_sample"]
+    assert v["reference"]["rmse_drop_percent"] > 2.0  # relevant on the reference: only its length keeps it out
+    assert not delay.significant and not delay.recommended
+    assert "shorter than one sample period (0.3 s)" in delay.explanation
+
+
+def test_a_fuel_delay_is_admitted_when_a_sample_or_longer_and_the_model_itself_absorbs_it():
+    """What the model absorbs is a delay; a shift that makes the model itself much worse held out is the reference
+    model's misfit (on a null trip of the map engine, 0.5 s: +114 %), not a delay of the fuel signal."""
+    shift = ENTRIES["shift"]
+    v = {"within_one_sample": False, "rmse_drop_percent": -0.14}  # a true 0.4 s delay on the map engine
+    assert shift.admissible(v, 2.0)
+    assert not shift.admissible({**v, "within_one_sample": True}, 2.0)
+    assert not shift.admissible({**v, "rmse_drop_percent": -114.0}, 2.0)
+    assert ENTRIES["additive"].admissible(v, 2.0)
+
+
+def test_the_fuel_delay_is_verified_beyond_the_budget_of_the_fuelling_effects():
+    """One verification (`--verify 1`) goes to the regeneration, the largest estimated drop; the delay, a family of
+    its own (the signal path, verified on its reference model), is verified and recommended all the same."""
+    ds = hidden.make(("fuel_delay", "dpf_regeneration"), seed=1)
+    out = dg.diagnose(fitted(ds), ds, n_verify=1)
+    delay = next(c for c in out.candidates if c.effect == "fuel_delay")
+    larger = [c for c in out.candidates
+              if c.test_significant and c.estimated_drop_percent > delay.estimated_drop_percent]
+    assert len(larger) >= 2 and delay.verification is not None and delay.significant and delay.recommended
+
+
 def test_an_effect_named_by_its_tests_alone_is_not_recommended_and_says_why():
     """With no verification budget (`fuelid diagnose --verify 0`) the delay is still named by its tests, but what
     was never verified is no advice to add it."""

@@ -139,6 +139,11 @@ class Additive:
         """The held-out RMS error drop [%] that decides a verification."""
         return v["rmse_drop_percent"]
 
+    def admissible(self, v: dict, min_drop_percent: float) -> bool:
+        """Whether the kind admits a verification v that is relevant and points the physics' way (every one but a
+        fuel delay's, Shift)."""
+        return True
+
     def sentence(self, effect, reg, gains, size: dict, sig: str, act: str) -> str | None:
         """The kind's own explanation (ident.diagnosis.explanation.explain), None for the common ones."""
         return None
@@ -215,6 +220,8 @@ class Shift(Additive):
     def verify(self, c, model, ds, run, base, base_ysim, X_given=None):
         v = verify_shift(c.ref, model, ds, run, base)
         tau = v["reference"]["delay_s"]
+        # y(t − τ) ≈ (1 − τ/Ts) y(t) + (τ/Ts) y(t − Ts) for τ < Ts: the model's own taps hold such a delay
+        v["sample_period_s"], v["within_one_sample"] = ds.Ts, bool(abs(tau) < ds.Ts)
         c.spec = f"{c.effect}={tau:.2f}"
         c.size = {"delay_s": tau}
         own = v["rmse_drop_percent"]
@@ -228,6 +235,12 @@ class Shift(Additive):
 
     def relevance(self, v):
         return v["reference"]["rmse_drop_percent"]  # the reference model's (verify_shift)
+
+    def admissible(self, v, min_drop_percent):
+        # at least one sample long (a shorter one the model's own taps hold, delay.py), and not making the model
+        # itself worse beyond the relevance bar: the model absorbs a true delay, a spurious one (the reference's
+        # misfit on a curved engine) it does not
+        return not v["within_one_sample"] and v["rmse_drop_percent"] >= -min_drop_percent
 
     def sentence(self, effect, reg, gains, size, sig, act):
         tau = -float(gains[0])

@@ -176,12 +176,13 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
 def _confirmed(c: Candidate, v: dict | None, min_drop_percent: float) -> bool:
     """Whether a verification v of c confirms it: the held-out RMS error falls by at least min_drop_percent (its
     entry kind's relevance), and the fuel moves the way the effect's physics says (Effect.sign: fuel cut on
-    overrun falls, a regeneration adds fuel, the fuel signal lags). A candidate the refit did not or could not
-    score stays as the tests found it."""
+    overrun falls, a regeneration adds fuel, the fuel signal lags), and its entry kind admits it (a fuel delay:
+    entries.Shift.admissible). A candidate the refit did not or could not score stays as the tests found it."""
     if v is None or "error" in v:
         return True
     return c.entry.relevance(v) >= min_drop_percent and c.definition.sign * v["direction"] >= 0 \
-        and v.get("identifiable", True) and not _worse_on_held_out_trips(v)
+        and v.get("identifiable", True) and not _worse_on_held_out_trips(v) \
+        and c.entry.admissible(v, min_drop_percent)
 
 
 def _worse_on_held_out_trips(v: dict) -> bool:
@@ -229,6 +230,13 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
                f"{min_drop_percent:g} % is needed): not confirmed"
     if c.definition.sign * v["direction"] < 0:
         return " — but the refit moves the fuel the other way than this effect would: not confirmed"
+    if v.get("within_one_sample"):
+        return f" — but it is shorter than one sample period ({v['sample_period_s']:g} s), which the model's own " \
+               "input taps interpolate: not a missing effect"
+    if not c.entry.admissible(v, min_drop_percent):
+        return f" — but advancing the fuel by it changes this model's own held-out RMS error by " \
+               f"{-v['rmse_drop_percent']:+.0f} %: what the reference model gains is not a delay of the fuel signal: " \
+               "not confirmed"
     if not v.get("identifiable", True):
         return f" — but it is not identifiable from these data: its signal's variation makes only " \
                f"{100 * v['identifiability']:.0f} % of its column beyond an offset and the initial states " \
@@ -523,7 +531,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     MISSING_EFFECT for a hidden effect named, None otherwise), recommended (significant and verified: what
     `fuelid identify --effects-from` adds, the engine map term first), size,
     explanation, physics, tests. At most n_verify of the candidates that pass the tests and explain
-    min_effect_percent are verified, by estimated drop. effects: effects the engineer defined (ident.effectfile),
+    min_effect_percent are verified, by estimated drop (and the fuel delay, the signal path's own family,
+    whenever its tests find it). effects: effects the engineer defined (ident.effectfile),
     tested beside the built-in ones."""
     mrun = run_model(model, ds)
     run = run_gradients(mrun)
@@ -540,7 +549,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     relevant = lambda c: c.test_significant and c.estimated_drop_percent >= min_effect_percent  # noqa: E731
     others = sorted((c for c in testable if c.effect not in (MAP_TERM, PRODUCT_TERM) and relevant(c)),
                     key=lambda c: -_priority(c))
-    for c in others[:n_verify]:
+    for c in others[:n_verify] + [c for c in others[n_verify:] if n_verify and not c.entry.retested]:
+        # the signal path's candidate (the fuel delay) is a family of its own, verified on its own reference: it
+        # does not compete with the fuelling effects for the verification budget
         _verify(c, model, ds, run, base, base_ysim)
     outranking = [c for c in others if term is not None and c.entry.retested and c.rmse_drop_percent is not None
                   and _confirmed(c, c.verification, min_drop_percent) and c.rmse_drop_percent > term.rmse_drop_percent]
@@ -589,9 +600,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
         c.recommended = c.verification is not None and "error" not in c.verification and _refit_verified(c)
         if c.verification is None:  # significant by its tests alone: what they found is no advice to add it
-            _not_recommended(c, " — not verified (`fuelid diagnose --verify 0`): not recommended" if not n_verify else
-                             f" — not verified: the {n_verify} verifications (`fuelid diagnose --verify`) went to "
-                             "candidates with larger estimated drops; verify more to have it checked: not recommended")
+            _not_recommended(c, f" — not verified (`fuelid diagnose --verify {n_verify}`): not recommended")
         elif not _refit_verified(c):
             _not_recommended(c, _why_refit_not_verified(c))
         elif c.recommended and _generic(c) and "trips" not in c.verification:
