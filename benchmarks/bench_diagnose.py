@@ -136,6 +136,7 @@ def validation(case, seed: int, routes_of, truth: str, ds, model, recommended: l
     if not recommended and case is None:
         return Validation()
     val, _, _ = hidden.simulated(case, seed + VALIDATION_SEED_OFFSET, routes_of=routes_of, truth=truth, engine=engine)
+    as_is = evaluate(model, val)["rmse"]["simulation"]
     memo = FitMemo()
 
     def rmse(effects):
@@ -147,12 +148,12 @@ def validation(case, seed: int, routes_of, truth: str, ds, model, recommended: l
                        if e not in HELD_BY_TERM.get(engine_term, ()))
     with_term = with_truth = None
     if case is not None:
-        with_term = rmse(term) if term else evaluate(model, val)["rmse"]["simulation"]
+        with_term = rmse(term) if term else as_is
         with_truth = rmse(term + tuple(e for e in hidden_ids if e not in term))
     if not recommended:
         return Validation(engine=with_term, oracle=with_truth)
     others = {e: rmse([o for o in recommended if o != e]) for e in recommended} if len(recommended) > 1 else {}
-    return Validation(evaluate(model, val)["rmse"]["simulation"], rmse(recommended), others, with_term, with_truth)
+    return Validation(as_is, rmse(recommended), others, with_term, with_truth)
 
 
 def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, first_null_seed: int,
