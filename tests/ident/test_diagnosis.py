@@ -234,11 +234,11 @@ def test_a_fuel_delay_is_admitted_when_a_sample_or_longer_and_the_model_itself_a
     """What the model absorbs is a delay; a shift that makes the model itself much worse held out is the reference
     model's misfit (on a null trip of the map engine, 0.5 s: +114 %), not a delay of the fuel signal."""
     shift = ENTRIES["shift"]
-    v = {"within_one_sample": False, "rmse_drop_percent": -0.14}  # a true 0.4 s delay on the map engine
-    assert shift.admissible(v, 2.0)
-    assert not shift.admissible({**v, "within_one_sample": True}, 2.0)
-    assert not shift.admissible({**v, "rmse_drop_percent": -114.0}, 2.0)
-    assert ENTRIES["additive"].admissible(v, 2.0)
+    v = {"within_one_sample": False, "rmse_drop_percent": -0.14, "sample_period_s": 0.3}  # a true 0.4 s delay
+    assert shift.why_not_admitted(v, 2.0) is None
+    assert "shorter than one sample period (0.3 s)" in shift.why_not_admitted({**v, "within_one_sample": True}, 2.0)
+    assert "own held-out RMS error by +114 %" in shift.why_not_admitted({**v, "rmse_drop_percent": -114.0}, 2.0)
+    assert ENTRIES["additive"].why_not_admitted(v, 2.0) is None
 
 
 def test_the_fuel_delay_is_verified_beyond_the_budget_of_the_fuelling_effects():

@@ -139,10 +139,10 @@ class Additive:
         """The held-out RMS error drop [%] that decides a verification."""
         return v["rmse_drop_percent"]
 
-    def admissible(self, v: dict, min_drop_percent: float) -> bool:
-        """Whether the kind admits a verification v that is relevant and points the physics' way (every one but a
-        fuel delay's, Shift)."""
-        return True
+    def why_not_admitted(self, v: dict, min_drop_percent: float) -> str | None:
+        """Why the kind does not admit a verification v that is relevant and points the physics' way (a clause for
+        the explanation), None when it does: every one but some of a fuel delay's (Shift)."""
+        return None
 
     def sentence(self, effect, reg, gains, size: dict, sig: str, act: str) -> str | None:
         """The kind's own explanation (ident.diagnosis.explanation.explain), None for the common ones."""
@@ -236,11 +236,18 @@ class Shift(Additive):
     def relevance(self, v):
         return v["reference"]["rmse_drop_percent"]  # the reference model's (verify_shift)
 
-    def admissible(self, v, min_drop_percent):
+    def why_not_admitted(self, v, min_drop_percent):
         # at least one sample long (a shorter one the model's own taps hold, delay.py), and not making the model
         # itself worse beyond the relevance bar: the model absorbs a true delay, a spurious one (the reference's
         # misfit on a curved engine) it does not
-        return not v["within_one_sample"] and v["rmse_drop_percent"] >= -min_drop_percent
+        if v["within_one_sample"]:
+            return f" — but it is shorter than one sample period ({v['sample_period_s']:g} s), which the model's " \
+                   "own input taps interpolate: not a missing effect"
+        if v["rmse_drop_percent"] < -min_drop_percent:
+            return f" — but advancing the fuel by it changes this model's own held-out RMS error by " \
+                   f"{-v['rmse_drop_percent']:+.0f} %: what the reference model gains is not a delay of the fuel " \
+                   "signal: not confirmed"
+        return None
 
     def sentence(self, effect, reg, gains, size, sig, act):
         tau = -float(gains[0])

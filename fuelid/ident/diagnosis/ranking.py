@@ -177,12 +177,12 @@ def _confirmed(c: Candidate, v: dict | None, min_drop_percent: float) -> bool:
     """Whether a verification v of c confirms it: the held-out RMS error falls by at least min_drop_percent (its
     entry kind's relevance), and the fuel moves the way the effect's physics says (Effect.sign: fuel cut on
     overrun falls, a regeneration adds fuel, the fuel signal lags), and its entry kind admits it (a fuel delay:
-    entries.Shift.admissible). A candidate the refit did not or could not score stays as the tests found it."""
+    entries.Shift.why_not_admitted). A candidate the refit did not or could not score stays as the tests found it."""
     if v is None or "error" in v:
         return True
     return c.entry.relevance(v) >= min_drop_percent and c.definition.sign * v["direction"] >= 0 \
         and v.get("identifiable", True) and not _worse_on_held_out_trips(v) \
-        and c.entry.admissible(v, min_drop_percent)
+        and c.entry.why_not_admitted(v, min_drop_percent) is None
 
 
 def _worse_on_held_out_trips(v: dict) -> bool:
@@ -230,13 +230,8 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
                f"{min_drop_percent:g} % is needed): not confirmed"
     if c.definition.sign * v["direction"] < 0:
         return " — but the refit moves the fuel the other way than this effect would: not confirmed"
-    if v.get("within_one_sample"):
-        return f" — but it is shorter than one sample period ({v['sample_period_s']:g} s), which the model's own " \
-               "input taps interpolate: not a missing effect"
-    if not c.entry.admissible(v, min_drop_percent):
-        return f" — but advancing the fuel by it changes this model's own held-out RMS error by " \
-               f"{-v['rmse_drop_percent']:+.0f} %: what the reference model gains is not a delay of the fuel signal: " \
-               "not confirmed"
+    if (why := c.entry.why_not_admitted(v, min_drop_percent)) is not None:
+        return why
     if not v.get("identifiable", True):
         return f" — but it is not identifiable from these data: its signal's variation makes only " \
                f"{100 * v['identifiability']:.0f} % of its column beyond an offset and the initial states " \
