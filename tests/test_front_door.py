@@ -30,8 +30,8 @@ def test_the_front_door_names_the_map_and_the_regeneration_and_the_error_falls_o
     assert result["engine_map"] == "engine_map" and result["missing_effects"][0] == "dpf_regeneration"
     assert result["verdict"].startswith("Engine map: ")
     recommended = [c["effect"] for c in result["candidates"] if c.get("recommended")]
-    # one trip: no bus signal added, nor an effect found given one (the gear-shift transients are found, held out
-    # −6 %, given the EEC3 desired-speed scaling: named, not recommended)
+    # one trip: no bus signal added (EEC3's desired speed, the cab temperature and EEC1's demand torque are named, not
+    # recommended), nor an effect found given one (gear shifts were, before the map term held the transient fuelling)
     assert recommended[:2] == ["engine_map", "dpf_regeneration"], result["verdict"]
     assert set(recommended[2:]) <= {"gear_shift"}, result["verdict"]
     run_json(capsys, "identify", trip, "--effects-from", diagnosis, "-o", after)

@@ -170,7 +170,7 @@ def _percent_torque_in_model_unit(ds, pct: np.ndarray) -> tuple[np.ndarray, str]
 # ---- the built-in effects --------------------------------------------------------------------------------
 
 def _inertia(ds):
-    domega = rate(ds.u[:, 0] * RPM_TO_RAD_S, ds.t)
+    domega = rate(held(ds.u[:, 0]) * RPM_TO_RAD_S, ds.t)
     J = _signal(ds, "EC1.EngMomentOfInertia")
     if J is not None and np.nanmedian(J) > 0:
         return Regressors((float(np.nanmedian(J)) * domega)[:, None], ("J_EC1 dω/dt",), ("Nm",))
@@ -193,10 +193,13 @@ def _map_scales(ds) -> tuple[float, str, float, str]:
 
 
 def _engine_map(ds):
-    """The engine's own static curvature over its operating point: a quadratic surface in the deviations ñ, T̃
-    (`deviations`, scaled by `_map_scales`) — ñ·T̃, ñ², T̃² (the plane itself is the model's own gains) — and,
-    when the engine reports it, its relative load L = T / T_max(n) [1] (EEC2 SPN 92: the load against the
-    full-load curve, where a map's efficiency is charted)."""
+    """The engine's own fuelling beyond a plane in speed and torque, over its operating point:
+    its static curvature, a quadratic surface in the deviations ñ, T̃ (`deviations`, scaled by `_map_scales`) —
+    ñ·T̃, ñ², T̃² (the plane itself is the model's own gains) — and, when the engine reports it, its relative load
+    L = T / T_max(n) [1] (EEC2 SPN 92: the load against the full-load curve, where a map's efficiency is charted);
+    and its transient fuelling, the extra fuel while the torque builds up faster than the turbocharger's boost:
+    the torque's rise r = max(dT/dt, 0) and r·T̃ (the surcharge grows with the load), whose memory the term's FIR
+    taps (`orders`) carry."""
     n, T = deviations(ds)
     sn, un, sT, uT = _map_scales(ds)
     n, T = n / sn, T / sT
@@ -205,6 +208,10 @@ def _engine_map(ds):
         [f"{un}.{uT}", f"{un}2", f"{uT}2"]
     if load is not None:
         cols, names, units = cols + [load / 100.0], names + ["relative load"], units + ["1"]
+    # held: np.gradient would spread a sample missing between trips to its neighbours
+    rise = np.maximum(rate(held(ds.u[:, 1]), ds.t), 0.0) / sT
+    cols, names, units = cols + [rise, rise * T], names + ["torque rise", "torque rise x torque"], \
+        units + [f"{uT}/s", f"{uT}2/s"]
     return Regressors(np.column_stack(cols), tuple(names), tuple(units))
 
 
@@ -360,12 +367,15 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
            "term is the first missing term of the map.",
            ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque"), (190, 513), "nonlinearity", _power, orders=(2, 1, 0)),
-    Effect("engine_map", "engine fuel map (speed × torque curvature)",
+    Effect("engine_map", "engine fuel map (speed × torque curvature, transient fuelling)",
            "A real engine's fuel map is curved: its efficiency varies over speed and torque, so fuel is not a "
-           "plane in them. The map term is a quadratic surface of the model's own inputs (ñ·T̃, ñ², T̃²); the "
-           "diagnosis tests it first, as a property of the engine, before looking for hidden effects.",
+           "plane in them; and while the torque builds up the turbocharger lags and the engine burns more per "
+           "unit of torque than its steady map says (VECTO's WHTC correction). The map term is a quadratic "
+           "surface of the model's own inputs (ñ·T̃, ñ², T̃²) and the torque's rise (r, r·T̃), each through a "
+           "five-tap FIR (1.5 s at Ts = 0.3 s: a turbocharger's spool-up); the diagnosis tests it first, as a "
+           "property of the engine, before looking for hidden effects.",
            ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque", "EEC2.EngPercentLoadAtCurrentSpeed"), (190, 513, 92),
-           "nonlinearity", _engine_map, orders=(2, 1, 0), lags=(0,)),
+           "nonlinearity", _engine_map, orders=(5, 0, 0), lags=(0,)),  # FIR: a pole per column made the minima erratic
     Effect("idle_fuelling", "idle fuelling",
            "At idle (vehicle stopped, pedal released) the idle governor fuels to hold speed against friction "
            "and auxiliaries, a different regime from driving.",

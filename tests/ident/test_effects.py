@@ -81,17 +81,21 @@ def test_regressors_units_and_physics():
     assert fx.EFFECTS["dpf_regeneration"].build(ds) is None
 
 
-def test_engine_map_is_a_quadratic_surface_of_the_models_inputs_and_the_relative_load():
-    """engine_map: ñ·T̃, ñ², T̃² in krpm and kNm (deviations from the operating point), and the relative load
-    (EEC2 SPN 92, as a fraction) when the engine reports it."""
+def test_engine_map_is_a_quadratic_surface_the_relative_load_and_the_torque_rise():
+    """engine_map: ñ·T̃, ñ², T̃² in krpm and kNm (deviations from the operating point), the relative load (EEC2 SPN
+    92, as a fraction) when the engine reports it, and the transient fuelling's torque rise r = max(dT/dt, 0)
+    [kNm/s] and r·T̃."""
     ds = hidden.make(None, n=2000)
     n, T = (ds.u - ds.u0).T / 1000.0
+    rise = np.maximum(np.gradient(ds.u[:, 1], ds.t), 0.0) / 1000.0
     reg = fx.EFFECTS["engine_map"].build(ds)
-    assert reg.units == ("krpm.kNm", "krpm2", "kNm2") and reg.names[0] == "speed x torque"
-    assert np.allclose(reg.x, np.column_stack([n * T, n * n, T * T]))
+    assert reg.units == ("krpm.kNm", "krpm2", "kNm2", "kNm/s", "kNm2/s") and reg.names[0] == "speed x torque"
+    assert np.allclose(reg.x, np.column_stack([n * T, n * n, T * T, rise, rise * T]))
+    assert (reg.x[:, 3] >= 0).all() and (reg.x[:, 3] > 0).any()
     ds.extra["EEC2.EngPercentLoadAtCurrentSpeed"] = np.clip(ds.u[:, 1] / 20.0, 0, 100)
     reg = fx.EFFECTS["engine_map"].build(ds)
-    assert reg.units[-1] == "1" and np.allclose(reg.x[:, 3], np.clip(ds.u[:, 1] / 20.0, 0, 100) / 100.0)
+    assert reg.names[3] == "relative load" and reg.units[3] == "1"
+    assert np.allclose(reg.x[:, 3], np.clip(ds.u[:, 1] / 20.0, 0, 100) / 100.0)
 
 
 def test_held_fills_gaps_with_the_last_value():
