@@ -92,7 +92,9 @@ def test_a_bus_signal_that_does_not_carry_over_once_re_identified_is_named_not_r
     """On the VECTO map engine's three trips in different weather (seed 3000, ambient air hidden), the level of EEC1's
     demand torque leads the engine's transient fuelling and holds up in the linearised leave-one-trip-out, but added
     as `--effects-from` adds it (its own dynamics, the model re-identified) it raised another day's error
-    (0.637 → 0.713 L/h). Checked that way, trip by trip (diagnosis.carryover), it is named but not recommended."""
+    (0.637 → 0.713 L/h; with the transient fuelling in the map term, 0.492 → 0.495). Checked that way, trip by trip
+    (diagnosis.carryover: the trips left out must be 2 % better both ways, as any candidate's held-out blocks), it
+    is named but not recommended."""
     ds, _, _ = hidden.simulated("ambient", 3000, truth="map")
     out = dg.diagnose(hidden.identify(ds), ds)
     by_id = {c.effect: c for c in out.candidates}
@@ -100,6 +102,7 @@ def test_a_bus_signal_that_does_not_carry_over_once_re_identified_is_named_not_r
     assert generic.significant and not generic.recommended
     carry = generic.refit["trips"]
     assert not carry["carries_over"]
-    assert any(carry[way]["rmse_with"] > carry[way]["rmse_without"] for way in ("own_dynamics", "re_identified"))
+    assert any(carry[w]["rmse_with"] > 0.98 * carry[w]["rmse_without"] for w in ("own_dynamics", "re_identified"))
+    assert "the trips left out by 2 % (" in generic.explanation
     assert "leave-one-trip-out by PEM): not recommended" in generic.explanation
     assert {"engine_map", "ambient"} <= {c.effect for c in out.candidates if c.recommended}

@@ -2,8 +2,9 @@
 candidate, Holm, verification of the likeliest, and forward selection of every effect missing.
 
 0. The engine map. A real engine's fuel map is curved (efficiency varies over speed × torque) and a linear model
-   is a plane through it; that is a property of the engine, not a hidden effect, and on a real engine it outweighs
-   any hidden one. The map term `engine_map` (ident.effects: ñ·T̃, ñ², T̃²) is tested first, as one group (one
+   is a plane through it, and the engine burns more while the torque builds up than its map says (transient
+   fuelling); that is a property of the engine, not a hidden effect, and on a real engine it outweighs any hidden
+   one. The map term `engine_map` (ident.effects: ñ·T̃, ñ², T̃², the torque's rise) is tested first, as one group (one
    test over all its columns, at α: the first test of a fixed sequence, so the hidden-effect family after it keeps
    its own α), must explain min_effect_percent and is verified like any candidate (held-out drop ≥
    min_drop_percent). When it is confirmed and no other candidate, verified on the model as it is, lowers the
@@ -34,8 +35,10 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    where they differ, another day, can).
    An accepted candidate whose
    re-identified model simulates the data worse than the model without it (RMS simulation error over the tested
-   samples: the refit cannot be verified) is named but not recommended, and the search goes on from the model
-   without it, with the next candidate found. The warm-started refits are the search, not the model `fuelid
+   samples: the refit cannot be verified) is not built on: the search goes on from the model without it, with
+   the next candidate found; it is named, and recommended only when it brings its physics (catalogued or
+   engineer-defined) and the model identify builds (below) simulates the data no worse with it
+   (`_only_the_warm_refit_worse`). The warm-started refits are the search, not the model `fuelid
    identify --effects-from` builds: that one is identified by PEM from its own initialisation and from the
    effects added in turn (ident.identify.identify_model), and the two can end in minima far apart (a warm start
    keeps the dynamics of the model without the effects). So what is to be recommended is checked once more, in the
@@ -52,8 +55,9 @@ stays ≤ α. Significant candidates are listed first, in the order accepted;
 then the rest by p-value. README gives the measured false alarms and the table per hidden effect.
 
 A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified, the
-model re-identified with it simulates the data no worse than the model without it, and so does the model `fuelid
-identify` builds with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic
+model re-identified with it simulates the data no worse than the model without it (or, for an effect with its
+physics, forward selection's warm-started refit alone did not: 5), and so does the model `fuelid identify` builds
+with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic
 form (level, rate, scales, torque, state of a signal fuelid has no physics for), only when the data held several
 trips and it held up left out of each (leave-one-trip-out): in the linearised refit (4; NOT_DETERMINED_BY_OTHER_TRIPS
 when no trip's fold determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on
@@ -197,6 +201,17 @@ def _refit_verified(c: Candidate) -> bool:
     return c.refit is None or c.refit["verified"]
 
 
+def _only_the_warm_refit_worse(c: Candidate) -> bool:
+    """Whether a catalogued or engineer-defined c, verified on held-out data, was held back only because forward
+    selection's warm-started refit simulated the data worse (module docstring, 5): that refit keeps the dynamics
+    of the model without c and can end far from the minimum `fuelid identify` reaches from its own
+    initialisation, so the model identify builds with c decides instead (`_Built`). A generic bus signal keeps
+    its trip checks, which only a verified refit runs."""
+    r = c.refit
+    return r is not None and not r["verified"] and "error" not in r and "trips" not in r and not _generic(c) \
+        and c.verification is not None and "error" not in c.verification
+
+
 def _why_refit_not_verified(c: Candidate) -> str:
     """What the explanation of a named candidate whose refit was not verified adds."""
     if "built" in c.refit:
@@ -214,10 +229,11 @@ def _why_refit_not_verified(c: Candidate) -> str:
         if "error" in t:
             return f" — but the model cannot be re-identified with it leaving a trip out ({t['error']}): " \
                    "not recommended"
-        worse = [f"{way.words}, RMS error {t[name]['rmse_without']:.3f} → {t[name]['rmse_with']:.3f}"
-                 for name, way in WAYS.items() if t[name]["rmse_with"] > t[name]["rmse_without"]]
-        return f" — but fitted on the other trips it makes the trips left out worse ({'; '.join(worse)}, pooled, " \
-               "leave-one-trip-out by PEM): not recommended"
+        short = [f"{way.words}, RMS error {t[name]['rmse_without']:.3f} → {t[name]['rmse_with']:.3f}"
+                 for name, way in WAYS.items()
+                 if t[name]["rmse_with"] > (1.0 - t["min_drop_percent"] / 100.0) * t[name]["rmse_without"]]
+        return f" — but fitted on the other trips it does not lower the error on the trips left out by " \
+               f"{t['min_drop_percent']:g} % ({'; '.join(short)}, pooled, leave-one-trip-out by PEM): not recommended"
     return f" — but the model re-identified with it (PEM, from the model without it) simulates these data worse " \
            f"(RMS error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}): not recommended"
 
@@ -282,10 +298,12 @@ def _simulation_rmse(run: Run, index: np.ndarray) -> float:
     return float(np.sqrt(np.mean((run.y[index] - run.ysim[index]) ** 2)))
 
 
-def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects) -> tuple[PolyModel, Run] | None:
+def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects,
+           min_drop_percent: float) -> tuple[PolyModel, Run] | None:
     """The model re-identified with c added (module docstring, 5) and its run, with c.refit its record (RMS
-    simulation error and loss V without and with, over the samples both runs test; verified: not worse); None
-    when the refit fails or is not verified."""
+    simulation error and loss V without and with, over the samples both runs test; verified: not worse, and for a
+    generic bus signal on several trips, carried over: the trips left out min_drop_percent better both ways,
+    diagnosis.carryover); None when the refit fails or is not verified."""
     try:
         refit = refit_with_effects(model, ds, [c.effect], defined=effects, max_iter=REFIT_MAX_ITER)
         refit_run = run_gradients(run_model(refit, ds))
@@ -298,7 +316,8 @@ def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects) -> tuple[PolyM
                "loss_V_with": refit.info["loss_V"], "iterations": refit.info["iterations"],
                "verified": bool(with_ <= without)}
     if c.refit["verified"] and _generic(c):
-        carry = left_out_trips(c.effect, model, ds, run, defined=effects, max_iter=REFIT_MAX_ITER)
+        carry = left_out_trips(c.effect, model, ds, run, defined=effects, max_iter=REFIT_MAX_ITER,
+                               min_drop_percent=min_drop_percent)
         if carry is not None:
             c.refit["trips"] = carry
             c.refit["verified"] = carry["carries_over"]
@@ -353,7 +372,7 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
                 if (c.verification is None or "error" in c.verification) and "verification" in c.conditional:
                     c.verification = c.conditional["verification"]  # (none without verification: n_verify = 0)
                     c.rmse_drop_percent = c.verification["rmse_drop_percent"]
-            refitted = _refit(c, model, run, ds, effects)
+            refitted = _refit(c, model, run, ds, effects, min_drop_percent)
             if refitted is not None:
                 rivals = [r for r in found[k + 1:] if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
                 c.alternatives = _indistinguishable(c, rivals, model, refitted, ds, alpha, min_effect_percent, effects)
@@ -504,7 +523,8 @@ def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | 
     else:
         dominant = ""
     return f"the engine's fuel map is curved: efficiency varies over speed × torque, so fuel is not a plane in " \
-           f"them{misses}{dominant}; a property of the engine, not a hidden effect; add effect {term.effect}"
+           f"them, and it burns more while the torque builds up (transient fuelling){misses}{dominant}; a property " \
+           f"of the engine, not a hidden effect; add effect {term.effect}"
 
 
 def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_effect_percent: float = 1.0,
@@ -593,10 +613,12 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             c.explanation += f" — or {' or '.join(c.alternatives)}: these data cannot tell them apart (neither is " \
                              "significant given the other; data where they differ, another day, can)"
         # verified on held-out data (and trips, when there are several): what `fuelid identify --effects-from` adds
-        c.recommended = c.verification is not None and "error" not in c.verification and _refit_verified(c)
+        warm_only = _only_the_warm_refit_worse(c)  # the model identify builds decides instead (5)
+        c.recommended = c.verification is not None and "error" not in c.verification \
+            and (_refit_verified(c) or warm_only)
         if c.verification is None:  # significant by its tests alone: what they found is no advice to add it
             _not_recommended(c, f" — not verified (`fuelid diagnose --verify {n_verify}`): not recommended")
-        elif not _refit_verified(c):
+        elif not _refit_verified(c) and not warm_only:
             _not_recommended(c, _why_refit_not_verified(c))
         elif c.recommended and _generic(c) and "trips" not in c.verification:
             _not_recommended(c, ONE_TRIP_ONLY)
@@ -609,6 +631,13 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         elif c.recommended and not built.add(c):
             c.refit["verified"] = False
             _not_recommended(c, _why_refit_not_verified(c))
+        elif c.recommended and warm_only:
+            c.refit["verified"] = True
+            b = c.refit["built"]
+            c.explanation += f" (forward selection's warm-started refit with it simulated these data worse, RMS " \
+                             f"error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}; the model " \
+                             f"`fuelid identify --effects-from` builds with it simulates them no worse, " \
+                             f"{b['rmse_without']:.3f} → {b['rmse_with']:.3f})"
         if c.recommended:
             recommended.add(c.effect)
     for c in unconfirmed:
