@@ -61,8 +61,8 @@ with it and the effects recommended before it (5) — and, for a decoded bus sig
 form (level, rate, scales, torque, state of a signal fuelid has no physics for), only when the data held several
 trips and it held up left out of each (leave-one-trip-out): in the linearised refit (4; NOT_DETERMINED_BY_OTHER_TRIPS
 when no trip's fold determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on
-the other trips (diagnosis.carryover: its refit counts as not verified when the pooled error on the trips left out
-rises). On one trip such a signal can stand in for whatever else moves with the operating point that day (on a
+the other trips (diagnosis.carryover: its refit counts as not verified unless the pooled error on the trips left
+out falls by min_drop_percent both ways). On one trip such a signal can stand in for whatever else moves with the operating point that day (on a
 real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined
 effect brings its physics (sign, form) and is recommended from one trip. Forward selection still re-identifies the model with such a
 signal when it accepts one (so that it explains away its twins and what it stands in for), but what is recommended
