@@ -208,7 +208,7 @@ def _only_the_warm_refit_worse(c: Candidate) -> bool:
     initialisation, so the model identify builds with c decides instead (`_Built`). A generic bus signal keeps
     its trip checks, which only a verified refit runs."""
     r = c.refit
-    return r is not None and not r["verified"] and "error" not in r and "trips" not in r and not _generic(c) \
+    return r is not None and not r["verified"] and "error" not in r and not _generic(c) \
         and c.verification is not None and "error" not in c.verification
 
 
@@ -230,8 +230,7 @@ def _why_refit_not_verified(c: Candidate) -> str:
             return f" — but the model cannot be re-identified with it leaving a trip out ({t['error']}): " \
                    "not recommended"
         short = [f"{way.words}, RMS error {t[name]['rmse_without']:.3f} → {t[name]['rmse_with']:.3f}"
-                 for name, way in WAYS.items()
-                 if t[name]["rmse_with"] > (1.0 - t["min_drop_percent"] / 100.0) * t[name]["rmse_without"]]
+                 for name, way in WAYS.items() if not t[name]["lowered"]]
         return f" — but fitted on the other trips it does not lower the error on the trips left out by " \
                f"{t['min_drop_percent']:g} % ({'; '.join(short)}, pooled, leave-one-trip-out by PEM): not recommended"
     return f" — but the model re-identified with it (PEM, from the model without it) simulates these data worse " \
