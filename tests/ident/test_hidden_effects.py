@@ -49,10 +49,16 @@ def test_hidden_effect_is_named_and_adding_it_lowers_the_error(effect, seed):
     out, truth, summary = diagnosed(effect, seed)
     top = out["candidates"][0]
     assert top["significant"], out["verdict"]
-    assert names(top, effect, summary), top["effect"]
     # the paper engine is linear: no map term of its own, but a hidden speed × torque product is the first term of
-    # a map, named as the engine map term by the product alone (the full map adds nothing held out)
-    assert out["engine_map"] == ("power_nonlinearity" if effect == "power_nonlinearity" else None), out["verdict"]
+    # a map, named as the engine's term — by the product alone, or as the full map when the model identify builds
+    # with the map simulates the data better by the relevance bar (ranking._map_beats_product; seed 2004: 1.65
+    # against 1.82 L/h, and on another day's trip 1.75 against 1.98)
+    if effect == "power_nonlinearity" and top["effect"] == "engine_map":
+        built = top["verification"]["built"]
+        assert built["rmse_with_map"] < 0.98 * built["rmse_with_product"], built
+    else:
+        assert names(top, effect, summary), top["effect"]
+    assert out["engine_map"] == (top["effect"] if effect == "power_nonlinearity" else None), out["verdict"]
     v = top["verification"]
     floor = float(np.sqrt(np.mean(truth["noise"] ** 2)))
     assert v["rmse_drop_percent"] >= 25 or v["rmse_with"] <= FLOOR_TOLERANCE * floor, (v, floor)
@@ -115,9 +121,13 @@ def test_on_the_map_engine_no_effect_recommended_raises_another_days_error():
     physics for are named on one trip, never recommended, and each effect recommended was verified on a model made
     of effects recommended — the model `fuelid identify --effects-from` builds. Added as it does
     (ident.identify.identify_model), no effect recommended raises the RMS error on another day's trip given the
-    others (the fan, accepted given the EEC1 demand-torque scaling and recommended without it, raised it by half)."""
+    others (the fan, accepted given the EEC1 demand-torque scaling and recommended without it, raised it by half).
+    The engine's term is its map: a scaling by the oil temperature lowers the held-out error more, but a generic
+    bus signal's drop is discounted there as in forward selection (without that, no map term, and the product
+    term and the delay were recommended: another day 1.40 L/h against 0.59 with the map term)."""
     case = ("engine_fan", "fuel_delay")
     out, _, _ = diagnosed(case, 4000, truth="map")
+    assert out["engine_map"] == "engine_map", out["verdict"]
     recommended = [c["effect"] for c in out["candidates"] if c.get("recommended")]
     generic = [c for c in out["candidates"] if c["significant"] and ":" in c["effect"]]
     assert generic and not any(c.get("recommended") for c in generic), out["verdict"]
@@ -163,6 +173,30 @@ def test_hidden_inertia_is_found_within_20_percent_of_its_J():
     row = next(r for r in out["candidates"] if r["effect"] == "inertia")
     J = summary["config"]["effects"]["inertia"]
     assert abs(row["size"]["inertia_kgm2"] - J) <= 0.2 * J, (row["size"], J)
+
+
+def test_on_the_map_engine_a_fuel_delay_leaves_the_engine_its_map_and_is_checked_on_the_model_built_with_it():
+    """A 0.4 s fuel delay hidden on the map engine (seed 4000). The linearised refit prefers the speed × torque product
+    to the full map term (it steps once from the model as it is); the models `fuelid identify` builds decide
+    instead, and with the full map — whose FIR taps absorb most of the delay — the model simulates the data far
+    better, so the engine's term is the map. The delay is named (0.45 s, from the reference model); the model
+    identify builds with the map and it simulates the data worse than with the map alone (0.05 s off), so it is not
+    recommended. Another day's error with what is recommended is a third of what the product term and the delay gave
+    (1.38 L/h)."""
+    out, _, _ = diagnosed("fuel_delay", 4000, truth="map")
+    assert out["engine_map"] == "engine_map", out["verdict"]
+    term = out["candidates"][0]
+    assert term["verification"]["built"]["rmse_with_map"] < 0.5 * term["verification"]["built"]["rmse_with_product"]
+    assert "the model with the full map term simulates these data" in term["explanation"]
+    delay = next(c for c in out["candidates"] if c["effect"] == "fuel_delay")
+    assert delay["significant"] and abs(delay["size"]["delay_s"] - 0.4) <= 0.1, delay["explanation"]
+    b = delay["verification"]["built"]
+    assert delay["recommended"] == (b["rmse_with"] <= b["rmse_without"]), b
+    assert not delay["recommended"] and "builds with it, after engine_map" in delay["explanation"], b
+    ds, _, _ = hidden.simulated("fuel_delay", 4000, truth="map")
+    val, _, _ = hidden.simulated("fuel_delay", 4050, truth="map")
+    rmse = functools.partial(built_rmse, ds, val, FitMemo())
+    assert rmse(dg.confirmed_effects(out["candidates"])) < 0.55
 
 
 def test_hidden_fuel_delay_is_found_within_a_tenth_of_a_second():

@@ -8,11 +8,14 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    test over all its columns, at α: the first test of a fixed sequence, so the hidden-effect family after it keeps
    its own α), must explain min_effect_percent and is verified like any candidate (held-out drop ≥
    min_drop_percent). When it is confirmed and no other candidate, verified on the model as it is, lowers the
-   held-out error more (the map's columns would absorb part of such an effect that varies with the operating
-   point: on a linear engine hiding an inertia, they do), it is named as the engine map term (role ENGINE_MAP) —
-   as `power_nonlinearity` when the speed × torque product alone does as well (the other terms add less than
-   min_drop_percent held out) — and the hidden-effect search (5) starts from the model with it. The full map is
-   never a hidden effect; the product term is one only when no map term is named.
+   held-out error more (a generic bus signal's drop discounted by GENERIC_WEIGHT, as in 5; the map's columns
+   would absorb part of such an effect that varies with the operating point: on a linear engine hiding an
+   inertia, they do), it is named as the engine map term (role ENGINE_MAP) — as `power_nonlinearity` when the
+   speed × torque product alone does as well (the other terms add less than min_drop_percent held out) and the
+   model identify builds with the full map simulates the data no better by min_drop_percent than the one built
+   with the product (`_map_beats_product`: the linearised refit steps once from the model as it is, while PEM
+   reaches what the map's FIR taps hold, e.g. a fuel delay) — and the hidden-effect search (5) starts from the
+   model with it. The full map is never a hidden effect; the product term is one only when no map term is named.
 
 5. Forward selection. Bus signals are dependent (a cab temperature follows the level shift a real effect leaves
    in the error), and two effects can hide at once (the weaker one's held-out drop on the model as it is falls
@@ -44,7 +47,10 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    keeps the dynamics of the model without the effects). So what is to be recommended is checked once more, in the
    order found, on the model identify builds (`_Built`, `refit.built`): built from the effects recommended before
    it plus the candidate, it must simulate the data no worse than built without it; otherwise the candidate is
-   named, not recommended, and those found given it are not recommended either (`_given_not_added`).
+   named, not recommended, and those found given it are not recommended either (`_given_not_added`). The fuel
+   delay, verified on its reference model and on the model as it is (delay.py), is checked so too when the
+   engine's term is added (`verification.built`): the model identify builds then has the term's taps, which
+   absorb a delay, and with a delay estimated 0.05 s off it can simulate worse than without it (README).
 
 A candidate is `significant` — a missing effect the diagnosis names — when the Holm-corrected test rejects
 AND it explains at least min_effect_percent (default 1 %) of the simulation error AND, when verified, the
@@ -212,16 +218,20 @@ def _only_the_warm_refit_worse(c: Candidate) -> bool:
         and c.verification is not None and "error" not in c.verification
 
 
+def _why_built_worse(b: dict) -> str:
+    """What the explanation of a candidate the model identify builds does not take adds (b: its `_Built` record)."""
+    after = f", after {', '.join(b['effects'])}" if b["effects"] else ""
+    if "error" in b:
+        return f" — but `fuelid identify` cannot build the model with it{after} ({b['error']}): not recommended"
+    return f" — but the model `fuelid identify --effects-from` builds with it{after} (PEM from its own " \
+           f"initialisation) simulates these data worse (RMS error {b['rmse_without']:.3f} → " \
+           f"{b['rmse_with']:.3f}): not recommended"
+
+
 def _why_refit_not_verified(c: Candidate) -> str:
     """What the explanation of a named candidate whose refit was not verified adds."""
     if "built" in c.refit:
-        b = c.refit["built"]
-        after = f", after {', '.join(b['effects'])}" if b["effects"] else ""
-        if "error" in b:
-            return f" — but `fuelid identify` cannot build the model with it{after} ({b['error']}): not recommended"
-        return f" — but the model `fuelid identify --effects-from` builds with it{after} (PEM from its own " \
-               f"initialisation) simulates these data worse (RMS error {b['rmse_without']:.3f} → " \
-               f"{b['rmse_with']:.3f}): not recommended"
+        return _why_built_worse(c.refit["built"])
     if "error" in c.refit:
         return f" — but the model cannot be re-identified with it ({c.refit['error']}): not recommended"
     if "trips" in c.refit:
@@ -408,17 +418,23 @@ class _Built:
         built = identify_model(self.ds, self.structure, specs, defined=self.defined, base=self.base, memo=self.memo)
         return built.validation["rmse"]["simulation"]
 
+    def rmse_with(self, c: Candidate) -> float:
+        """RMS simulation error [output unit] of the model built with c added to the effects so far."""
+        return self._rmse(self.specs + [c.spec])
+
     def add(self, c: Candidate) -> bool:
         """Whether the model built with c added to the effects so far simulates the data no worse than the one
-        without it; recorded in c.refit["built"] (or its error), c added when so."""
+        without it; recorded as "built" (or its error) in c.refit, or in c.verification for one forward selection
+        did not refit (the fuel delay), c added when so."""
+        record = c.refit if c.refit is not None else c.verification
         try:
             if self.rmse is None:
                 self.rmse = self._rmse(self.specs)
-            with_ = self._rmse(self.specs + [c.spec])
+            with_ = self.rmse_with(c)
         except (FuelidError, np.linalg.LinAlgError) as exc:
-            c.refit["built"] = {"effects": list(self.specs), "error": str(exc)}
+            record["built"] = {"effects": list(self.specs), "error": str(exc)}
             return False
-        c.refit["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_}
+        record["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_}
         if with_ > self.rmse:
             return False
         self.specs.append(c.spec)
@@ -426,7 +442,8 @@ class _Built:
         return True
 
     def given(self, c: Candidate) -> None:
-        """Add c (the fuel delay: verified on its reference model, delay.py) without checking it."""
+        """Add c without checking it (the fuel delay where no engine term is added: its verification on the model
+        as it is stands for the model identify builds)."""
         self.specs.append(c.spec)
         self.rmse = None
 
@@ -482,11 +499,13 @@ def _verify(c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim:
 
 def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, base: dict | None,
                     base_ysim: np.ndarray | None, min_effect_percent: float, min_drop_percent: float,
-                    n_verify: int) -> Candidate | None:
+                    n_verify: int, built: _Built) -> Candidate | None:
     """The engine map term (module docstring, 0): the `engine_map` candidate when its test (alone, at α) rejects,
     it explains min_effect_percent and (n_verify > 0) its verification confirms it; the `power_nonlinearity`
     candidate instead when that product term alone, verified too, comes within min_drop_percent of its held-out
-    drop. None when the map is not measurably curved (or not testable: the model has it already)."""
+    drop and the model identify builds with it (`built`) simulates the data within min_drop_percent of the one
+    built with the full map (`_map_beats_product`). None when the map is not measurably curved (or not
+    testable: the model has it already)."""
     full = next((c for c in testable if c.effect == MAP_TERM), None)
     if full is None or not full.test_significant or full.estimated_drop_percent < min_effect_percent:
         return None
@@ -500,9 +519,24 @@ def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, b
         return None
     if product is not None and "error" not in product.verification \
             and _confirmed(product, product.verification, min_drop_percent) \
-            and product.rmse_drop_percent > full.rmse_drop_percent - min_drop_percent:
+            and product.rmse_drop_percent > full.rmse_drop_percent - min_drop_percent \
+            and not _map_beats_product(built, full, product, min_drop_percent):
         return product
     return full
+
+
+def _map_beats_product(built: _Built, full: Candidate, product: Candidate, min_drop_percent: float) -> bool:
+    """Whether the model identify builds with the full map term simulates the data better by min_drop_percent than
+    the one built with the product term alone (recorded in full.verification["built"]). The linearised refit
+    steps once from the model as it is; the map's FIR taps reach further by PEM (a fuel delay they absorb: README),
+    and the model identify builds is what the engineer gets."""
+    try:
+        with_product, with_map = (built.rmse_with(c) for c in (product, full))
+    except (FuelidError, np.linalg.LinAlgError):
+        return False
+    full.verification["built"] = {"effects": list(built.specs), "rmse_with_product": with_product,
+                                  "rmse_with_map": with_map}
+    return with_map < (1.0 - min_drop_percent / 100.0) * with_product
 
 
 def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | None) -> str:
@@ -521,6 +555,10 @@ def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | 
                    f"({', '.join(term.reg.names[1:])}) the rest"
     else:
         dominant = ""
+    b = None if full is None else (full.verification or {}).get("built")
+    if b is not None:  # the linearised refit preferred the product term: the models identify builds decided
+        dominant += f"; as `fuelid identify` builds them, the model with the full map term simulates these data " \
+                    f"with RMS error {b['rmse_with_map']:.3f}, with the product alone {b['rmse_with_product']:.3f}"
     return f"the engine's fuel map is curved: efficiency varies over speed × torque, so fuel is not a plane in " \
            f"them, and it burns more while the torque builds up (transient fuelling){misses}{dominant}; a property " \
            f"of the engine, not a hidden effect; add effect {term.effect}"
@@ -559,7 +597,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         base = base_ysim = None
     if n_verify and base is None and any(c.test_significant for c in testable):
         raise InputError("the model cannot be scored on held-out blocks of these data")
-    term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify)
+    built = _Built(model, ds, effects)  # what is recommended is verified on the model identify builds of it (5)
+    term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify,
+                           built)
     relevant = lambda c: c.test_significant and c.estimated_drop_percent >= min_effect_percent  # noqa: E731
     others = sorted((c for c in testable if c.effect not in (MAP_TERM, PRODUCT_TERM) and relevant(c)),
                     key=lambda c: -_priority(c))
@@ -568,7 +608,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         # does not compete with the fuelling effects for the verification budget
         _verify(c, model, ds, run, base, base_ysim)
     outranking = [c for c in others if term is not None and c.entry.retested and c.rmse_drop_percent is not None
-                  and _confirmed(c, c.verification, min_drop_percent) and c.rmse_drop_percent > term.rmse_drop_percent]
+                  and _confirmed(c, c.verification, min_drop_percent) and _priority(c) > term.rmse_drop_percent]
     if outranking:  # a hidden effect the map's columns would partly absorb: no map term first (module docstring, 0)
         full = next(c for c in testable if c.effect == MAP_TERM)
         full.explanation += f" — but {outranking[0].effect} explains more of what the model misses " \
@@ -595,7 +635,6 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
             if c not in accepted and (c.test_significant or c.effect in (MAP_TERM, PRODUCT_TERM)):
                 c.explained_by = explaining
-    built = _Built(model, ds, effects)  # what is recommended is verified on the model identify builds of it (5)
     if term is not None:
         term.significant, term.role = True, ENGINE_MAP
         term.recommended = term.verification is not None and "error" not in term.verification \
@@ -605,7 +644,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         if term.recommended and term.refit is not None and not built.add(term):
             term.refit["verified"] = False
             _not_recommended(term, _why_refit_not_verified(term))
-    recommended = {term.effect} if term is not None and term.recommended else set()
+    term_added = term is not None and term.recommended
+    recommended = {term.effect} if term_added else set()
     for c in accepted:  # in the order accepted, so that what each was found given is decided before it
         c.significant, c.role = True, MISSING_EFFECT
         if c.alternatives:
@@ -625,9 +665,11 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             _not_recommended(c, NOT_DETERMINED_BY_OTHER_TRIPS)
         elif c.recommended and (missing := _given_not_added(c, recommended)):
             _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
-        if c.recommended and c.refit is None:
+        if c.recommended and c.refit is None and not term_added:  # the fuel delay, on the model as it is
             built.given(c)
-        elif c.recommended and not built.add(c):
+        elif c.recommended and c.refit is None and not built.add(c):  # the fuel delay, given the engine's term
+            _not_recommended(c, _why_built_worse(c.verification["built"]))
+        elif c.recommended and c.refit is not None and not built.add(c):
             c.refit["verified"] = False
             _not_recommended(c, _why_refit_not_verified(c))
         elif c.recommended and warm_only:
