@@ -74,7 +74,9 @@ effect brings its physics (sign, form) and is recommended from one trip. Forward
 signal when it accepts one (so that it explains away its twins and what it stands in for), but what is recommended
 must have been verified on the model `fuelid identify --effects-from` builds: an effect found given a signal that
 is not added is named, not recommended (`_given_not_added`; one accepted that way and added without it can make
-the model worse on another day: README).
+the model worse on another day: README) — unless an earlier round of forward selection found and verified it
+given effects that are all added (`_found_given_added`: it was then confirmed on such a model, only not accepted
+first, a one-trip signal's drop being larger; on the map engine a hidden inertia is so).
 """
 from __future__ import annotations
 
@@ -349,13 +351,16 @@ def _retest(pool: list[Candidate], model: PolyModel, run: Run, ds, given: list[s
     found = []
     for c in pool:
         r = rows[c.effect]
+        rounds = (c.conditional or {}).get("found_given", [])
         c.conditional = {"given": given, "p_value": r.p_value, "p_holm": r.p_holm,
-                         "estimated_drop_percent": r.estimated_drop_percent, "rmse_drop_percent": r.rmse_drop_percent}
+                         "estimated_drop_percent": r.estimated_drop_percent, "rmse_drop_percent": r.rmse_drop_percent,
+                         "found_given": rounds}
         if r.verification is not None:
             c.conditional["verification"] = r.verification
         if r in eligible and (not n_verify or r.verification is not None and "error" not in r.verification
                               and _confirmed(r, r.verification, min_drop_percent)):
             c.conditional["explanation"] = r.explanation
+            c.conditional["found_given"] = rounds + [given]
             found.append(c)
     return sorted(found, key=lambda c: -_priority(rows[c.effect], rows[c.effect].verification))
 
@@ -455,8 +460,19 @@ def _not_recommended(c: Candidate, why: str) -> None:
 
 
 def _given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
-    """The effects c was found and verified given (its conditional record's) that are not among `recommended`."""
+    """The effects c was found and verified given (its conditional record's) that are not among `recommended`;
+    none when a round of forward selection found it given recommended effects only (`_found_given_added`)."""
+    if _found_given_added(c, recommended) is not None:
+        return []
     return [e for e in (c.conditional or {}).get("given", []) if e not in recommended]
+
+
+def _found_given_added(c: Candidate, recommended: set[str]) -> list[str] | None:
+    """The effects given which the first round of forward selection that found c (significant, relevant,
+    confirmed: `_retest`) had re-identified the model, when they are all among `recommended` — so c was verified
+    on a model `fuelid identify --effects-from` builds, though accepted in a later round given a bus signal that
+    is not added (a one-trip signal with a larger drop accepted before it); None when no such round."""
+    return next((g for g in (c.conditional or {}).get("found_given", []) if set(g) <= recommended), None)
 
 
 def _round_drop(c: Candidate) -> float | None:
@@ -679,6 +695,10 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
                              f"error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}; the model " \
                              f"`fuelid identify --effects-from` builds with it simulates them no worse, " \
                              f"{b['rmse_without']:.3f} → {b['rmse_with']:.3f})"
+        if c.recommended and (missing := [e for e in (c.conditional or {}).get("given", []) if e not in recommended]):
+            clean = _found_given_added(c, recommended)
+            c.explanation += f" (accepted given {', '.join(missing)}, not added; found and verified before that " \
+                             f"given {', '.join(clean) or 'nothing'} alone)"
         if c.recommended:
             recommended.add(c.effect)
     for c in unconfirmed:
