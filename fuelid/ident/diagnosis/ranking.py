@@ -459,19 +459,22 @@ def _not_recommended(c: Candidate, why: str) -> None:
     c.explanation = c.explanation.replace(f"; add effect {c.spec}", "") + why
 
 
-def _given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
-    """The effects c was found and verified given (its conditional record's) that are not among `recommended`;
-    none when a round of forward selection found it given recommended effects only (`_found_given_added`)."""
-    if _found_given_added(c, recommended) is not None:
-        return []
+def _accepted_given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
+    """The effects c was accepted given (its conditional record's) that are not among `recommended`."""
     return [e for e in (c.conditional or {}).get("given", []) if e not in recommended]
 
 
+def _given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
+    """The effects c was found and verified given that are not among `recommended`: those it was accepted given,
+    none when a round of forward selection found it given recommended effects only (`_found_given_added`)."""
+    return [] if _found_given_added(c, recommended) is not None else _accepted_given_not_added(c, recommended)
+
+
 def _found_given_added(c: Candidate, recommended: set[str]) -> list[str] | None:
-    """The effects given which the first round of forward selection that found c (significant, relevant,
-    confirmed: `_retest`) had re-identified the model, when they are all among `recommended` — so c was verified
-    on a model `fuelid identify --effects-from` builds, though accepted in a later round given a bus signal that
-    is not added (a one-trip signal with a larger drop accepted before it); None when no such round."""
+    """The effects given which a round of forward selection found c (significant, relevant, confirmed: `_retest`),
+    the first such round whose effects are all among `recommended` — so c was verified on a model `fuelid identify
+    --effects-from` builds, though accepted in a later round given a bus signal that is not added (a one-trip signal
+    with a larger drop accepted before it); None when no round was."""
     return next((g for g in (c.conditional or {}).get("found_given", []) if set(g) <= recommended), None)
 
 
@@ -695,10 +698,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
                              f"error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}; the model " \
                              f"`fuelid identify --effects-from` builds with it simulates them no worse, " \
                              f"{b['rmse_without']:.3f} → {b['rmse_with']:.3f})"
-        if c.recommended and (missing := [e for e in (c.conditional or {}).get("given", []) if e not in recommended]):
-            clean = _found_given_added(c, recommended)
+        if c.recommended and (missing := _accepted_given_not_added(c, recommended)):
             c.explanation += f" (accepted given {', '.join(missing)}, not added; found and verified before that " \
-                             f"given {', '.join(clean) or 'nothing'} alone)"
+                             f"given {', '.join(_found_given_added(c, recommended))} alone)"
         if c.recommended:
             recommended.add(c.effect)
     for c in unconfirmed:
