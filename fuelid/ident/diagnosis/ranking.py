@@ -408,6 +408,12 @@ def _own_structure(model: PolyModel) -> Structure:
     return Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
 
 
+def _built_record(c: Candidate) -> dict:
+    """Where c's `_Built` record goes: its refit record, or its verification for one forward selection did not
+    refit (the fuel delay)."""
+    return c.refit if c.refit is not None else c.verification
+
+
 class _Built:
     """The model `fuelid identify --effects-from` builds on the diagnosed data from the effects recommended so far
     (ident.identify.identify_model: PEM from its own initialisation and from the effects added in turn, not from
@@ -431,7 +437,7 @@ class _Built:
         """Whether the model built with c added to the effects so far simulates the data no worse than the one
         without it; recorded as "built" (or its error) in c.refit, or in c.verification for one forward selection
         did not refit (the fuel delay), c added when so."""
-        record = c.refit if c.refit is not None else c.verification
+        record = _built_record(c)
         try:
             if self.rmse is None:
                 self.rmse = self._rmse(self.specs)
@@ -686,11 +692,10 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
         if c.recommended and c.refit is None and not term_added:  # the fuel delay, on the model as it is
             built.given(c)
-        elif c.recommended and c.refit is None and not built.add(c):  # the fuel delay, given the engine's term
-            _not_recommended(c, _why_built_worse(c.verification["built"]))
-        elif c.recommended and c.refit is not None and not built.add(c):
-            c.refit["verified"] = False
-            _not_recommended(c, _why_refit_not_verified(c))
+        elif c.recommended and not built.add(c):  # (the fuel delay: given the engine's term)
+            if c.refit is not None:
+                c.refit["verified"] = False
+            _not_recommended(c, _why_built_worse(_built_record(c)["built"]))
         elif c.recommended and warm_only:
             c.refit["verified"] = True
             b = c.refit["built"]
