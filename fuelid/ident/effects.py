@@ -508,6 +508,24 @@ def _generic_build(signal: str, form: str, values=(), torque: str | None = None,
     return build
 
 
+def share_beyond_inputs(ds, signal: str) -> float:
+    """The share [1] of bus signal `signal`'s variance that the static map of the model's inputs leaves: 1 − R² of
+    its values regressed by least squares on 1, ñ, T̃ and the engine-map columns (`_engine_map`), over the valid
+    samples where it is known; 0 when it is constant there. A desired engine speed that is the engine speed but in
+    neutral leaves a fraction of a %: whatever it explains, speed and torque could."""
+    n, T = deviations(ds)
+    sn, _, sT, _ = _map_scales(ds)
+    basis = np.column_stack([np.ones_like(n), n / sn, T / sT, _engine_map(ds).x])
+    x = ds.extra[signal]
+    ok = ds.valid & np.isfinite(x) & np.isfinite(basis).all(axis=1)
+    xc = x[ok] - x[ok].mean()
+    total = float(xc @ xc)
+    if total == 0.0:
+        return 0.0
+    r = x[ok] - basis[ok] @ np.linalg.lstsq(basis[ok], x[ok], rcond=None)[0]
+    return float(r @ r) / total
+
+
 def generic_effects(ds, max_states: int = 16) -> list[Effect]:
     """Candidates from every bus signal in ds.extra that no built-in effect uses and that is not computed from
     the fuel (OUTPUT_DERIVED_SPNS, the flow meter), in every form an effect takes (Effect.enters) that can apply

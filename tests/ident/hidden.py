@@ -154,12 +154,13 @@ def _records(cfg):
 @functools.lru_cache(maxsize=None)
 def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float = 1200.0,
               magnitude: float | None = None, routes_of: str | None = None, truth: str = "diesel_p320",
-              engine: str = ""):
+              engine: str = "", days: int = 1):
     """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
     hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS;
     a tuple of ids hides them all) on the routes the trips of effect `routes_of` (default: `effect`, the first of
-    them) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, three for ambient air, on days seed,
-    seed + SECOND_TRIP_SEED, …; one mixed cycle when neither is given), decoded by fuelid's recorder; the truth
+    them) use (sim.catalog.ALL_EFFECT_TRIPS: one trip, three for ambient air; one mixed cycle when neither is
+    given), each driven on `days` days, the trips on days seed, seed + SECOND_TRIP_SEED, … (the routes of one day,
+    then the next day's), decoded by fuelid's recorder; the truth
     arrays of several trips are concatenated, the summary is the first trip's; cached. `truth`: the engine's
     fuel truth (the paper's diesel model, or "map": a VECTO engine's map, sim.mapfuel); `engine`: the map truth's
     VECTO engine set (a .veng path or a shipped set's name; default the 325 kW engine)."""
@@ -172,7 +173,7 @@ def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float
     routes = ALL_EFFECT_TRIPS[routes_of or names[0]] if routes_of or names else ({"cycle": "mixed"},)
     effects = tuple((e, ALL_EFFECTS[e].default if magnitude is None else magnitude) for e in names)
     records, trips = [], []
-    for j, route in enumerate(routes):
+    for j, route in enumerate(routes * days):
         recs, trip = _records(TripConfig(truth=truth, duration_s=duration_s, seed=seed + j * SECOND_TRIP_SEED,
                                          effects=effects, engine=engine, **route))
         records += recs

@@ -69,6 +69,23 @@ def test_a_raw_signal_scaling_the_fuel_is_centred_alike_on_other_data():
     assert np.allclose(other.u[:, 0], first.u[:, 0] + 10.0)
 
 
+def test_share_beyond_inputs_is_what_a_static_map_of_speed_and_torque_leaves_of_a_signal():
+    """A desired speed that is the engine speed but in a few neutral stretches, a demand torque that is a curved
+    function of speed and torque, an oil temperature that moves on its own: what a quadratic map of speed and
+    torque leaves of each [share of variance]."""
+    ds = hidden.make(None, n=4000)
+    speed, torque = ds.u[:, 0], ds.u[:, 1]
+    neutral = (np.arange(len(ds.t)) % 1000) < 20
+    ds.extra["EEC3.EngDesiredOperatingSpeed"] = np.where(neutral, 900.0, speed)
+    ds.extra["EEC1.EngDemandPercentTorque"] = 100.0 * (torque / 2000.0) ** 2 + 1e-3 * speed
+    ds.extra["EEC1.EngDemandPercentTorque"][::7] = np.nan  # not known on every sample: left out of the fit
+    assert fx.share_beyond_inputs(ds, "EEC1.EngDemandPercentTorque") < 1e-6
+    assert 0.0 < fx.share_beyond_inputs(ds, "EEC3.EngDesiredOperatingSpeed") < 0.1
+    assert fx.share_beyond_inputs(ds, "ET1.EngOilTemp1") > 0.5
+    ds.extra["AMB.BarometricPress"][:] = 101.0
+    assert fx.share_beyond_inputs(ds, "AMB.BarometricPress") == 0.0
+
+
 def test_regressors_units_and_physics():
     ds = hidden.make(None, n=2000)
     reg = fx.EFFECTS["inertia"].build(ds)

@@ -63,20 +63,25 @@ then the rest by p-value. README gives the measured false alarms and the table p
 A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified, the
 model re-identified with it simulates the data no worse than the model without it (or, for an effect with its
 physics, forward selection's warm-started refit alone did not: 5), and so does the model `fuelid identify` builds
-with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic
-form (level, rate, scales, torque, state of a signal fuelid has no physics for), only when the data held several
-trips and it held up left out of each (leave-one-trip-out): in the linearised refit (4; NOT_DETERMINED_BY_OTHER_TRIPS
-when no trip's fold determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on
-the other trips (diagnosis.carryover: its refit counts as not verified unless the pooled error on the trips left
-out falls by min_drop_percent both ways). On one trip such a signal can stand in for whatever else moves with the operating point that day (on a
-real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not added; a catalogued or engineer-defined
-effect brings its physics (sign, form) and is recommended from one trip. Forward selection still re-identifies the model with such a
-signal when it accepts one (so that it explains away its twins and what it stands in for), but what is recommended
-must have been verified on the model `fuelid identify --effects-from` builds: an effect found given a signal that
-is not added is named, not recommended (`_given_not_added`; one accepted that way and added without it can make
-the model worse on another day: README) — unless an earlier round of forward selection found and verified it
-given effects that are all added (`_found_given_added`: it was then confirmed on such a model, only not accepted
-first, a one-trip signal's drop being larger; on the map engine a hidden inertia is so).
+with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic form (level, rate,
+scales, torque, state of a signal fuelid has no physics for), only when the data held several trips and it held up
+left out of each (leave-one-trip-out): in the linearised refit (4; NOT_DETERMINED_BY_OTHER_TRIPS when no trip's fold
+determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on the other trips
+(diagnosis.carryover: its refit counts as not verified unless the pooled error on the trips left out falls by
+min_drop_percent both ways). On one trip such a signal can stand in for whatever else moves with the operating point
+that day (on a real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not added. Nor is one, on any
+number of trips, whose signal engine speed and torque determine (a static map of them leaves less than
+MIN_IDENTIFIABILITY² of its variance, `_why_inputs_determine`: EEC3's desired speed is the engine speed but in
+neutral): whatever it explains is a function of speed and torque, the engine's own fuelling, which carries over from
+day to day as the engine does (on the map engine's three null days, scaling the fuel by the desired speed held up
+left out of each trip). A catalogued or engineer-defined effect brings its physics (sign, form) and is recommended
+from one trip. Forward selection still re-identifies the model with such a signal when it accepts one (so that it
+explains away its twins and what it stands in for), but what is recommended must have been verified on the model
+`fuelid identify --effects-from` builds: an effect found given a signal that is not added is named, not recommended
+(`_given_not_added`; one accepted that way and added without it can make the model worse on another day: README) —
+unless an earlier round of forward selection found and verified it given effects that are all added
+(`_found_given_added`: it was then confirmed on such a model, only not accepted first, a one-trip signal's drop
+being larger; on the map engine a hidden inertia is so).
 """
 from __future__ import annotations
 
@@ -94,7 +99,7 @@ from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm
-from fuelid.ident.diagnosis.verification import held_out, held_out_scores
+from fuelid.ident.diagnosis.verification import MIN_IDENTIFIABILITY, held_out, held_out_scores
 from fuelid.ident.filters import lfilter
 from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
@@ -276,6 +281,19 @@ NOT_DETERMINED_BY_OTHER_TRIPS = ("; not recommended: a bus signal fuelid knows n
                                  "trip left out had determined by the others (its carry-over is untested: diagnose "
                                  "it with more days' files)")
 """Why a generic bus-signal candidate is named but not recommended when no leave-one-trip-out fit determined it."""
+
+
+def _why_inputs_determine(c: Candidate, ds) -> str | None:
+    """Why generic bus-signal candidate c is named but not recommended when the model's inputs determine its signal
+    (less than MIN_IDENTIFIABILITY² of its variance beyond the static map of speed and torque, a variance inflation
+    factor of 10, as for identifiability: `fx.share_beyond_inputs`); None when they do not."""
+    signal = c.definition.signals[0]
+    share = fx.share_beyond_inputs(ds, signal)
+    if share >= MIN_IDENTIFIABILITY ** 2:
+        return None
+    return f"; not recommended: engine speed and torque determine {signal} (a static map of them leaves " \
+           f"{100 * share:.1f} % of its variance), so what it explains is the engine's own fuelling at its " \
+           "operating point — the engine's term and the model's gains hold that — not a hidden effect"
 
 
 def _generic(c: Candidate) -> bool:
@@ -688,6 +706,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             _not_recommended(c, ONE_TRIP_ONLY)
         elif c.recommended and _generic(c) and not any(c.verification["trips"]["determined"]):
             _not_recommended(c, NOT_DETERMINED_BY_OTHER_TRIPS)
+        elif c.recommended and _generic(c) and (why := _why_inputs_determine(c, ds)) is not None:
+            _not_recommended(c, why)
         elif c.recommended and (missing := _given_not_added(c, recommended)):
             _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
         if c.recommended and c.refit is None and not term_added:  # the fuel delay, on the model as it is
