@@ -79,7 +79,7 @@ def test_on_three_days_the_signal_is_recommended_and_helps_on_other_days_as_the_
     candidates = dg.diagnose(model, ds).candidates
     recommended = [c for c in candidates if c.recommended]
     signal = oracle_id.split(":")[1]
-    assert [c.signals for c in recommended] == [(signal,)], [(c.effect, c.explanation) for c in candidates
+    assert [list(c.signals) for c in recommended] == [[signal]], [(c.effect, c.explanation) for c in candidates
                                                              if c.significant]
     base = evaluate(model, val)["rmse"]["simulation"]
     added = evaluate(hidden.identify(ds, effects=[c.spec for c in recommended]), val)["rmse"]["simulation"]
@@ -87,16 +87,18 @@ def test_on_three_days_the_signal_is_recommended_and_helps_on_other_days_as_the_
     assert added < base and base - added >= 0.7 * (base - oracle), (base, added, oracle)
 
 
-def test_on_three_days_a_bus_signal_speed_and_torque_determine_is_named_not_recommended():
-    """Nothing hidden on the VECTO map engine, the hot-intake-air route on three days (seed 500's): a scaling by
-    EEC3's desired operating speed — the engine speed but in neutral — carries over leave-one-trip-out, standing
-    in for the map's curvature beyond the engine's term. Speed and torque determine that signal, so it is named,
-    not recommended; only the engine's term is."""
-    ds, _, _ = hidden.simulated(None, 500, routes_of="hot_intake_air", truth="map", days=3)
+def test_a_bus_signal_speed_and_torque_determine_is_named_not_recommended():
+    """Nothing hidden on the VECTO map engine (seed 100's trip): a scaling of the fuel by EEC3's desired operating
+    speed — the engine speed but in neutral — stands in for what the engine's term leaves of its map, and is
+    named. Speed and torque determine that signal, so whatever it explains is the engine's own fuelling: it is
+    not recommended, on this trip or on any number of them, and the explanation says why (not "diagnose other
+    days' files"); only the engine's term is recommended."""
+    ds, _, _ = hidden.simulated(None, 100, truth="map")
     candidates = {c.effect: c for c in dg.diagnose(hidden.identify(ds), ds).candidates}
     desired = candidates["scales:EEC3.EngDesiredOperatingSpeed"]
     assert desired.significant and not desired.recommended
-    assert "engine speed and torque determine EEC3.EngDesiredOperatingSpeed" in desired.explanation
+    assert "engine speed and torque determine EEC3.EngDesiredOperatingSpeed (a static map of them leaves" \
+           in desired.explanation and "other days' files" not in desired.explanation
     assert [e for e, c in candidates.items() if c.recommended] == ["engine_map"]
 
 
@@ -126,20 +128,21 @@ def test_signals_these_data_cannot_tell_apart_are_named_together(effect, seed, s
 
 
 def test_a_bus_signal_that_does_not_carry_over_once_re_identified_is_named_not_recommended():
-    """On the VECTO map engine's three trips in different weather (seed 3000, ambient air hidden), the level of EEC1's
-    demand torque leads the engine's transient fuelling and holds up in the linearised leave-one-trip-out, but added
-    as `--effects-from` adds it (its own dynamics, the model re-identified) it raised another day's error
-    (0.637 → 0.713 L/h; with the transient fuelling in the map term, 0.492 → 0.495). Checked that way, trip by trip
-    (diagnosis.carryover: the trips left out must be 2 % better both ways, as any candidate's held-out blocks), it
-    is named but not recommended."""
+    """On the VECTO map engine's three trips in different weather (seed 3000, ambient air hidden), a scaling of the
+    fuel by EEC1's demand torque lowers these data's error once re-identified with it, but leads the engine's
+    transient fuelling rather than anything that carries over: fitted on the other trips, as `--effects-from` adds
+    it (its own dynamics, the model re-identified), it does not lower the trips left out's error by the 2 % every
+    candidate's held-out blocks must gain (diagnosis.carryover; the level of that signal passed a check that asked
+    only not to rise and raised another day's error, 0.492 → 0.495 L/h). It is named but not recommended."""
     ds, _, _ = hidden.simulated("ambient", 3000, truth="map")
     out = dg.diagnose(hidden.identify(ds), ds)
     by_id = {c.effect: c for c in out.candidates}
-    generic = by_id["level:EEC1.EngDemandPercentTorque"]
+    generic = by_id["scales:EEC1.EngDemandPercentTorque"]
     assert generic.significant and not generic.recommended
     carry = generic.refit["trips"]
     assert not carry["carries_over"]
-    assert any(carry[w]["rmse_with"] > 0.98 * carry[w]["rmse_without"] for w in ("own_dynamics", "re_identified"))
+    assert any(carry[w]["rmse_with"] > 0.98 * carry[w]["rmse_without"] for w in ("own_dynamics", "re_identified")
+               if w in carry)
     assert "the trips left out by 2 % (" in generic.explanation
     assert "leave-one-trip-out by PEM): not recommended" in generic.explanation
     assert {"engine_map", "ambient"} <= {c.effect for c in out.candidates if c.recommended}

@@ -224,6 +224,26 @@ def test_on_the_map_engine_an_effect_verified_before_a_one_trip_signal_was_accep
     assert not any(set(g) <= added for g in overrun["conditional"]["found_given"]), overrun["conditional"]
 
 
+def test_on_the_map_engine_the_search_continues_from_the_model_identify_builds_with_the_map_term():
+    """A fan and a fuel delay hidden at once on the map engine (seed 3000, one trip). Forward selection's
+    warm-started refit with the map term (REFIT_MAX_ITER iterations from the linear model) stops far from the model
+    `fuelid identify` builds with it, so the search for hidden effects continues from the built one
+    (`refit.searched_on`). There the fan is found and recommended, and another day's error falls with it — on the
+    warm-started refit it was not even named (README)."""
+    case = ("engine_fan", "fuel_delay")
+    out, _, _ = diagnosed(case, 3000, truth="map")
+    term = out["candidates"][0]
+    searched = term["refit"]["searched_on"]
+    assert term["effect"] == "engine_map" and searched["model"] == "built", searched
+    assert searched["rmse_built"] < 0.9 * searched["rmse_warm"], searched
+    recommended = dg.confirmed_effects(out["candidates"])
+    assert recommended[0] == "engine_map" and "engine_fan" in recommended, out["verdict"]
+    ds, _, _ = hidden.simulated(case, 3000, truth="map")
+    val, _, _ = hidden.simulated(case, 3050, truth="map")
+    rmse = functools.partial(built_rmse, ds, val, FitMemo())
+    assert rmse(recommended) < rmse([e for e in recommended if e != "engine_fan"])
+
+
 def test_hidden_fuel_delay_is_found_within_a_tenth_of_a_second():
     """Seed 2's sweep (±1 s, parabola through the best three) with its low-order model refitted at each shift: on
     its own, and in the diagnosis (scored on held-out blocks), which says what to add."""

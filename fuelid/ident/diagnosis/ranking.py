@@ -1,21 +1,24 @@
 """Ranking the candidates and naming the missing effect: the engine's own map first, the tests of every other
 candidate, Holm, verification of the likeliest, and forward selection of every effect missing.
 
-0. The engine map. A real engine's fuel map is curved (efficiency varies over speed × torque) and a linear model
-   is a plane through it, and the engine burns more while the torque builds up than its map says (transient
-   fuelling); that is a property of the engine, not a hidden effect, and on a real engine it outweighs any hidden
-   one. The map term `engine_map` (ident.effects: ñ·T̃, ñ², T̃², the torque's rise) is tested first, as one group (one
-   test over all its columns, at α: the first test of a fixed sequence, so the hidden-effect family after it keeps
-   its own α), must explain min_effect_percent and is verified like any candidate (held-out drop ≥
-   min_drop_percent). When it is confirmed and no other candidate, verified on the model as it is, lowers the
-   held-out error more (a generic bus signal's drop discounted by GENERIC_WEIGHT, as in 5; the map's columns
-   would absorb part of such an effect that varies with the operating point: on a linear engine hiding an
-   inertia, they do), it is named as the engine map term (role ENGINE_MAP) — as `power_nonlinearity` when the
-   speed × torque product alone does as well (the other terms add less than min_drop_percent held out) and the
-   model identify builds with the full map simulates the data no better by min_drop_percent than the one built
-   with the product (`_map_beats_product`: the linearised refit steps once from the model as it is, while PEM
-   reaches what the map's FIR taps hold, e.g. a fuel delay) — and the hidden-effect search (5) starts from the
-   model with it. The full map is never a hidden effect; the product term is one only when no map term is named.
+0. The engine map. A real engine's fuel map is curved (efficiency varies over speed × torque) and a linear model is
+   a plane through it, and the engine burns more while the torque builds up than its map says (transient fuelling);
+   that is a property of the engine, not a hidden effect, and on a real engine it outweighs any hidden one. The map
+   term `engine_map` (ident.effects: ñ·T̃, ñ², T̃², the torque's rise) is tested first, as one group (one test over
+   all its columns, at α: the first test of a fixed sequence, so the hidden-effect family after it keeps its own α),
+   must explain min_effect_percent and is verified like any candidate (held-out drop ≥ min_drop_percent). When it is
+   confirmed and no other candidate, verified on the model as it is, lowers the held-out error more (a generic bus
+   signal's drop discounted by GENERIC_WEIGHT, as in 5; the map's columns would absorb part of such an effect that
+   varies with the operating point: on a linear engine hiding an inertia, they do), it is named as the engine map
+   term (role ENGINE_MAP) — as `power_nonlinearity` when the speed × torque product alone does as well (the other
+   terms add less than min_drop_percent held out) and the model identify builds with the full map simulates the data
+   no better by min_drop_percent than the one built with the product (`_map_beats_product`: the linearised refit
+   steps once from the model as it is, while PEM reaches what the map's FIR taps hold, e.g. a fuel delay) — and the
+   hidden-effect search (5) starts from the model with it: the one identify builds with it (`_Built`), unless
+   forward selection's warm-started refit simulates the data better (`_searched_on`). Started from the linear model
+   and capped at REFIT_MAX_ITER iterations, that refit can stop far short of it (README), and the hidden effects,
+   tested on what it leaves, would be tested against the map's curvature too. The full map is never a hidden effect;
+   the product term is one only when no map term is named.
 
 5. Forward selection. Bus signals are dependent (a cab temperature follows the level shift a real effect leaves
    in the error), and two effects can hide at once (the weaker one's held-out drop on the model as it is falls
@@ -68,16 +71,15 @@ scales, torque, state of a signal fuelid has no physics for), only when the data
 left out of each (leave-one-trip-out): in the linearised refit (4; NOT_DETERMINED_BY_OTHER_TRIPS when no trip's fold
 determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on the other trips
 (diagnosis.carryover: its refit counts as not verified unless the pooled error on the trips left out falls by
-min_drop_percent both ways). On one trip such a signal can stand in for whatever else moves with the operating point
-that day (on a real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not added. Nor is one, on any
-number of trips, whose signal engine speed and torque determine (a static map of them leaves less than
+min_drop_percent both ways). A signal engine speed and torque determine (a static map of them leaves less than
 MIN_IDENTIFIABILITY² of its variance, `_why_inputs_determine`: EEC3's desired speed is the engine speed but in
-neutral): whatever it explains is a function of speed and torque, the engine's own fuelling, which carries over from
-day to day as the engine does (on the map engine's three null days, scaling the fuel by the desired speed held up
-left out of each trip). A catalogued or engineer-defined effect brings its physics (sign, form) and is recommended
-from one trip. Forward selection still re-identifies the model with such a signal when it accepts one (so that it
-explains away its twins and what it stands in for), but what is recommended must have been verified on the model
-`fuelid identify --effects-from` builds: an effect found given a signal that is not added is named, not recommended
+neutral) is never added: whatever it explains is a function of speed and torque, the engine's own fuelling, and
+other days cannot make it a hidden effect. On one trip any other such signal can stand in for whatever else moves
+with the operating point that day (on a real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not
+added. A catalogued or engineer-defined effect brings its physics (sign, form) and is recommended from one trip.
+Forward selection still re-identifies the model with such a signal when it accepts one (so that it explains away its
+twins and what it stands in for), but what is recommended must have been verified on the model `fuelid identify
+--effects-from` builds: an effect found given a signal that is not added is named, not recommended
 (`_given_not_added`; one accepted that way and added without it can make the model worse on another day: README) —
 unless an earlier round of forward selection found and verified it given effects that are all added
 (`_found_given_added`: it was then confirmed on such a model, only not accepted first, a one-trip signal's drop
@@ -274,10 +276,11 @@ def _why_not_confirmed(c: Candidate, min_drop_percent: float) -> str:
            f"{-v['trips']['pooled_rmse_drop_percent']:+.1f} %, leave-one-trip-out): not recommended"
 
 
-ONE_TRIP_ONLY = ("; not recommended: a bus signal fuelid knows no physics for, found on one trip (diagnose it "
+NOT_RECOMMENDED = "; not recommended: "  # how the clauses below begin: the verdict says the drop before them
+ONE_TRIP_ONLY = (NOT_RECOMMENDED + "a bus signal fuelid knows no physics for, found on one trip (diagnose it "
                  "with other days' files to see whether it carries over)")
 """Why a generic bus-signal candidate found on one trip is named but not recommended (module docstring)."""
-NOT_DETERMINED_BY_OTHER_TRIPS = ("; not recommended: a bus signal fuelid knows no physics for, whose effect no "
+NOT_DETERMINED_BY_OTHER_TRIPS = (NOT_RECOMMENDED + "a bus signal fuelid knows no physics for, whose effect no "
                                  "trip left out had determined by the others (its carry-over is untested: diagnose "
                                  "it with more days' files)")
 """Why a generic bus-signal candidate is named but not recommended when no leave-one-trip-out fit determined it."""
@@ -291,9 +294,20 @@ def _why_inputs_determine(c: Candidate, ds) -> str | None:
     share = fx.share_beyond_inputs(ds, signal)
     if share >= MIN_IDENTIFIABILITY ** 2:
         return None
-    return f"; not recommended: engine speed and torque determine {signal} (a static map of them leaves " \
+    return NOT_RECOMMENDED + f"engine speed and torque determine {signal} (a static map of them leaves " \
            f"{100 * share:.1f} % of its variance), so what it explains is the engine's own fuelling at its " \
            "operating point — the engine's term and the model's gains hold that — not a hidden effect"
+
+
+def _said_with_drop(c: Candidate) -> str:
+    """c's explanation as the verdict says it: with the held-out RMS error drop adding it makes (`_added_drop`,
+    where its entry kind says it), before the clause saying why it is not recommended, if one begins
+    NOT_RECOMMENDED."""
+    drop = _added_drop(c)
+    if drop is None or not c.entry.drop_in_verdict:
+        return c.explanation
+    said, clause, why = c.explanation.partition(NOT_RECOMMENDED)
+    return f"{said} (held-out RMS error {-drop:+.0f} % when added){clause}{why}"
 
 
 def _generic(c: Candidate) -> bool:
@@ -327,12 +341,13 @@ def _simulation_rmse(run: Run, index: np.ndarray) -> float:
     return float(np.sqrt(np.mean((run.y[index] - run.ysim[index]) ** 2)))
 
 
-def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects,
-           min_drop_percent: float) -> tuple[PolyModel, Run] | None:
+def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects, min_drop_percent: float,
+           built: _Built | None = None) -> tuple[PolyModel, Run] | None:
     """The model re-identified with c added (module docstring, 5) and its run, with c.refit its record (RMS
     simulation error and loss V without and with, over the samples both runs test; verified: not worse, and for a
     generic bus signal on several trips, carried over: the trips left out min_drop_percent better both ways,
-    diagnosis.carryover); None when the refit fails or is not verified."""
+    diagnosis.carryover); None when the refit fails or is not verified. built (given for the engine's term): the
+    model it builds with c replaces the warm-started refit when it simulates the data better (`_searched_on`)."""
     try:
         refit = refit_with_effects(model, ds, [c.effect], defined=effects, max_iter=REFIT_MAX_ITER)
         refit_run = run_gradients(run_model(refit, ds))
@@ -350,7 +365,28 @@ def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects,
         if carry is not None:
             c.refit["trips"] = carry
             c.refit["verified"] = carry["carries_over"]
+    if c.refit["verified"] and built is not None:
+        refit, refit_run = _searched_on(c, built, ds, (refit, refit_run))
     return (refit, refit_run) if c.refit["verified"] else None
+
+
+def _searched_on(c: Candidate, built: _Built, ds, refitted: tuple[PolyModel, Run]) -> tuple[PolyModel, Run]:
+    """The model (and its run) forward selection searches on after accepting c: the one `fuelid identify` builds
+    with c (`_Built`) when it simulates the data better than the warm-started refit `refitted`, else that refit;
+    recorded in c.refit["searched_on"]. The refit's iterations are capped (REFIT_MAX_ITER), and from the model
+    without the engine's term they can stop far from the model the engineer gets with it (README)."""
+    try:
+        model = built.model_with(c)
+        run = run_gradients(run_model(model, ds))
+    except (FuelidError, np.linalg.LinAlgError) as exc:
+        c.refit["searched_on"] = {"model": "warm-started refit", "built_error": str(exc)}
+        return refitted
+    index = np.intersect1d(run.index, refitted[1].index)
+    rmse_built, rmse_warm = _simulation_rmse(run, index), _simulation_rmse(refitted[1], index)
+    better = rmse_built < rmse_warm
+    c.refit["searched_on"] = {"model": "built" if better else "warm-started refit", "rmse_built": rmse_built,
+                              "rmse_warm": rmse_warm}
+    return (model, run) if better else refitted
 
 
 def _retest(pool: list[Candidate], model: PolyModel, run: Run, ds, given: list[str], alpha: float,
@@ -385,14 +421,15 @@ def _retest(pool: list[Candidate], model: PolyModel, run: Run, ds, given: list[s
 
 def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, model: PolyModel, ds, alpha: float,
                    min_effect_percent: float, min_drop_percent: float, n_verify: int,
-                   effects=()) -> list[Candidate]:
+                   effects=(), built: _Built | None = None) -> list[Candidate]:
     """Forward selection (module docstring, 5): of `first` (the engine map term, or the missing effects confirmed
     on the model as it is, best first) the first whose refit is verified, then, as long as one is found, the next
     of `pool` (the other re-testable candidates) significant, relevant and verified on the model re-identified with
     those accepted so far. Returns the candidates named in order, `first`'s first; each has its `refit` record (those
     not verified are named, not recommended) and its `alternatives` (`_indistinguishable`); each one tested after
     them has its `conditional` record (the last round's for those never accepted). effects: the engineer-defined
-    effects the candidates may name."""
+    effects the candidates may name; built: the models `fuelid identify` builds, which the search continues from
+    once the engine's term is accepted (`_searched_on`)."""
     named, pool, found = [], list(pool), list(first)  # the confirmed ones not accepted first are re-tested too
     while found:
         for k, c in enumerate(found):
@@ -404,7 +441,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
                 if (c.verification is None or "error" in c.verification) and "verification" in c.conditional:
                     c.verification = c.conditional["verification"]  # (none without verification: n_verify = 0)
                     c.rmse_drop_percent = c.verification["rmse_drop_percent"]
-            refitted = _refit(c, model, run, ds, effects, min_drop_percent)
+            refitted = _refit(c, model, run, ds, effects, min_drop_percent,
+                              built if c.effect in (MAP_TERM, PRODUCT_TERM) else None)
             if refitted is not None:
                 rivals = [r for r in found[k + 1:] if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
                 c.alternatives = _indistinguishable(c, rivals, model, refitted, ds, alpha, min_effect_percent, effects)
@@ -443,9 +481,15 @@ class _Built:
         self.specs, self.rmse = list(model.effects), None
         self.memo = FitMemo()  # the model with E + [c] is built through the fits of E's: fitted once
 
+    def _model(self, specs: list[str]) -> PolyModel:
+        return identify_model(self.ds, self.structure, specs, defined=self.defined, base=self.base, memo=self.memo)
+
     def _rmse(self, specs: list[str]) -> float:
-        built = identify_model(self.ds, self.structure, specs, defined=self.defined, base=self.base, memo=self.memo)
-        return built.validation["rmse"]["simulation"]
+        return self._model(specs).validation["rmse"]["simulation"]
+
+    def model_with(self, c: Candidate) -> PolyModel:
+        """The model built with c added to the effects so far."""
+        return self._model(self.specs + [c.spec])
 
     def rmse_with(self, c: Candidate) -> float:
         """RMS simulation error [output unit] of the model built with c added to the effects so far."""
@@ -672,7 +716,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     if first:
         pool = [c for c in hidden if c.entry.retested]
         found = select_forward(first, pool, run, model, ds, alpha, min_effect_percent, min_drop_percent, n_verify,
-                               effects)
+                               effects, built)
         accepted += [c for c in found if c is not term]
         explaining = ", ".join(a.effect for a in found)
         for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
@@ -702,12 +746,12 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
             _not_recommended(c, f" — not verified (`fuelid diagnose --verify {n_verify}`): not recommended")
         elif not _refit_verified(c) and not warm_only:
             _not_recommended(c, _why_refit_not_verified(c))
+        elif c.recommended and _generic(c) and (why := _why_inputs_determine(c, ds)) is not None:
+            _not_recommended(c, why)
         elif c.recommended and _generic(c) and "trips" not in c.verification:
             _not_recommended(c, ONE_TRIP_ONLY)
         elif c.recommended and _generic(c) and not any(c.verification["trips"]["determined"]):
             _not_recommended(c, NOT_DETERMINED_BY_OTHER_TRIPS)
-        elif c.recommended and _generic(c) and (why := _why_inputs_determine(c, ds)) is not None:
-            _not_recommended(c, why)
         elif c.recommended and (missing := _given_not_added(c, recommended)):
             _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
         if c.recommended and c.refit is None and not term_added:  # the fuel delay, on the model as it is
@@ -744,10 +788,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     order = {id(c): k for k, c in enumerate(([term] if term is not None else []) + accepted)}
     rows.sort(key=lambda c: (not c.significant, order.get(id(c), 0), c.log10_p))
     n_hidden = len([c for c in hidden if c.testable])
-    said = [c.explanation.removesuffix(ONE_TRIP_ONLY)
-            + ("" if (drop := _added_drop(c)) is None or not c.entry.drop_in_verdict else
-               f" (held-out RMS error {-drop:+.0f} % when added)")
-            + (ONE_TRIP_ONLY if c.explanation.endswith(ONE_TRIP_ONLY) else "") for c in accepted]
+    said = [_said_with_drop(c) for c in accepted]
     engine = "" if term is None else f"Engine map: {term.explanation}. "
     if said:
         verdict = engine + (f"Missing effect: {said[0]}." if len(said) == 1 else
