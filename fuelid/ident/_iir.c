@@ -1,5 +1,5 @@
 /* The IIR filter of scipy.signal.lfilter (direct form II transposed), for 1-D float64 data, with the state held in
- * local variables: fuelid's fits filter short polynomials (2–9 coefficients) through 10^4–10^5 samples thousands of
+ * local variables: fuelid's fits filter short polynomials (2–17 coefficients) through 10^4–10^5 samples thousands of
  * times, where scipy's generic loop over a state array in memory is the cost (fuelid.ident.filters).
  *
  * The arithmetic is scipy's, operation for operation, so the output is the same to the bit (tests/ident/test_filters.py
@@ -15,7 +15,7 @@
 #include <Python.h>
 #include <string.h>
 
-#define MAX_TAPS 16  /* fuelid.ident.filters.MAX_TAPS */
+#define MAX_TAPS 32  /* fuelid.ident.filters.MAX_TAPS */
 
 /* One filter of N coefficients (a compile-time constant, so that the state z[] lives in registers). */
 #define IIR_KERNEL(N)                                                                                   \
@@ -24,7 +24,7 @@
         for (Py_ssize_t t = 0; t < len; t++) {                                                          \
             const double xt = x[t];                                                                     \
             const double yt = z[0] + b[0] * xt;                                                         \
-            _Pragma("GCC unroll 16") for (int k = 0; k < N - 2; k++)                                    \
+            _Pragma("GCC unroll 32") for (int k = 0; k < N - 2; k++)                                    \
                 z[k] = z[k + 1] + xt * b[k + 1] - yt * a[k + 1];                                        \
             z[N - 2] = xt * b[N - 1] - yt * a[N - 1];                                                   \
             y[t] = yt;                                                                                  \
@@ -46,10 +46,28 @@ IIR_KERNEL(13)
 IIR_KERNEL(14)
 IIR_KERNEL(15)
 IIR_KERNEL(16)
+IIR_KERNEL(17)
+IIR_KERNEL(18)
+IIR_KERNEL(19)
+IIR_KERNEL(20)
+IIR_KERNEL(21)
+IIR_KERNEL(22)
+IIR_KERNEL(23)
+IIR_KERNEL(24)
+IIR_KERNEL(25)
+IIR_KERNEL(26)
+IIR_KERNEL(27)
+IIR_KERNEL(28)
+IIR_KERNEL(29)
+IIR_KERNEL(30)
+IIR_KERNEL(31)
+IIR_KERNEL(32)
 
 typedef void (*kernel)(const double *, const double *, const double *, double *, Py_ssize_t);
 static const kernel KERNELS[MAX_TAPS + 1] = {NULL, NULL, iir_2, iir_3, iir_4, iir_5, iir_6, iir_7, iir_8, iir_9,
-                                             iir_10, iir_11, iir_12, iir_13, iir_14, iir_15, iir_16};
+                                             iir_10, iir_11, iir_12, iir_13, iir_14, iir_15, iir_16, iir_17, iir_18,
+                                             iir_19, iir_20, iir_21, iir_22, iir_23, iir_24, iir_25, iir_26, iir_27,
+                                             iir_28, iir_29, iir_30, iir_31, iir_32};
 
 /* view ← obj as a C-contiguous 1-D array of doubles (writable when asked); 0 with a ValueError otherwise. */
 static int doubles(PyObject *obj, Py_buffer *view, int writable, const char *name) {

@@ -36,7 +36,7 @@ from fuelid.errors import FuelidError
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.fueldelay import shift_signal, sweep_fuel_shift
 from fuelid.ident.modeldata import EffectInputs, apply_effects, at_operating_point
-from fuelid.ident.pem import pem
+from fuelid.ident.pem import LMResult, pem, pem_with_search
 from fuelid.ident.polymodel import PolyModel, Structure, simulate
 from fuelid.ident.validation import evaluate, rmse
 
@@ -47,10 +47,13 @@ class FitMemo:
     """PEM fits (ident.pem.pem) kept by everything each was fitted from: inputs u (N × m), output y (N), structure,
     Ts [s], segments, operating point u0, y0 and start (init's θ, or the initialisation). pem is deterministic, so a
     fit asked for again from the same is the model already fitted; served as a copy (a caller changing it cannot
-    change the next one's). A memo serves one process's calls and is never stored."""
+    change the next one's). A fit asked for with more iterations (max_iter) than one kept that stopped at its limit
+    continues that one's search (ident.pem.pem_with_search, `after`): the diagnosis's warm-started refit (30
+    iterations) is the start of the fit `identify` makes from the same model with the effects added in turn (100).
+    A memo serves one process's calls and is never stored."""
 
     def __init__(self):
-        self._fits: dict[bytes, PolyModel] = {}
+        self._fits: dict[tuple[bytes, int], tuple[PolyModel, LMResult]] = {}  # (key, max_iter) → model, search
 
     def __len__(self) -> int:
         """The number of fits made."""
@@ -58,7 +61,8 @@ class FitMemo:
 
     @staticmethod
     def _key(u, y, structure: Structure, Ts: float, segments, u0, y0: float, init: PolyModel | None) -> bytes:
-        """A digest of everything pem's result depends on (the start: init's θ, which is all pem takes of it)."""
+        """A digest of everything pem's result depends on but its iteration limit (the start: init's θ, which is
+        all pem takes of it)."""
         h = hashlib.blake2b(digest_size=32)
         for a in [u, y, u0] + ([] if init is None else [init.theta]):
             a = np.ascontiguousarray(a, dtype=float)
@@ -70,12 +74,17 @@ class FitMemo:
         return h.digest()
 
     def pem(self, u, y, structure: Structure, Ts: float, *, segments, u0, y0: float,
-            init: PolyModel | None = None) -> PolyModel:
-        """pem(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=init), fitted once per distinct call."""
+            init: PolyModel | None = None, max_iter: int = 100) -> PolyModel:
+        """pem(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=init, max_iter=max_iter), fitted once
+        per distinct call, or continued from a kept fit with fewer iterations that stopped at its limit."""
         key = self._key(u, y, structure, Ts, segments, u0, y0, init)
-        if key not in self._fits:
-            self._fits[key] = pem(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=init)
-        return copy.deepcopy(self._fits[key])
+        if (key, max_iter) not in self._fits:
+            shorter = [search for (k, limit), (_, search) in self._fits.items()
+                       if k == key and limit < max_iter and search.reason == "max_iterations"]
+            after = max(shorter, key=lambda search: search.iterations) if shorter and init is not None else None
+            self._fits[key, max_iter] = pem_with_search(u, y, structure, Ts, segments=segments, u0=u0, y0=y0,
+                                                        init=init, max_iter=max_iter, after=after)
+        return copy.deepcopy(self._fits[key, max_iter][0])
 
 
 def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
@@ -239,11 +248,12 @@ def with_inputs(model: PolyModel, structure: Structure) -> PolyModel:
 
 
 def refit_with_effects(model: PolyModel, ds, effects, *, defined=(), min_segment_s: float = MIN_SEGMENT_S,
-                       max_iter: int = 100) -> PolyModel:
+                       max_iter: int = 100, memo: FitMemo | None = None) -> PolyModel:
     """`model` with `effects` added ("ID" or "ID=VALUE", after its own), identified by PEM on dataset ds from the
     model itself with their coefficients at zero (`with_inputs`): a warm start, so V never rises above the model's
     own on these samples and a few iterations usually suffice (max_iter caps them). Its effects' parameters and
-    engineer-defined effects' definitions are carried over; defined: those `effects` may name."""
+    engineer-defined effects' definitions are carried over; defined: those `effects` may name. memo: the fits of
+    calls on these data (`FitMemo`), this one kept among them."""
     own = effects_of_model(model)
     defined = tuple(own) + tuple(e for e in defined if e.id not in {d.id for d in own})
     ids = list(model.effects) + [e for e in effects if e not in model.effects]
@@ -256,8 +266,9 @@ def refit_with_effects(model: PolyModel, ds, effects, *, defined=(), min_segment
     start = with_inputs(model, extended)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        fit = pem(u, fx.y, extended, ds.Ts, segments=segs, u0=np.r_[model.u0[:n_own], np.zeros(u.shape[1] - n_own)],
-                  y0=model.y0, init=start, max_iter=max_iter)
+        fit = (memo.pem if memo is not None else pem)(
+            u, fx.y, extended, ds.Ts, segments=segs, u0=np.r_[model.u0[:n_own], np.zeros(u.shape[1] - n_own)],
+            y0=model.y0, init=start, max_iter=max_iter)
     return dataclasses.replace(
         fit, input_names=ds.input_names + fx.names, input_units=ds.input_units + fx.units,
         output_name=model.output_name, output_unit=model.output_unit, effects=fx.effects,

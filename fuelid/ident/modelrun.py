@@ -57,6 +57,13 @@ class ModelRun:
             out[s] = x[s]
         return out
 
+    @property
+    def tested_index(self) -> np.ndarray:
+        """Dataset indices of the tested segments' samples after each one's first n_start (what the diagnosis
+        tests)."""
+        n_start = self.model.structure.n_start
+        return np.concatenate([np.arange(s.start + n_start, s.stop) for s in self.tested])
+
     def require_tested(self) -> None:
         """Raise ValueError when no segment is long enough to be tested."""
         if not self.tested:

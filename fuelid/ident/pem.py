@@ -38,6 +38,12 @@ per iteration from iteration 13 and < 1e-9 from about 30, while Δ stayed at 7.5
 determined; pem says so in its warning. Not converged: the iteration limit, or no damping lowering V while
 the step left is larger than one standard error and not all the steps tried were cut back at the bound.
 
+Continuing a search: Levenberg–Marquardt's state after an iteration is θ, V, μ, the count of flat iterations and
+whether the last step was cut back (`LMResult`); a search stopped at its iteration limit continues from it
+(`levenberg_marquardt(after=...)`, `pem_with_search`) through the same iterates, to the bit, as one search run to
+the larger limit — so a short warm-started refit need not be run again as the start of a longer one
+(ident.identify.FitMemo).
+
 Stability: after every step the roots of F_i, C and D outside the unit circle are reflected to 1/z̄ and all
 roots are clipped to radius ≤ 0.9999 (`stabilize`); the reflected candidate must still lower V to be
 accepted. F_i and C stable keeps the predictor stable; D stable makes H = C/D a stationary noise model (the
@@ -306,7 +312,9 @@ FLAT_ITERATIONS = 3  # consecutive iterations with a negligible fall of V before
 
 class LMResult(NamedTuple):
     """What `levenberg_marquardt` found: θ̂, V(θ̂), iterations, whether it converged and why (`STOP_REASONS`),
-    V after each iteration (history[0] at the start), Ψ and ε at θ̂."""
+    V after each iteration (history[0] at the start), Ψ and ε at θ̂ (None once dropped: `searched`), and the
+    search's state when it stopped — the damping μ, the count of flat iterations, whether the last step was cut
+    back — from which `levenberg_marquardt(after=...)` continues a search stopped at its iteration limit."""
 
     theta: np.ndarray
     V: float
@@ -314,8 +322,15 @@ class LMResult(NamedTuple):
     converged: bool
     reason: str
     history: list
-    psi: np.ndarray
-    eps: np.ndarray
+    psi: np.ndarray | None
+    eps: np.ndarray | None
+    mu: float
+    flat: int
+    cut: bool
+
+    def searched(self) -> LMResult:
+        """This result without Ψ and ε (d × N numbers): what continuing the search needs, to keep."""
+        return self._replace(psi=None, eps=None)
 
 
 STOP_REASONS = {
@@ -330,9 +345,11 @@ STOP_REASONS = {
 
 
 def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int = 100, tol: float = 1e-7,
-                        ftol: float = 1e-3) -> LMResult:
+                        ftol: float = 1e-3, after: LMResult | None = None) -> LMResult:
     """Minimise V(θ) from θ (module docstring); starts: segment starts (filters restart there, the first n0
-    samples of each are left out of V).
+    samples of each are left out of V). after: a search on the same data stopped at its iteration limit, which
+    this one continues from its θ and state (theta is then ignored) up to max_iter iterations in all: the same
+    iterates, to the bit, as one search run to max_iter.
 
     Each iteration tries the damping μ (relative to the largest eigenvalue of the scaled ΨᵀΨ) and μ/10 and
     keeps the better; when neither lowers V, μ grows tenfold until one does. Stops (reason in `STOP_REASONS`):
@@ -348,23 +365,36 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     max_iter iterations.
     """
     used = _used(y.size, starts, s.n_start)
-    theta, m = _stable_theta(np.asarray(theta, float), s)
+    if after is None:
+        theta, m = _stable_theta(np.asarray(theta, float), s)
+    else:  # the accepted iterate was stabilised when it was taken: its polynomials are the ones it was scored by
+        if after.reason != "max_iterations" or after.iterations > max_iter:
+            raise ValueError(f"a search that stopped for {after.reason} after {after.iterations} iterations is not "
+                             f"continued to {max_iter}")
+        theta, m = after.theta, polynomials(after.theta, s)
     r = _responses(m, u, y, starts)
     # Ψ of every iteration is written into this one array: a new one each iteration costs page faults
     rows = np.empty((s.n_params, y.size))
     eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)
     dof = max(eps[used].size - s.n_params, 1)
-    V, mu = _loss(eps, used), 1e-4
-    history, flat, cut = [V], 0, False
-    for it in range(1, max_iter + 1):
+    if after is None:
+        V, mu, flat, cut, first = _loss(eps, used), 1e-4, 0, False, 1
+        history = [V]
+    else:
+        V, mu, flat, cut, first = after.V, after.mu, after.flat, after.cut, after.iterations + 1
+        history = list(after.history)
+
+    def stopped(iterations: int, converged: bool, reason: str) -> LMResult:
+        return LMResult(theta, V, iterations, converged, reason, history, psi, eps, mu, flat, cut)
+
+    for it in range(first, max_iter + 1):
         scale, Q, ell, g = _scaled_normal_equations(psi, eps, used)
         decrement = 0.5 * g @ (g / np.maximum(ell, ell[-1] * 1e-14))
         small_step = decrement <= V / dof  # 2Δ/λ̂ ≤ 1 with λ̂ = 2V/dof
         if decrement <= tol * V:
-            return LMResult(theta, V, it - 1, True, "expected_improvement", history, psi, eps)
+            return stopped(it - 1, True, "expected_improvement")
         if flat >= FLAT_ITERATIONS and (small_step or cut):
-            return LMResult(theta, V, it - 1, True, "stability_bound" if cut and not small_step else "flat_loss",
-                            history, psi, eps)
+            return stopped(it - 1, True, "stability_bound" if cut and not small_step else "flat_loss")
         best, all_cut = (V, None, mu, False, None), True
         for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
             raw = theta + Q @ (g / (ell + trial * ell[-1])) / scale
@@ -379,13 +409,13 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
                 break
         if best[1] is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
             if all_cut and not small_step:
-                return LMResult(theta, V, it - 1, True, "stability_bound", history, psi, eps)
-            return LMResult(theta, V, it - 1, bool(small_step or cut), "no_descent", history, psi, eps)
+                return stopped(it - 1, True, "stability_bound")
+            return stopped(it - 1, bool(small_step or cut), "no_descent")
         flat = flat + 1 if V - best[0] <= ftol * V / dof else 0
         V, theta, mu, cut, r = best[0], best[1], max(best[2], 1e-15), best[3], best[4]
         history.append(V)
         eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)  # the accepted trial's signals, not filtered again
-    return LMResult(theta, V, max_iter, False, "max_iterations", history, psi, eps)
+    return stopped(max_iter, False, "max_iterations")
 
 
 def _arx_ls(u, y, na: int, nb, nk, starts=(0,)):
@@ -532,6 +562,14 @@ def _segment_starts(segments, n: int, n0: int) -> tuple[np.ndarray | None, tuple
 def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel | None = None, u0=None,
         y0: float = 0.0, max_iter: int = 100, tol: float = 1e-7, ftol: float = 1e-3,
         cancel_tol: float = 0.01) -> PolyModel:
+    """Prediction-error estimate of a MISO polynomial model: `pem_with_search`'s model (its docstring)."""
+    return pem_with_search(u, y, structure, Ts, segments=segments, init=init, u0=u0, y0=y0, max_iter=max_iter,
+                           tol=tol, ftol=ftol, cancel_tol=cancel_tol)[0]
+
+
+def pem_with_search(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel | None = None,
+                    u0=None, y0: float = 0.0, max_iter: int = 100, tol: float = 1e-7, ftol: float = 1e-3,
+                    cancel_tol: float = 0.01, after: LMResult | None = None) -> tuple[PolyModel, LMResult]:
     """Prediction-error estimate of a MISO polynomial model (module docstring for the method).
 
     u: N × m inputs (or N for one input), y: N output, both sampled every Ts [s]; the model is identified on
@@ -547,6 +585,9 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
     initialisation_iterations ({output_error, arma}: the LM iterations of the initialisation's fits, 0 with init)
     and initialisation_time_s [s], the wall time up to the final fit.
     Names and units of the signals are set afterwards with dataclasses.replace.
+    after: the search (`LMResult.searched`) of an earlier call with the same data, init and a lower max_iter that
+    stopped at that limit, continued here (`levenberg_marquardt`): the model one call to max_iter gives.
+    Returns the model and its search (`LMResult.searched`).
     """
     t_start = time.perf_counter()
     s = structure
@@ -562,11 +603,14 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
         raise InputError(f"{dy.size} samples in {len(starts)} segment(s) are too few for {s.n_params} parameters")
     if init is not None and init.structure != s:
         raise ValueError(f"init has structure {init.structure}, expected {s}")
+    if after is not None and init is None:
+        raise ValueError("a search is continued from the start it began at: init is needed with after")
     with threadpool_limits(1, "blas") if threadpool_limits else contextlib.nullcontext():
         start = (InitialEstimate(init.theta, 0, 0) if init is not None else
                  initial_estimate(du, dy, s, starts=starts, tol=tol))
         t_init = time.perf_counter()
-        fit = levenberg_marquardt(start.theta, s, du, dy, starts=starts, max_iter=max_iter, tol=tol, ftol=ftol)
+        fit = levenberg_marquardt(start.theta, s, du, dy, starts=starts, max_iter=max_iter, tol=tol, ftol=ftol,
+                                  after=after)
         scale, Q, ell, g = _scaled_normal_equations(fit.psi, fit.eps, _used(dy.size, starts, s.n_start))
 
     V = fit.V
@@ -612,4 +656,4 @@ def pem(u, y, structure: Structure, Ts: float, *, segments=None, init: PolyModel
         "wall_time_s": time.perf_counter() - t_start,
         "warnings": msgs,
     }
-    return model
+    return model, fit.searched()

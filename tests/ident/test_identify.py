@@ -44,6 +44,23 @@ def test_a_memo_serves_a_copy_so_a_caller_cannot_change_the_next_fit():
     assert len(memo) == 2  # other segments: another fit
 
 
+def test_a_memo_continues_a_fit_stopped_at_fewer_iterations_to_the_same_model_as_a_fit_from_scratch():
+    """The diagnosis's warm-started refit (ranking._refit, 30 iterations) and the model identify builds from the
+    same model with the effect added in turn (100) start alike: the memo continues the first instead of starting
+    the second again, the same to the bit."""
+    ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
+    base = identify_model(ds, hidden.PAPER)
+    memo = FitMemo()
+    warm = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=3, memo=memo)
+    assert len(memo) == 1 and warm.info["stop_reason"] == "max_iterations"
+    served = identify_model(ds, hidden.PAPER, ["dpf_regeneration"], base=base, memo=memo)
+    fitted = identify_model(ds, hidden.PAPER, ["dpf_regeneration"], base=base)
+    assert len(memo) == 3  # the 3-iteration refit, then the whole structure from both starts
+    assert np.array_equal(served.theta, fitted.theta)
+    assert served.info["starts"] == fitted.info["starts"]
+    assert served.info["starts"]["loss_V"]["effects added in turn"] <= warm.info["loss_V"]  # continued from it
+
+
 def test_the_inertia_the_diagnosis_recommends_does_not_make_the_model_worse_on_another_day():
     """The simulator's trip hiding the crankshaft's inertia (seed 3000, the acceptance benchmark's): identified
     from the usual initialisation, the model with the J dω/dt input falls into a local minimum (a speed pole pressed

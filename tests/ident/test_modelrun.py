@@ -45,6 +45,7 @@ def test_only_segments_long_enough_are_tested(case):
     run = run_model(model, short)
     assert [(s.start, s.stop) for s in run.tested] == [(1010, 3000)]
     assert np.isnan(run.on_tested(run.ysim)[:1010]).all()
+    assert np.array_equal(run.tested_index, np.arange(1010 + model.structure.n_start, 3000))  # what is tested
     short.valid[1010 + min_tested_length(model) - 1:] = False
     with pytest.raises(ValueError, match="no valid segment"):
         run_model(model, short).require_tested()

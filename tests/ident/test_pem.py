@@ -10,7 +10,8 @@ from scipy.signal import lfilter
 
 from fuelid.ident.modelfile import PAPER_MODELS, load_paper_model
 from fuelid.ident import pem as pem_module
-from fuelid.ident.pem import _eigh, _sum_of_columns, at_stability_bound, pem, prediction_errors, stabilize
+from fuelid.ident.pem import (_eigh, _sum_of_columns, at_stability_bound, pem, pem_with_search, prediction_errors,
+                               stabilize)
 from fuelid.ident.polymodel import PolyModel, Structure, from_theta, residuals, simulate
 from fuelid.ident.validation import fit_percent
 from tests.ident.synthetic import minimal_truth, paper_data, true_model
@@ -172,6 +173,29 @@ def test_start_does_not_depend_on_max_iter():
     assert short.info["initialisation_iterations"] == full.info["initialisation_iterations"]
     assert full.info["initialisation_iterations"]["output_error"] > 0 < full.info["initialisation_iterations"]["arma"]
     assert full.info["converged"] and full.info["loss_V"] <= short.info["loss_V"]
+
+
+def test_a_search_stopped_at_its_limit_continues_to_the_iterates_of_one_longer_search():
+    """The diagnosis's warm-started refit (30 iterations) is the start of the fit identify makes from the same model
+    (100): continued (`after`), the second is the same to the bit as one search run to its limit."""
+    u, y = trip(2000, 4)
+    start = PolyModel(A=[1], B=[[0.2, 0.1], [0, 0.4]], F=[[1, -0.5], [1, -0.8, 0.2]], C=[1, 0], D=[1, 0],
+                      Ts=1.0, nk=(0, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        short, search = pem_with_search(u, y, SEG_TRUTH.structure, 1.0, init=start, max_iter=2)
+        continued, _ = pem_with_search(u, y, SEG_TRUTH.structure, 1.0, init=start, max_iter=40, after=search)
+        whole = pem(u, y, SEG_TRUTH.structure, 1.0, init=start, max_iter=40)
+    assert search.reason == "max_iterations" and search.iterations == 2 and search.psi is None
+    assert np.array_equal(continued.theta, whole.theta) and np.array_equal(continued.covariance, whole.covariance)
+    for key in ("iterations", "loss_history", "stop_reason", "converged", "loss_V"):
+        assert continued.info[key] == whole.info[key], key
+    assert whole.info["iterations"] > 2 and continued.info["loss_history"][:3] == short.info["loss_history"]
+    finished = pem_with_search(u, y, SEG_TRUTH.structure, 1.0, init=start, max_iter=40)[1]
+    with pytest.raises(ValueError, match="not continued"):  # converged: nothing left to continue
+        pem_with_search(u, y, SEG_TRUTH.structure, 1.0, init=start, max_iter=80, after=finished)
+    with pytest.raises(ValueError, match="init is needed"):
+        pem_with_search(u, y, SEG_TRUTH.structure, 1.0, max_iter=40, after=search)
 
 
 def test_not_converging_is_said():

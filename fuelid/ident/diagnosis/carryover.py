@@ -37,7 +37,7 @@ from fuelid.errors import FuelidError, InputError
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.verification import trips
 from fuelid.ident.effectfile import effects_of_model
-from fuelid.ident.identify import MIN_SEGMENT_S, refit_with_effects, training_segments
+from fuelid.ident.identify import MIN_SEGMENT_S, FitMemo, refit_with_effects, training_segments
 from fuelid.ident.modeldata import apply_effects, at_operating_point
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
@@ -63,7 +63,8 @@ def _other_trips(ds, held: np.ndarray):
     return fit_on
 
 
-def _own_dynamics_errors(effect: str, model: PolyModel, ds, run: Run, held: np.ndarray, defined, max_iter: int):
+def _own_dynamics_errors(effect: str, model: PolyModel, ds, run: Run, held: np.ndarray, defined, max_iter: int,
+                         memo: FitMemo | None):
     """(r, r − Σ_j B_j/F_j x_j) on the held-out samples, the candidate's dynamics fitted to the model's simulation
     errors r on the others (module docstring)."""
     fx = apply_effects(at_operating_point(ds, model), [effect], model.info.get("effect_parameters"), defined=defined)
@@ -74,7 +75,9 @@ def _own_dynamics_errors(effect: str, model: PolyModel, ds, run: Run, held: np.n
                          "and the model's errors are all known")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        g = pem(fx.u, r, fx.extend(Structure(nb=(), nf=(), nk=())), ds.Ts, segments=segs, max_iter=max_iter)
+        g = (memo.pem if memo is not None else pem)(fx.u, r, fx.extend(Structure(nb=(), nf=(), nk=())), ds.Ts,
+                                                    segments=segs, u0=np.zeros(fx.u.shape[1]), y0=0.0,
+                                                    max_iter=max_iter)
     fitted = np.full(len(r), np.nan)
     for seg in run.segs:
         if held[seg.start]:
@@ -83,12 +86,13 @@ def _own_dynamics_errors(effect: str, model: PolyModel, ds, run: Run, held: np.n
     return r[ok], (r - fitted)[ok]
 
 
-def _reidentified_errors(effect: str, model: PolyModel, ds, run: Run, held: np.ndarray, defined, max_iter: int):
+def _reidentified_errors(effect: str, model: PolyModel, ds, run: Run, held: np.ndarray, defined, max_iter: int,
+                         memo: FitMemo | None):
     """The simulation errors on the held-out samples of the model re-identified on the others without and with the
-    candidate (module docstring)."""
+    candidate (module docstring); the one without is every candidate's on this model and trip (memo)."""
     fit_on = _other_trips(ds, held)
-    without = refit_with_effects(model, fit_on, [], defined=defined, max_iter=max_iter)
-    with_ = refit_with_effects(without, fit_on, [effect], defined=defined, max_iter=max_iter)
+    without = refit_with_effects(model, fit_on, [], defined=defined, max_iter=max_iter, memo=memo)
+    with_ = refit_with_effects(without, fit_on, [effect], defined=defined, max_iter=max_iter, memo=memo)
     scored = dataclasses.replace(ds, valid=ds.valid & held)
     errors = []
     for m in (without, with_):
@@ -110,12 +114,13 @@ WAYS = {"own_dynamics": Way(_own_dynamics_errors, "its own dynamics fitted to th
 
 
 def left_out_trips(effect: str, model: PolyModel, ds, run: Run, *, defined=(), max_iter: int,
-                   min_drop_percent: float) -> dict | None:
+                   min_drop_percent: float, memo: FitMemo | None = None) -> dict | None:
     """Leave-one-trip-out of `effect` both ways (module docstring) around `model` (run: its Run on ds, whose
     segments are grouped into trips); defined: engineer-defined effects `effect` may name; max_iter: the PEM fits'
-    iteration limit. None with fewer than two trips. Returns, per way, {rmse_without, rmse_with} [output unit]
-    pooled over the held-out trips, per_trip [[without, with] …] and lowered: with ≤ (1 − min_drop_percent / 100)
-    without; min_drop_percent; carries_over: lowered both ways."""
+    iteration limit; memo: PEM fits on these data kept across calls (ident.identify.FitMemo: the model without the
+    candidate is every candidate's). None with fewer than two trips. Returns, per way, {rmse_without, rmse_with}
+    [output unit] pooled over the held-out trips, per_trip [[without, with] …] and lowered: with ≤
+    (1 − min_drop_percent / 100) without; min_drop_percent; carries_over: lowered both ways."""
     masks = _held_out_masks(ds, run)
     if len(masks) < 2:
         return None
@@ -125,7 +130,7 @@ def left_out_trips(effect: str, model: PolyModel, ds, run: Run, *, defined=(), m
         pooled, per_trip = ([], []), []
         for held in masks:
             try:
-                e = way.errors(effect, model, ds, run, held, defined, max_iter)
+                e = way.errors(effect, model, ds, run, held, defined, max_iter, memo)
             except (FuelidError, np.linalg.LinAlgError) as exc:
                 return {"error": f"{name.replace('_', ' ')}: {exc}", "carries_over": False}
             for acc, x in zip(pooled, e):

@@ -336,52 +336,64 @@ def _added_drop(c: Candidate) -> float | None:
 REFIT_MAX_ITER = 30  # Levenberg–Marquardt iterations of forward selection's warm-started PEM refit (5)
 
 
-def _simulation_rmse(run: Run, index: np.ndarray) -> float:
-    """RMS simulation error [output unit] of a run on the dataset samples `index`."""
+def _simulation_rmse(run: Run | ModelRun, index: np.ndarray) -> float:
+    """RMS simulation error [output unit] of a run on the dataset samples `index` (tested ones)."""
     return float(np.sqrt(np.mean((run.y[index] - run.ysim[index]) ** 2)))
 
 
 def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects, min_drop_percent: float,
-           built: _Built | None = None) -> tuple[PolyModel, Run] | None:
+           built: _Built | None = None, memo: FitMemo | None = None) -> tuple[PolyModel, Run] | None:
     """The model re-identified with c added (module docstring, 5) and its run, with c.refit its record (RMS
     simulation error and loss V without and with, over the samples both runs test; verified: not worse, and for a
     generic bus signal on several trips, carried over: the trips left out min_drop_percent better both ways,
     diagnosis.carryover); None when the refit fails or is not verified. built (given for the engine's term): the
-    model it builds with c replaces the warm-started refit when it simulates the data better (`_searched_on`)."""
+    model it builds with c replaces the warm-started refit when it simulates the data better (`_searched_on`).
+    The gradients (run_gradients) are taken of the model kept only: the others are judged by their simulation.
+    memo: the fits `_Built` makes (its FitMemo), where this refit is the start of the one it makes from the same
+    model with c added in turn, and where the leave-one-trip-out refits without c are every candidate's."""
     try:
-        refit = refit_with_effects(model, ds, [c.effect], defined=effects, max_iter=REFIT_MAX_ITER)
-        refit_run = run_gradients(run_model(refit, ds))
+        refit = refit_with_effects(model, ds, [c.effect], defined=effects, max_iter=REFIT_MAX_ITER, memo=memo)
+        refit_run = run_model(refit, ds)
+        refit_run.require_tested()
     except (FuelidError, np.linalg.LinAlgError) as exc:
         c.refit = {"error": str(exc), "verified": False}
         return None
-    index = np.intersect1d(run.index, refit_run.index)
+    index = np.intersect1d(run.index, refit_run.tested_index)
     without, with_ = _simulation_rmse(run, index), _simulation_rmse(refit_run, index)
     c.refit = {"rmse_without": without, "rmse_with": with_, "loss_V_without": model.info.get("loss_V"),
                "loss_V_with": refit.info["loss_V"], "iterations": refit.info["iterations"],
                "verified": bool(with_ <= without)}
     if c.refit["verified"] and _generic(c):
         carry = left_out_trips(c.effect, model, ds, run, defined=effects, max_iter=REFIT_MAX_ITER,
-                               min_drop_percent=min_drop_percent)
+                               min_drop_percent=min_drop_percent, memo=memo)
         if carry is not None:
             c.refit["trips"] = carry
             c.refit["verified"] = carry["carries_over"]
-    if c.refit["verified"] and built is not None:
+    if not c.refit["verified"]:
+        return None
+    if built is not None:
         refit, refit_run = _searched_on(c, built, ds, (refit, refit_run))
-    return (refit, refit_run) if c.refit["verified"] else None
+    try:
+        return refit, run_gradients(refit_run)
+    except (FuelidError, np.linalg.LinAlgError) as exc:
+        c.refit.update(error=str(exc), verified=False)
+        return None
 
 
-def _searched_on(c: Candidate, built: _Built, ds, refitted: tuple[PolyModel, Run]) -> tuple[PolyModel, Run]:
+def _searched_on(c: Candidate, built: _Built, ds,
+                 refitted: tuple[PolyModel, ModelRun]) -> tuple[PolyModel, ModelRun]:
     """The model (and its run) forward selection searches on after accepting c: the one `fuelid identify` builds
     with c (`_Built`) when it simulates the data better than the warm-started refit `refitted`, else that refit;
     recorded in c.refit["searched_on"]. The refit's iterations are capped (REFIT_MAX_ITER), and from the model
     without the engine's term they can stop far from the model the engineer gets with it (README)."""
     try:
         model = built.model_with(c)
-        run = run_gradients(run_model(model, ds))
+        run = run_model(model, ds)
+        run.require_tested()
     except (FuelidError, np.linalg.LinAlgError) as exc:
         c.refit["searched_on"] = {"model": "warm-started refit", "built_error": str(exc)}
         return refitted
-    index = np.intersect1d(run.index, refitted[1].index)
+    index = np.intersect1d(run.tested_index, refitted[1].tested_index)
     rmse_built, rmse_warm = _simulation_rmse(run, index), _simulation_rmse(refitted[1], index)
     better = rmse_built < rmse_warm
     c.refit["searched_on"] = {"model": "built" if better else "warm-started refit", "rmse_built": rmse_built,
@@ -442,7 +454,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
                     c.verification = c.conditional["verification"]  # (none without verification: n_verify = 0)
                     c.rmse_drop_percent = c.verification["rmse_drop_percent"]
             refitted = _refit(c, model, run, ds, effects, min_drop_percent,
-                              built if c.effect in (MAP_TERM, PRODUCT_TERM) else None)
+                              built if c.effect in (MAP_TERM, PRODUCT_TERM) else None,
+                              built.memo if built is not None else None)
             if refitted is not None:
                 rivals = [r for r in found[k + 1:] if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
                 c.alternatives = _indistinguishable(c, rivals, model, refitted, ds, alpha, min_effect_percent, effects)

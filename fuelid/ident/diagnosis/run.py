@@ -51,7 +51,7 @@ class Run:
     @property
     def index(self) -> np.ndarray:
         """Dataset indices of the stacked samples."""
-        return np.concatenate([np.arange(s.start + self.warm, s.stop) for s in self.segs])
+        return self.model_run.tested_index
 
 
 def run_gradients(mrun: ModelRun) -> Run:
