@@ -1,20 +1,18 @@
 """lfilter: scipy.signal.lfilter(b, a, x) to the bit, by a compiled kernel for IIR filters of 1-D and 2-D data.
 
-The prediction-error fits filter short polynomials (2–17 coefficients: D/(C F_i) with the noise model's orders)
-through 10⁴–10⁵ samples thousands of times (pem: u_i/F_i, x_i/F_i and B_i/F_i u_i in every Levenberg–Marquardt
-trial), and there scipy's generic loop, which keeps the filter's state in memory, is most of the time. `_iir.c`
-runs the same recursion (direct form II transposed, the same operations in the same order) with the state in
-registers:
+The prediction-error fits filter short polynomials (2–17 coefficients: D/(C F_i) with the paper's noise-model
+orders) through 10⁴–10⁵ samples thousands of times (pem: u_i/F_i, x_i/F_i and B_i/F_i u_i in every
+Levenberg–Marquardt trial), and there scipy's generic loop, which keeps the filter's state in memory, is most of
+the time. `_iir.c` runs the same recursion (direct form II transposed, the same operations in the same order) with
+the state in registers:
 
     y[t] = z₀ + b₀ x[t],   z_k ← (z_{k+1} + x[t] b_{k+1}) − y[t] a_{k+1},   z_{n−2} ← x[t] b_{n−1} − y[t] a_{n−1}
 
 with b and a zero-padded to one length n ≤ MAX_TAPS and divided by a₀, from zero state — as scipy does, so the
-numbers are the same to the last bit (tests/ident/test_filters.py). FIR filters (a of length 1) scipy computes as
-np.convolve(b / a₀, x) cut to x's length, lane by lane through np.apply_along_axis; here the same convolution
-without that wrapper, which cost more than the convolution on the map term's five-tap inputs. Everything else (more
-than two dimensions; complex data; longer filters) and an install built without a C compiler go to scipy itself,
-imported on first use so that the in-cab live estimator, which simulates models through this module
-(ident.polymodel), does not load SciPy's signal package.
+numbers are the same to the last bit (tests/ident/test_filters.py). Everything else (FIR filters, which scipy
+computes by convolution; more than two dimensions; complex data; longer filters) and an install built without a C
+compiler go to scipy itself, imported on first use so that the in-cab live estimator, which simulates models
+through this module (ident.polymodel), does not load SciPy's signal package.
 """
 from __future__ import annotations
 
@@ -46,11 +44,8 @@ def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
     """scipy.signal.lfilter(b, a, x, axis=axis) without initial conditions, the same to the bit: y = B(q)/A(q) x
     (b, a the coefficients of B, A in powers of q⁻¹) along `axis` of x (1-D, or 2-D: each column or row alike),
     from zero state."""
-    b, a, x = np.asarray(b), np.asarray(a), np.asarray(x)
-    if (a.shape == (1,) and 1 <= x.ndim <= 2 and -x.ndim <= axis < x.ndim and x.shape[axis] and b.ndim == 1
-            and b.size and a[0] != 0 and np.result_type(b, a, x) == np.float64):
-        return _fir(b / a[0], x, axis)
     if _iir is not None:
+        b, a, x = np.asarray(b), np.asarray(a), np.asarray(x)
         n = max(b.size, a.size)
         if (1 <= x.ndim <= 2 and b.ndim == a.ndim == 1 and 2 <= a.size and n <= MAX_TAPS and a[0] != 0
                 and np.result_type(b, a, x) == np.float64):
@@ -71,15 +66,3 @@ def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
                 out[k] = lane
             return y
     return _scipy_lfilter()(b, a, x, axis=axis)
-
-
-def _fir(b: np.ndarray, x: np.ndarray, axis: int) -> np.ndarray:
-    """scipy.signal.lfilter(b, [1], x, axis) for float64 b (1-D) and x (1-D or 2-D): each lane's full convolution
-    with b, cut to the lane's length — in a buffer laid out as scipy's (np.apply_along_axis: lanes along the last
-    axis, moved back to `axis`), so that what is computed from the result (matrix products) sums alike too."""
-    lanes = np.moveaxis(x, axis, -1)
-    n = lanes.shape[-1]
-    full = np.empty(lanes.shape[:-1] + (n + b.size - 1,))
-    for k in np.ndindex(lanes.shape[:-1]):
-        full[k] = np.convolve(b, lanes[k])
-    return np.moveaxis(full, -1, axis)[(slice(None),) * (axis % x.ndim) + (slice(n),)]

@@ -1,6 +1,5 @@
 """ident.filters: scipy.signal.lfilter to the last bit, by the compiled IIR kernel (fuelid/ident/_iir.c) where it
 applies and by scipy itself elsewhere."""
-import re
 import shutil
 
 import numpy as np
@@ -49,18 +48,6 @@ def test_the_columns_or_rows_of_a_2d_array_are_filtered_to_the_bit(ba, x, axis):
     assert same_bits(ours, scipys) and ours.strides == scipys.strides
 
 
-@settings(max_examples=200, deadline=None)
-@given(st.lists(finite, min_size=1, max_size=12), st.sampled_from([1.0, 2.5, -0.7]),
-       hnp.arrays(np.float64, st.one_of(st.tuples(st.integers(1, 300)),
-                                        st.tuples(st.integers(1, 100), st.integers(1, 4))), elements=finite),
-       st.sampled_from([0, -1]))
-def test_an_fir_filter_is_scipys_convolution_to_the_bit(b, a0, x, axis):
-    """a of length 1: scipy convolves each lane with b / a₀; fuelid does the same without np.apply_along_axis, into
-    an array of the same memory layout (matrix products of it then sum in the same order)."""
-    ours, scipys = filters.lfilter(b, [a0], x, axis=axis), scipy_lfilter(b, [a0], x, axis=axis)
-    assert same_bits(ours, scipys) and ours.strides == scipys.strides
-
-
 def test_views_lists_and_integers_are_taken_as_scipy_takes_them():
     x = np.arange(60, dtype=float)[::3]  # not contiguous
     assert same_bits(filters.lfilter([1.0], [1.0, -0.5], x), scipy_lfilter([1.0], [1.0, -0.5], x))
@@ -70,17 +57,11 @@ def test_views_lists_and_integers_are_taken_as_scipy_takes_them():
 
 
 def test_what_the_kernel_does_not_take_goes_to_scipy_alike():
-    """Filters longer than MAX_TAPS, complex data (an FIR filter's too): scipy's own result; an FIR filter of an
-    empty signal or of integers: scipy's own error."""
+    """FIR filters (scipy convolves), filters longer than MAX_TAPS, complex data: scipy's own result."""
     x = np.random.default_rng(0).normal(size=300)
     long_a = np.real(np.poly(np.full(filters.MAX_TAPS, 0.5)))
-    for b, a, xx in (([1.0], long_a, x), ([1.0], [1.0, -0.5], x + 1j * x), ([0.5, 0.25], [1.0], x + 1j * x)):
+    for b, a, xx in (([0.5, 0.25, 0.125], [1.0], x), ([1.0], long_a, x), ([1.0], [1.0, -0.5], x + 1j * x)):
         assert same_bits(filters.lfilter(b, a, xx), scipy_lfilter(b, a, xx))
-    for b, a, xx in (([0.5], [1.0], np.array([])), ([2, 1], [1], np.arange(9))):
-        with pytest.raises((ValueError, NotImplementedError)) as ours:
-            filters.lfilter(b, a, xx)
-        with pytest.raises(ours.type, match=re.escape(str(ours.value))):
-            scipy_lfilter(b, a, xx)
 
 
 def test_without_the_kernel_scipy_gives_the_same_numbers(monkeypatch):
