@@ -493,9 +493,13 @@ class _Built:
         self.base = model if not model.effects else None  # its second start (identify_model), when it is one
         self.specs, self.rmse = list(model.effects), None
         self.memo = FitMemo()  # the model with E + [c] is built through the fits of E's: fitted once
+        self._models: dict[tuple[str, ...], PolyModel] = {}  # the engine's term's: searched on, then checked
 
     def _model(self, specs: list[str]) -> PolyModel:
-        return identify_model(self.ds, self.structure, specs, defined=self.defined, base=self.base, memo=self.memo)
+        if tuple(specs) not in self._models:
+            self._models[tuple(specs)] = identify_model(self.ds, self.structure, specs, defined=self.defined,
+                                                        base=self.base, memo=self.memo)
+        return self._models[tuple(specs)]
 
     def _rmse(self, specs: list[str]) -> float:
         return self._model(specs).validation["rmse"]["simulation"]
