@@ -80,7 +80,7 @@ import numpy as np
 from scipy.linalg import lapack, lstsq
 
 from fuelid.errors import InputError
-from fuelid.ident.filters import lfilter
+from fuelid.ident.filters import lfilter, lfilter_each
 from fuelid.ident.polymodel import (Polynomials, PolyModel, Structure, as_inputs, from_theta, input_responses,
                                     parameter_names, polynomials)
 
@@ -223,41 +223,47 @@ class _Responses(NamedTuple):
     eps: np.ndarray
 
 
-def _filter(starts):
-    """lfilter(b, a, x, axis) restarted at each segment start; by 1/1 (A, C, D of an OE model) it returns x
-    itself: lfilter([1], [1], x) is x exactly, so the results are the same to the bit."""
-    def filt(b, a, x, axis=-1):
-        if len(b) == len(a) == 1 and b[0] == a[0] == 1.0:
-            return x
-        return _restarted(lambda p: lfilter(b, a, p, axis=axis), x, starts, axis)
-    return filt
+def _filter_each(starts):
+    """[lfilter(b, a, x) for b, a, x in jobs] for 1-D signals, every filter restarted at each segment start, by
+    lfilter_each (filters of one length run two at a time); by 1/1 (A, C, D of an OE model) x itself:
+    lfilter([1], [1], x) is x exactly, so the results are the same to the bit."""
+    def each(jobs):
+        jobs = list(jobs)
+        out = [x if len(b) == len(a) == 1 and b[0] == a[0] == 1.0 else None for b, a, x in jobs]
+        todo = [k for k, y in enumerate(out) if y is None]
+        pieces = lfilter_each([(jobs[k][0], jobs[k][1], p) for k in todo for p in np.split(jobs[k][2], starts[1:])])
+        for j, k in enumerate(todo):
+            parts = pieces[j * len(starts):(j + 1) * len(starts)]
+            out[k] = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        return out
+    return each
 
 
 def _responses(m: Polynomials, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Responses:
     """x_i, w and ε of the polynomials m of θ (`_Responses`) for deviation data, every filter restarting at the
     segment `starts`."""
-    filt = _filter(starts)
-    x = [filt(b, f, u[:, i]) for i, (b, f) in enumerate(zip(m.B, m.F))]
-    w = filt(m.A, [1.0], y) - _sum_of_columns(x, y.size)
-    return _Responses(m, x, w, filt(m.D, m.C, w))
+    each = _filter_each(starts)
+    x = each((b, f, u[:, i]) for i, (b, f) in enumerate(zip(m.B, m.F)))
+    w = each([(m.A, [1.0], y)])[0] - _sum_of_columns(x, y.size)
+    return _Responses(m, x, w, each([(m.D, m.C, w)])[0])
 
 
 def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,),
               out: np.ndarray | None = None) -> np.ndarray:
     """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ, its transpose written into `out`
     (d × N) when given; the signals of empty regressor blocks are not filtered."""
-    m, filt = r.m, _filter(starts)
-    blocks = [(-filt(m.D, m.C, y), range(1, s.na + 1))] if s.na else []
-    fx = []
-    for i in range(s.n_inputs):  # one signal per call: stacking two costs a copy, and lfilter filters rows alike
-        den = np.convolve(m.C, m.F[i])
-        blocks.append((filt(m.D, den, u[:, i]), range(s.nk[i], s.nk[i] + s.nb[i])))
-        fx.append((-filt(m.D, den, r.x[i]), range(1, s.nf[i] + 1)))
-    blocks += fx
-    if s.nc:
-        blocks.append((filt([1.0], m.C, r.eps), range(1, s.nc + 1)))
-    if s.nd:
-        blocks.append((-filt([1.0], m.C, r.w), range(1, s.nd + 1)))
+    m = r.m
+    dens = [np.convolve(m.C, f) for f in m.F]
+    with_f = [i for i in range(s.n_inputs) if s.nf[i]]  # an FIR input (F_i = 1) has no x_i/F_i block
+    jobs = [(m.D, m.C, y)] if s.na else []
+    jobs += [(m.D, den, u[:, i]) for i, den in enumerate(dens)] + [(m.D, dens[i], r.x[i]) for i in with_f]
+    jobs += ([([1.0], m.C, r.eps)] if s.nc else []) + ([([1.0], m.C, r.w)] if s.nd else [])
+    filtered = iter(_filter_each(starts)(jobs))
+    blocks = [(-next(filtered), range(1, s.na + 1))] if s.na else []
+    blocks += [(next(filtered), range(s.nk[i], s.nk[i] + s.nb[i])) for i in range(s.n_inputs)]
+    blocks += [(-next(filtered), range(1, s.nf[i] + 1)) for i in with_f]
+    blocks += [(next(filtered), range(1, s.nc + 1))] if s.nc else []
+    blocks += [(-next(filtered), range(1, s.nd + 1))] if s.nd else []
     return _regressors(blocks, y.size, starts, out).T
 
 
@@ -365,6 +371,7 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     max_iter iterations.
     """
     used = _used(y.size, starts, s.n_start)
+    u = np.asfortranarray(u)  # each input is filtered on its own in every trial: its column contiguous, not copied
     if after is None:
         theta, m = _stable_theta(np.asarray(theta, float), s)
     else:  # the accepted iterate was stabilised when it was taken: its polynomials are the ones it was scored by
@@ -432,7 +439,7 @@ def _steiglitz_mcbride(u_i, x_i, nb: int, nf: int, nk: int, starts=(0,), iterati
     F x_f = B u_f on the prefiltered u_f = u/F, x_f = x/F (Ljung sec. 10.4)."""
     F = np.ones(1)
     for _ in range(iterations):
-        uf, xf = (_restarted(lambda p: lfilter([1.0], F, p), v, starts) for v in (u_i, x_i))
+        uf, xf = _filter_each(starts)([([1.0], F, u_i), ([1.0], F, x_i)])
         A, (B,) = _arx_ls(uf[:, None], xf, nf, (nb,), (nk,), starts)
         F_new = stabilize(A)
         done = F_new.size == F.size and np.allclose(F_new, F, rtol=0, atol=1e-10)

@@ -112,6 +112,26 @@ def test_block_cv_is_exact_leave_one_block_out_least_squares():
         assert np.allclose(h_block[a:a + 60], r[a:a + 60] - Z[a:a + 60] @ coef)
 
 
+def test_block_cv_keeps_the_full_data_coefficient_of_a_direction_only_the_left_out_block_determines():
+    """A column non-zero only inside one block (an effect on there alone, a short segment's initial state): with
+    that block left out nothing determines its coefficient, and I − Q_Sᵀ Q_S is singular. The deletion formula
+    (its pseudo-inverse) then refits what the other blocks determine and keeps the full-data coefficient of the
+    direction they do not; every other block is the plain refit without it."""
+    rng = np.random.default_rng(4)
+    Z = np.column_stack([rng.normal(size=(500, 3)), np.zeros(500)])
+    Z[130:150, 3] = 1.0  # inside the block 120 … 179
+    r = Z @ [1.0, -2.0, 0.5, 3.0] + rng.normal(size=500)
+    Q = st.nuisance_basis(Z).dense
+    out = block_cv(r, st.NuisanceBasis(Q), 60)
+    for a in range(0, 500, 60):
+        fit = np.r_[0:a, a + 60:500]
+        M_pinv = np.linalg.pinv(Q[fit].T @ Q[fit], rcond=1e-10)
+        undetermined = np.eye(4) - M_pinv @ (Q[fit].T @ Q[fit])  # the projector on what the other blocks leave open
+        coef = M_pinv @ Q[fit].T @ r[fit] + undetermined @ (Q.T @ r)
+        assert np.allclose(out[a:a + 60], r[a:a + 60] - Q[a:a + 60] @ coef)
+        assert np.allclose(undetermined, 0.0, atol=1e-8) == (a != 120)
+
+
 def test_trip_cv_fits_what_the_other_trips_determine_and_leaves_the_rest_at_zero():
     """Three trips; the model's own column g (a gain: the fuel itself) and a candidate x. Where x varies within every
     trip, each trip left out is predicted by the plain least-squares fit on the other two. Where x is one constant

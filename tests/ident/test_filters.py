@@ -39,6 +39,20 @@ def test_a_1d_signal_is_filtered_to_the_bit(ba, x):
     assert same_bits(filters.lfilter(b, a, x), scipy_lfilter(b, a, x))
 
 
+@settings(max_examples=200, deadline=None)
+@given(hnp.arrays(np.float64, st.integers(1, 40), elements=finite), st.sampled_from([1.0, 2.5, -0.7]),
+       hnp.arrays(np.float64, st.integers(1, 400), elements=finite))
+def test_a_1d_signal_through_a_fir_filter_is_scipys_convolution_to_the_bit(b, a0, x):
+    ours, scipys = filters.lfilter(b, [a0], x), scipy_lfilter(b, [a0], x)
+    assert same_bits(ours, scipys) and ours.strides == scipys.strides
+
+
+def test_an_empty_signal_through_a_fir_filter_is_refused_as_scipy_refuses_it():
+    for lfilter in (filters.lfilter, scipy_lfilter):
+        with pytest.raises(ValueError):
+            lfilter([1.0, 0.5], [1.0], np.array([]))
+
+
 @settings(max_examples=100, deadline=None)
 @given(stable_filters(max_taps=9), hnp.arrays(np.float64, st.tuples(st.integers(0, 200), st.integers(1, 4)),
                                                elements=finite), st.sampled_from([0, -1]))
@@ -46,6 +60,21 @@ def test_the_columns_or_rows_of_a_2d_array_are_filtered_to_the_bit(ba, x, axis):
     b, a = ba
     ours, scipys = filters.lfilter(b, a, x, axis=axis), scipy_lfilter(b, a, x, axis=axis)
     assert same_bits(ours, scipys) and ours.strides == scipys.strides
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(stable_filters(max_taps=6), min_size=1, max_size=7), st.integers(0, 300), st.data())
+def test_many_signals_each_through_its_own_filter_are_filtered_to_the_bit(filters_, n, data):
+    """lfilter_each pairs the filters of one length through signals of one length (side by side in the kernel):
+    every signal comes out as scipy filters it alone, whatever the mix (FIR filters and signals of another length
+    among them)."""
+    jobs = []
+    for b, a in filters_:
+        length = data.draw(st.sampled_from([n, n + 1]))
+        x = data.draw(hnp.arrays(np.float64, length, elements=finite))
+        jobs.append((b, a[:1] if data.draw(st.booleans()) and length else a, x))
+    for (b, a, x), ours in zip(jobs, filters.lfilter_each(jobs), strict=True):
+        assert same_bits(ours, scipy_lfilter(b, a, x))
 
 
 def test_views_lists_and_integers_are_taken_as_scipy_takes_them():
@@ -57,11 +86,14 @@ def test_views_lists_and_integers_are_taken_as_scipy_takes_them():
 
 
 def test_what_the_kernel_does_not_take_goes_to_scipy_alike():
-    """FIR filters (scipy convolves), filters longer than MAX_TAPS, complex data: scipy's own result."""
+    """FIR filters of 2-D data (scipy convolves each lane), filters longer than MAX_TAPS, complex data: scipy's own
+    result."""
     x = np.random.default_rng(0).normal(size=300)
     long_a = np.real(np.poly(np.full(filters.MAX_TAPS, 0.5)))
-    for b, a, xx in (([0.5, 0.25, 0.125], [1.0], x), ([1.0], long_a, x), ([1.0], [1.0, -0.5], x + 1j * x)):
-        assert same_bits(filters.lfilter(b, a, xx), scipy_lfilter(b, a, xx))
+    for b, a, xx in (([0.5, 0.25, 0.125], [1.0], x.reshape(100, 3)), ([1.0], long_a, x),
+                     ([1.0], [1.0, -0.5], x + 1j * x)):
+        ours, scipys = filters.lfilter(b, a, xx, axis=0), scipy_lfilter(b, a, xx, axis=0)
+        assert same_bits(ours, scipys) and ours.strides == scipys.strides
 
 
 def test_without_the_kernel_scipy_gives_the_same_numbers(monkeypatch):

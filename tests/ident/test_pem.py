@@ -8,6 +8,7 @@ import pytest
 from scipy.linalg import eigh
 from scipy.signal import lfilter
 
+from fuelid.ident.filters import lfilter_each
 from fuelid.ident.modelfile import PAPER_MODELS, load_paper_model
 from fuelid.ident import pem as pem_module
 from fuelid.ident.pem import (_eigh, _sum_of_columns, at_stability_bound, pem, pem_with_search, prediction_errors,
@@ -70,6 +71,7 @@ def test_an_output_error_model_filters_only_through_b_and_f(monkeypatch):
     nothing (they run in every LM iteration of the initialisation's OE fit, hundreds on a real trip)."""
     calls = []
     monkeypatch.setattr(pem_module, "lfilter", lambda b, a, x, axis=-1: calls.append(1) or lfilter(b, a, x, axis=axis))
+    monkeypatch.setattr(pem_module, "lfilter_each", lambda jobs: calls.extend(jobs) or lfilter_each(jobs))
     s = Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0))
     rng = np.random.default_rng(0)
     prediction_errors(0.05 * rng.normal(size=s.n_params), s, rng.normal(size=(500, 2)), rng.normal(size=500),

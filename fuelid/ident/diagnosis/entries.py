@@ -66,7 +66,7 @@ class Additive:
             return None
         reg, psi, raw = cols
         with one_blas_thread():
-            pred = score_test(run.e, psi, run.Q)
+            pred = score_test(run.e, psi, run.Q, eps_projected=run.e_projected)
             level, left = level_test(run.r, lfilter(model.A, [1.0], raw, axis=0), run.lens, run.QG)  # w has A x
         return Evidence(reg, raw, {"prediction_error": pred, "simulation_error": level}, left, pred.coef)
 

@@ -3,6 +3,7 @@ the prediction errors ε with the nuisance columns of test 1 and the errors w be
 of test 2 (ident.diagnosis.statistics)."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,6 +48,13 @@ class Run:
     def lens(self) -> list[int]:
         """Samples of each segment after its first `warm` (the blocks e, r and the columns are stacked from)."""
         return [s.stop - s.start - self.warm for s in self.segs]
+
+    @functools.cached_property
+    def e_projected(self) -> np.ndarray:
+        """M_Z ε: the prediction errors with their nuisance columns (Q) projected out, the same in every
+        candidate's score test (ident.diagnosis.statistics.score_test)."""
+        with one_blas_thread():
+            return self.Q.project_out(self.e)
 
     @property
     def index(self) -> np.ndarray:

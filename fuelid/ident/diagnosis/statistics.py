@@ -153,15 +153,17 @@ def nuisance_basis(Z: np.ndarray, segment_columns=()) -> NuisanceBasis:
     return NuisanceBasis(np.zeros((Z.shape[0], 0)), blocks).extended(Z)
 
 
-def score_test(eps, X, Q=None, hac_lags: int | None = None, rank_tol: float = 1e-4) -> ScoreTest:
+def score_test(eps, X, Q=None, hac_lags: int | None = None, rank_tol: float = 1e-4,
+               eps_projected: np.ndarray | None = None) -> ScoreTest:
     """Score (LM) test that ε (N) does not depend on the columns of X (N × k) beyond the nuisance columns with
     basis Q (`nuisance_basis`; None: only a mean): LM = sᵀ Ω̂⁻¹ s ~ χ²(k_eff), module
     docstring. Columns of X whose part orthogonal to Q has less than rank_tol of their norm are not testable
-    (k_eff counts the rest); k_eff = 0 gives LM = 0, p = 1."""
+    (k_eff counts the rest); k_eff = 0 gives LM = 0, p = 1. eps_projected: Q.project_out(eps), when the caller
+    tests many candidates on the same ε."""
     eps = np.asarray(eps, float)
     X = np.asarray(X, float).reshape(eps.size, -1)
     if Q is not None:
-        Xt, et = Q.project_out(X), Q.project_out(eps)
+        Xt, et = Q.project_out(X), Q.project_out(eps) if eps_projected is None else eps_projected
     else:
         Xt, et = X - X.mean(axis=0), eps - eps.mean()
     coef = np.linalg.lstsq(Xt, et, rcond=None)[0] if Xt.size else np.zeros(0)
