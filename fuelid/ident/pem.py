@@ -231,10 +231,13 @@ def _filter_each(starts):
         jobs = list(jobs)
         out = [x if len(b) == len(a) == 1 and b[0] == a[0] == 1.0 else None for b, a, x in jobs]
         todo = [k for k, y in enumerate(out) if y is None]
+        if len(starts) == 1:
+            for k, y in zip(todo, lfilter_each([jobs[k] for k in todo])):
+                out[k] = y
+            return out
         pieces = lfilter_each([(jobs[k][0], jobs[k][1], p) for k in todo for p in np.split(jobs[k][2], starts[1:])])
         for j, k in enumerate(todo):
-            parts = pieces[j * len(starts):(j + 1) * len(starts)]
-            out[k] = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            out[k] = np.concatenate(pieces[j * len(starts):(j + 1) * len(starts)])
         return out
     return each
 

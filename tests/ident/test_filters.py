@@ -99,9 +99,11 @@ def test_what_the_kernel_does_not_take_goes_to_scipy_alike():
 def test_without_the_kernel_scipy_gives_the_same_numbers(monkeypatch):
     x = np.random.default_rng(1).normal(size=500)
     a = np.real(np.poly([0.9, 0.5 + 0.3j, 0.5 - 0.3j]))
-    compiled = filters.lfilter([1.0, 0.2], a, x)
+    jobs = [([1.0, 0.2], a, x), ([0.5, 0.1, 0.2, 0.3], [1.0, -0.3], x[::-1]), ([1.0, 0.5], [2.0], x)]
+    compiled, compiled_each = filters.lfilter([1.0, 0.2], a, x), filters.lfilter_each(jobs)
     monkeypatch.setattr(filters, "_iir", None)
     assert not filters.compiled() and same_bits(filters.lfilter([1.0, 0.2], a, x), compiled)
+    assert all(same_bits(y, want) for y, want in zip(filters.lfilter_each(jobs), compiled_each, strict=True))
 
 
 @pytest.mark.skipif(shutil.which("cc") is None, reason="no C compiler: the install cannot build the kernel")
