@@ -70,6 +70,7 @@ def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
 def lfilter_each(jobs) -> list[np.ndarray]:
     """[lfilter(b, a, x) for b, a, x in jobs] for 1-D signals x, the same to the bit. IIR filters of one length
     through signals of one length run two at a time, side by side (`_iir.iir_pair`), in about the time of one."""
+    jobs = list(jobs)
     if len(jobs) == 1:  # nothing to pair
         return [lfilter(*jobs[0])]
     jobs = [(np.asarray(b), np.asarray(a), np.asarray(x)) for b, a, x in jobs]
