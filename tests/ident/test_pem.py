@@ -79,6 +79,20 @@ def test_an_output_error_model_filters_only_through_b_and_f(monkeypatch):
     assert len(calls) == 3 * s.n_inputs
 
 
+def test_an_fir_input_has_no_x_over_f_filtered_for_the_jacobian(monkeypatch):
+    """A Box-Jenkins model with one IIR input and one FIR input (F_2 = 1, as the map term's columns): ε costs B_1/F_1,
+    B_2 and D/C; Ψ costs D/(C F_1) of u_1 and x_1, D/C of u_2, 1/C of ε and of w — and no D/C x_2, which would fill
+    no column."""
+    jobs = []
+    monkeypatch.setattr(pem_module, "lfilter", lambda b, a, x, axis=-1: jobs.append(1) or lfilter(b, a, x, axis=axis))
+    monkeypatch.setattr(pem_module, "lfilter_each", lambda each: jobs.extend(each) or lfilter_each(each))
+    s = Structure(nb=(4, 5), nf=(5, 0), nk=(3, 0), nc=2, nd=2)
+    rng = np.random.default_rng(1)
+    eps, psi = prediction_errors(0.05 * rng.normal(size=s.n_params), s, rng.normal(size=(500, 2)),
+                                 rng.normal(size=500), jacobian=True)
+    assert len(jobs) == 3 + 5 and psi.shape == (500, s.n_params)
+
+
 @pytest.mark.parametrize("d", [1, 19, 41])
 def test_the_lm_eigendecomposition_is_scipys_eigh_to_the_bit(d):
     J = np.random.default_rng(d).normal(size=(500, d)) * np.logspace(0, 6, d)  # ill-conditioned like Ψ
