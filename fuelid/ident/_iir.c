@@ -164,6 +164,11 @@ static int doubles(PyObject *obj, Py_buffer *view, int writable, const char *nam
     return 1;
 }
 
+static void release(Py_buffer *v, int count) {
+    while (count > 0)
+        PyBuffer_Release(&v[--count]);
+}
+
 /* v ← the buffers of args, `jobs` groups (b, a, x, y) of them: every b and a of one length n (2 ≤ n ≤ MAX_TAPS),
  * every x and y of one length, written to *len; returns n, or 0 with an exception set and no buffer held. */
 static Py_ssize_t filter_jobs(PyObject *args, int jobs, Py_buffer *v, Py_ssize_t *len) {
@@ -172,10 +177,11 @@ static Py_ssize_t filter_jobs(PyObject *args, int jobs, Py_buffer *v, Py_ssize_t
         PyErr_Format(PyExc_TypeError, "%d arguments (b, a, x, y for each signal) are needed", 4 * jobs);
         return 0;
     }
-    int held = 0;
-    for (; held < 4 * jobs; held++)
-        if (!doubles(PyTuple_GET_ITEM(args, held), &v[held], held % 4 == 3, NAMES[held % 4]))
-            goto release;
+    for (int held = 0; held < 4 * jobs; held++)
+        if (!doubles(PyTuple_GET_ITEM(args, held), &v[held], held % 4 == 3, NAMES[held % 4])) {
+            release(v, held);
+            return 0;
+        }
     Py_ssize_t n = v[0].shape[0];
     *len = v[2].shape[0];
     int fits = n >= 2 && n <= MAX_TAPS;
@@ -186,43 +192,32 @@ static Py_ssize_t filter_jobs(PyObject *args, int jobs, Py_buffer *v, Py_ssize_t
         return n;
     PyErr_Format(PyExc_ValueError, "every b and a of one length in 2..%d, every x and y of one length are needed",
                  MAX_TAPS);
-release:
-    while (held > 0)
-        PyBuffer_Release(&v[--held]);
+    release(v, 4 * jobs);
     return 0;
 }
 
-static void release(Py_buffer *v, int count) {
-    while (count > 0)
-        PyBuffer_Release(&v[--count]);
+/* The filters of args, one signal (jobs 1: iir_N) or two side by side (jobs 2: iir_Nx2), the GIL released. */
+static PyObject *filter(PyObject *args, int jobs) {
+    Py_buffer v[8];
+    Py_ssize_t len, n = filter_jobs(args, jobs, v, &len);
+    if (!n)
+        return NULL;
+    Py_BEGIN_ALLOW_THREADS
+    if (jobs == 1)
+        KERNELS[n](v[0].buf, v[1].buf, v[2].buf, v[3].buf, len);
+    else
+        PAIR_KERNELS[n](v[0].buf, v[1].buf, v[2].buf, v[3].buf, v[4].buf, v[5].buf, v[6].buf, v[7].buf, len);
+    Py_END_ALLOW_THREADS
+    release(v, 4 * jobs);
+    Py_RETURN_NONE;
 }
 
 /* iir(b, a, x, y): y ← the filter b/a (same length n, 2 ≤ n ≤ MAX_TAPS, a[0] = 1) applied to x, from zero state. */
-static PyObject *iir(PyObject *self, PyObject *args) {
-    Py_buffer v[4];
-    Py_ssize_t len, n = filter_jobs(args, 1, v, &len);
-    if (!n)
-        return NULL;
-    Py_BEGIN_ALLOW_THREADS
-    KERNELS[n](v[0].buf, v[1].buf, v[2].buf, v[3].buf, len);
-    Py_END_ALLOW_THREADS
-    release(v, 4);
-    Py_RETURN_NONE;
-}
+static PyObject *iir(PyObject *self, PyObject *args) { return filter(args, 1); }
 
 /* iir_pair(b0, a0, x0, y0, b1, a1, x1, y1): y0 ← the filter b0/a0 applied to x0 and y1 ← b1/a1 applied to x1, side
  * by side; every b, a of one length n (2 ≤ n ≤ MAX_TAPS, a[0] = 1), x0, x1, y0, y1 of one length. */
-static PyObject *iir_pair(PyObject *self, PyObject *args) {
-    Py_buffer v[8];
-    Py_ssize_t len, n = filter_jobs(args, 2, v, &len);
-    if (!n)
-        return NULL;
-    Py_BEGIN_ALLOW_THREADS
-    PAIR_KERNELS[n](v[0].buf, v[1].buf, v[2].buf, v[3].buf, v[4].buf, v[5].buf, v[6].buf, v[7].buf, len);
-    Py_END_ALLOW_THREADS
-    release(v, 8);
-    Py_RETURN_NONE;
-}
+static PyObject *iir_pair(PyObject *self, PyObject *args) { return filter(args, 2); }
 
 static PyMethodDef METHODS[] = {
     {"iir", iir, METH_VARARGS, "iir(b, a, x, y): y <- scipy.signal.lfilter(b, a, x); b, a normalised, equal length."},

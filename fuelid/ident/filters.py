@@ -74,7 +74,7 @@ def lfilter_each(jobs) -> list[np.ndarray]:
     if len(jobs) == 1:  # nothing to pair
         return [lfilter(*jobs[0])]
     jobs = [(np.asarray(b), np.asarray(a), np.asarray(x)) for b, a, x in jobs]
-    kernels = [_kernel_form(b, a, x) if x.ndim == 1 and not _fir(b, a, x) else None for b, a, x in jobs]
+    kernels = [_kernel_form(b, a, x) if x.ndim == 1 else None for b, a, x in jobs]  # None for a FIR filter
     paired = [k for k, form in enumerate(kernels) if form is not None]
     out = [None if form is not None else lfilter(*job) for job, form in zip(jobs, kernels)]
     done = _through_kernel([(*kernels[k], np.ascontiguousarray(jobs[k][2], dtype=np.float64)) for k in paired])
