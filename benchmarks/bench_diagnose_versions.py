@@ -1,8 +1,10 @@
 """Diagnosis time of two checkouts of fuelid side by side: `fuelid diagnose` on the 60- and 90-minute trips with a
-DPF regeneration (seed 7, as `bench_diagnose.py` times them) on both engines, CPU seconds (best of 3 in a process),
-fresh processes alternating between the checkouts, one core; and whether both name the same effects.
+DPF regeneration (seed 7, as `bench_diagnose.py` times them) on both engines, CPU seconds of every thread of the
+process and wall seconds (each the least of 3 in a process), fresh processes alternating between the checkouts, on
+one core with one BLAS thread unless asked otherwise; and whether both name the same effects.
 
     .venv/bin/python benchmarks/bench_diagnose_versions.py --before /path/to/other/checkout [--rounds 2] [--cpu 0]
+    .venv/bin/python benchmarks/bench_diagnose_versions.py --before CHECKOUT --cpu -1 --blas-threads 2  # all cores
 
 Both checkouts run with this interpreter (so with the same dependencies), each importing its own fuelid and
 tests/ident/hidden.py (sys.path[0] = the checkout), e.g. `git worktree add --detach /tmp/base main` for main.
@@ -21,7 +23,8 @@ CASES = [("diesel_p320", 60), ("diesel_p320", 90), ("map", 60), ("map", 90)]
 
 
 def worker(root: str, truth: str, minutes: float):
-    """Diagnose the trip with the fuelid of checkout `root`; one JSON line: least CPU time [s] of 3, effects named."""
+    """Diagnose the trip with the fuelid of checkout `root`; one JSON line: least CPU and wall time [s] of 3,
+    effects named."""
     sys.path.insert(0, root)
     import time
     import warnings
@@ -32,40 +35,45 @@ def worker(root: str, truth: str, minutes: float):
     warnings.simplefilter("ignore")
     ds, _, _ = hidden.simulated("dpf_regeneration", 7, minutes * 60.0, truth=truth)
     model = hidden.identify(ds)
-    times = []
+    cpu, wall = [], []
     for _ in range(3):
-        t = time.process_time()
+        t, c = time.perf_counter(), time.process_time()
         out = dg.diagnose(model, ds)
-        times.append(time.process_time() - t)
-    print(json.dumps({"cpu_s": min(times), "named": [c.effect for c in out.candidates if c.role]}))
+        cpu.append(time.process_time() - c)
+        wall.append(time.perf_counter() - t)
+    print(json.dumps({"cpu_s": min(cpu), "wall_s": min(wall), "named": [c.effect for c in out.candidates if c.role]}))
 
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--before", help="the other checkout (a directory holding fuelid/ and tests/)")
     p.add_argument("--rounds", type=int, default=2, help="processes of each checkout per case, alternating")
-    p.add_argument("--cpu", type=int, default=0, help="the core every process runs on")
+    p.add_argument("--cpu", type=int, default=0, help="the core every process runs on (-1: any core)")
+    p.add_argument("--blas-threads", type=int, default=1, help="BLAS threads each process may run")
     p.add_argument("--worker", nargs=3, help=argparse.SUPPRESS)
     args = p.parse_args()
-    if hasattr(os, "sched_setaffinity"):
+    if args.cpu >= 0 and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {args.cpu})  # inherited by the workers
     if args.worker:
         return worker(args.worker[0], args.worker[1], float(args.worker[2]))
     if not args.before:
         p.error("--before is required")
     roots = {"before": str(Path(args.before).resolve()), "after": str(Path(__file__).resolve().parents[1])}
-    print(f"{'engine':12} {'trip':>6}  {'before [CPU s]':>14}  {'after [CPU s]':>13}  after/before  same effects named  load")
+    print(f"{'engine':12} {'trip':>6}  {'before [CPU s]':>14}  {'after [CPU s]':>13}  after/before  "
+          f"{'before [wall s]':>15}  {'after [wall s]':>14}  after/before  same effects named  load")
     for truth, minutes in CASES:
         runs = {name: [] for name in roots}
         for _ in range(args.rounds):
             for name, root in roots.items():
                 runs[name].append(worker_results(sys.executable, __file__, ["--worker", root, truth, str(minutes),
-                                                                             "--cpu", str(args.cpu)])[-1])
-        before, after = (min(r["cpu_s"] for r in runs[n]) for n in roots)
+                                                                             "--cpu", str(args.cpu)],
+                                                 args.blas_threads)[-1])
+        (cpu_before, cpu_after), (wall_before, wall_after) = ([min(r[key] for r in runs[n]) for n in roots]
+                                                              for key in ("cpu_s", "wall_s"))
         same = runs["before"][-1]["named"] == runs["after"][-1]["named"]
-        print(f"{truth:12} {minutes:4d} min  {before:14.2f}  {after:13.2f}  {after / before:11.2f}×  {str(same):>18}"
+        print(f"{truth:12} {minutes:4d} min  {cpu_before:14.2f}  {cpu_after:13.2f}  {cpu_after / cpu_before:11.2f}×  "
+              f"{wall_before:15.2f}  {wall_after:14.2f}  {wall_after / wall_before:11.2f}×  {str(same):>18}"
               f"  {os.getloadavg()[0]:.2f}", flush=True)
-
 
 if __name__ == "__main__":
     main()

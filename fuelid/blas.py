@@ -10,9 +10,15 @@ same truck's data different models. So fuelid asks OpenBLAS for its Haswell kern
 not reach: a process that imported numpy before fuelid keeps the kernels chosen then, and is warned (pinning
 then would give scipy's OpenBLAS other kernels than numpy's: a third set of numbers); a CPU without AVX2; other
 platforms (aarch64, macOS on Apple silicon), whose BLAS builds differ anyway.
+
+And on any number of cores: fuelid's matrix products are N × d with d up to about a hundred, where BLAS threads
+cost more time than they save (PEM 8× slower on 2 cores, measured), and OpenBLAS sums some of them in another order
+on several threads than on one. The fits and the diagnosis run in `one_blas_thread()` (`in_one_blas_thread` for a
+whole function), so their numbers are a fleet worker's, which runs one thread (fleet.jobs), on a laptop of any size.
 """
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import sys
@@ -51,3 +57,25 @@ def pin_kernels(environ: MutableMapping[str, str] = os.environ, machine: str | N
         else:
             environ["OPENBLAS_CORETYPE"] = CORETYPE
     return environ.get("OPENBLAS_CORETYPE")
+
+
+@functools.lru_cache(maxsize=1)
+def _threadpools():
+    # imported and built on first use, when numpy's and scipy's OpenBLAS are loaded: the logger imports fuelid
+    # without them, and threadpoolctl scans the process's libraries each time a controller is built (1–2 ms)
+    from threadpoolctl import ThreadpoolController
+    return ThreadpoolController()
+
+
+def one_blas_thread():
+    """A context in which BLAS (every BLAS library loaded when it is first used) runs on one thread."""
+    return _threadpools().limit(limits=1, user_api="blas")
+
+
+def in_one_blas_thread(f):
+    """f, run with BLAS on one thread (`one_blas_thread`)."""
+    @functools.wraps(f)
+    def in_one_thread(*args, **kwargs):
+        with one_blas_thread():
+            return f(*args, **kwargs)
+    return in_one_thread

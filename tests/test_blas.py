@@ -7,7 +7,10 @@ import sys
 
 import pytest
 
-from fuelid.blas import CORETYPE, NEEDS, cpu_flags, pin_kernels
+from fuelid.blas import CORETYPE, NEEDS, cpu_flags, in_one_blas_thread, one_blas_thread, pin_kernels
+
+import scipy.linalg  # noqa: E402, F401  (after fuelid: numpy's and scipy's OpenBLAS loaded, with its kernels)
+from threadpoolctl import threadpool_info, threadpool_limits  # noqa: E402
 
 
 def test_an_x86_64_cpu_with_avx2_gets_the_haswell_kernels():
@@ -54,3 +57,16 @@ def test_importing_fuelid_first_loads_numpy_and_scipy_with_the_haswell_kernels()
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     found = json.loads(out.stdout)
     assert found and set(found) == {CORETYPE}, found
+
+
+def test_one_blas_thread_runs_every_blas_on_one_thread_and_gives_the_threads_back():
+    def blas_threads():
+        return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_threads()
+        with one_blas_thread():
+            assert blas_threads() and set(blas_threads()) == {1}
+        assert blas_threads() == before
+        assert in_one_blas_thread(blas_threads)() == [1] * len(before)
+        assert in_one_blas_thread(blas_threads).__name__ == "blas_threads"

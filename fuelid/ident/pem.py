@@ -69,7 +69,6 @@ algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter's (ident.fi
 """
 from __future__ import annotations
 
-import contextlib
 import functools
 import operator
 import time
@@ -79,15 +78,11 @@ from typing import NamedTuple
 import numpy as np
 from scipy.linalg import lapack, lstsq
 
+from fuelid.blas import one_blas_thread
 from fuelid.errors import InputError
 from fuelid.ident.filters import lfilter, lfilter_each
 from fuelid.ident.polymodel import (Polynomials, PolyModel, Structure, as_inputs, from_theta, input_responses,
                                     parameter_names, polynomials)
-
-try:  # BLAS threads only cost time on N × d problems this narrow (8× slower on 2 cores, measured)
-    from threadpoolctl import threadpool_limits
-except ImportError:  # pragma: no cover - threadpoolctl missing: run with the BLAS defaults
-    threadpool_limits = None
 
 RHO_MAX = 0.9999  # largest root radius allowed in F_i, C, D
 HIGH_ORDER_ARX = 30  # order of the ARX model behind the OE/BJ initialisation
@@ -615,7 +610,7 @@ def pem_with_search(u, y, structure: Structure, Ts: float, *, segments=None, ini
         raise ValueError(f"init has structure {init.structure}, expected {s}")
     if after is not None and init is None:
         raise ValueError("a search is continued from the start it began at: init is needed with after")
-    with threadpool_limits(1, "blas") if threadpool_limits else contextlib.nullcontext():
+    with one_blas_thread():
         start = (InitialEstimate(init.theta, 0, 0) if init is not None else
                  initial_estimate(du, dy, s, starts=starts, tol=tol))
         t_init = time.perf_counter()

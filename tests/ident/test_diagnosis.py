@@ -413,3 +413,16 @@ def test_the_whitener_is_yule_walker_on_the_linear_autocovariances(n):
     a = st.ar_whitener(v, order)
     np.testing.assert_allclose(a, np.r_[1.0, -solve_toeplitz(acov[:order], acov[1:])], rtol=0, atol=1e-9)
     np.testing.assert_allclose(a[1:3], [-1.2, 0.5], atol=0.06)
+
+
+def test_the_diagnosis_does_not_depend_on_the_number_of_blas_threads():
+    """The same diagnosis, to the bit, whether BLAS may use one thread or several (a laptop's `fuelid diagnose`
+    and a fleet worker's, which runs one thread: fleet.jobs)."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    ds = hidden.make("dpf_regeneration", n=18000, seed=2)
+    model = fitted(ds)
+    said = []
+    for threads in (1, 2):
+        with threadpoolctl.threadpool_limits(limits=threads, user_api="blas"):
+            said.append(dg.diagnose(model, ds).to_json())
+    assert said[0] == said[1]

@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fuelid.blas import one_blas_thread
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.run import Run
-from fuelid.ident.diagnosis.statistics import (NuisanceBasis, ScoreTest, free_responses, nuisance_basis, one_blas_thread,
-                                               score_test)
+from fuelid.ident.diagnosis.statistics import NuisanceBasis, ScoreTest, free_responses, nuisance_basis, score_test
 from fuelid.ident.diagnosis.verification import (BLOCK_S, BUFFER_S, block_cv, held_out, held_out_scores,
                                                  without_with)
 from fuelid.ident.filters import lfilter

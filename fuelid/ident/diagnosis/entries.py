@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from fuelid.blas import one_blas_thread
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import Candidate, Evidence
 from fuelid.ident.diagnosis.delay import reference_fit, shift_test, verify_shift
 from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain, signals_text, static_gain
 from fuelid.ident.diagnosis.run import Run
-from fuelid.ident.diagnosis.statistics import lagged, level_test, one_blas_thread, score_test
+from fuelid.ident.diagnosis.statistics import lagged, level_test, score_test
 from fuelid.ident.diagnosis.verification import (MIN_IDENTIFIABILITY, identifiability, leave_one_trip_out,
                                                  slow_drifts, trip_groups, verify)
 from fuelid.ident.filters import lfilter

@@ -92,6 +92,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fuelid.blas import in_one_blas_thread
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP, MISSING_EFFECT, Candidate
@@ -668,6 +669,7 @@ def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | 
            f"of the engine, not a hidden effect; add effect {term.effect}"
 
 
+@in_one_blas_thread
 def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_effect_percent: float = 1.0,
              candidates=None, min_drop_percent: float = 2.0, effects=()) -> Diagnosis:
     """The whole diagnosis of `model` on dataset ds (ident.diagnosis and its modules).
@@ -689,7 +691,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     explanation, physics, tests. At most n_verify of the candidates that pass the tests and explain
     min_effect_percent are verified, by estimated drop (and the fuel delay, the signal path's own family,
     whenever its tests find it). effects: effects the engineer defined (ident.effectfile),
-    tested beside the built-in ones."""
+    tested beside the built-in ones. BLAS runs on one thread throughout: every product here is N × d with d up to
+    about a hundred, where its threads cost more time than they save, and the diagnosis is then the same to the bit
+    on any number of cores (a fleet worker runs one thread: fleet.jobs)."""
     mrun = run_model(model, ds)
     run = run_gradients(mrun)
     rows = rank_candidates(model, ds, run, candidates, alpha, effects)

@@ -8,7 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fuelid.ident.diagnosis.statistics import NuisanceBasis, free_responses, nuisance_basis, one_blas_thread
+from fuelid.blas import one_blas_thread
+from fuelid.ident.diagnosis.statistics import NuisanceBasis, free_responses, nuisance_basis
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modelrun import ModelRun
 from fuelid.ident.pem import prediction_errors

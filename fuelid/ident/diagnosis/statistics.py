@@ -45,7 +45,6 @@ model's torque path makes of it, B_T/(A F_T) x (the gradient at κ = 0, one colu
 """
 from __future__ import annotations
 
-import contextlib
 import functools
 from dataclasses import dataclass
 
@@ -55,11 +54,6 @@ from scipy.linalg import qr, solve_toeplitz, svd
 from scipy.stats import chi2
 
 from fuelid.ident.filters import lfilter
-
-try:  # BLAS threads only cost time on N × k problems this narrow (as in ident.pem)
-    from threadpoolctl import ThreadpoolController
-except ImportError:  # pragma: no cover - threadpoolctl missing: run with the BLAS defaults
-    ThreadpoolController = None
 
 RANK_TOL = 1e-10  # a nuisance column independent of the others by less than this share of its norm adds nothing
 AR_ORDER = 100  # samples of the AR whitener of the simulation-error test (30 s at 0.3 s)
@@ -265,13 +259,3 @@ def free_responses(denominators, n: int) -> np.ndarray:
             cols.append(lfilter([1.0], den, impulse))
     return np.column_stack(cols) if cols else np.zeros((n, 0))
 
-
-@functools.lru_cache(maxsize=1)
-def _blas_controller():
-    # found once: threadpoolctl scans the process's loaded libraries each time it is built (tens of ms)
-    return ThreadpoolController()
-
-
-def one_blas_thread():
-    """A context in which BLAS runs on one thread (none when threadpoolctl is missing)."""
-    return _blas_controller().limit(limits=1, user_api="blas") if ThreadpoolController else contextlib.nullcontext()

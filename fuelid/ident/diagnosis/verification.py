@@ -66,8 +66,9 @@ import numpy as np
 from scipy.linalg import cho_solve, cholesky, lstsq, svd
 from scipy.linalg.lapack import dpocon
 
+from fuelid.blas import one_blas_thread
 from fuelid.ident.diagnosis.run import Run
-from fuelid.ident.diagnosis.statistics import NuisanceBasis, one_blas_thread
+from fuelid.ident.diagnosis.statistics import NuisanceBasis
 from fuelid.ident.filters import lfilter
 from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import cycle_fuel_error, error_table
