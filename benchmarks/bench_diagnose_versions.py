@@ -75,5 +75,6 @@ def main():
               f"{wall_before:15.2f}  {wall_after:14.2f}  {wall_after / wall_before:11.2f}×  {str(same):>18}"
               f"  {os.getloadavg()[0]:.2f}", flush=True)
 
+
 if __name__ == "__main__":
     main()

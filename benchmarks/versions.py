@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 
+
 def blas_threads_env(threads: int) -> dict[str, str]:
     """The environment variables that set how many threads BLAS (OpenBLAS, MKL, OpenMP) may run."""
     return {name: str(threads) for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}

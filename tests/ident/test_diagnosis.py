@@ -9,6 +9,7 @@ import pytest
 from scipy.linalg import block_diag, solve_toeplitz
 from scipy.signal import lfilter
 from scipy.stats import chi2, kstest
+from threadpoolctl import threadpool_limits
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
@@ -418,11 +419,10 @@ def test_the_whitener_is_yule_walker_on_the_linear_autocovariances(n):
 def test_the_diagnosis_does_not_depend_on_the_number_of_blas_threads():
     """The same diagnosis, to the bit, whether BLAS may use one thread or several (a laptop's `fuelid diagnose`
     and a fleet worker's, which runs one thread: fleet.jobs)."""
-    threadpoolctl = pytest.importorskip("threadpoolctl")
     ds = hidden.make("dpf_regeneration", n=18000, seed=2)
     model = fitted(ds)
     said = []
     for threads in (1, 2):
-        with threadpoolctl.threadpool_limits(limits=threads, user_api="blas"):
+        with threadpool_limits(limits=threads, user_api="blas"):
             said.append(dg.diagnose(model, ds).to_json())
     assert said[0] == said[1]
