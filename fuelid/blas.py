@@ -25,6 +25,8 @@ import sys
 import warnings
 from collections.abc import MutableMapping
 
+from threadpoolctl import ThreadpoolController
+
 CORETYPE = "Haswell"  # OpenBLAS's AVX2 kernels: the ones it picks by itself on AMD Zen
 NEEDS = frozenset({"avx2", "fma"})  # what those kernels execute
 LATE = ("numpy was imported before fuelid, so OpenBLAS keeps the kernels it chose for this CPU: results may differ "
@@ -60,10 +62,9 @@ def pin_kernels(environ: MutableMapping[str, str] = os.environ, machine: str | N
 
 
 @functools.lru_cache(maxsize=1)
-def _threadpools():
-    # imported and built on first use, when numpy's and scipy's OpenBLAS are loaded: the logger imports fuelid
-    # without them, and threadpoolctl scans the process's libraries each time a controller is built (1–2 ms)
-    from threadpoolctl import ThreadpoolController
+def _threadpools() -> ThreadpoolController:
+    # built on first use, once numpy's and scipy's OpenBLAS are loaded (fuelid is imported before numpy), and once:
+    # threadpoolctl scans the process's libraries each time a controller is built (1–2 ms)
     return ThreadpoolController()
 
 
