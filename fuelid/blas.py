@@ -12,9 +12,10 @@ then would give scipy's OpenBLAS other kernels than numpy's: a third set of numb
 platforms (aarch64, macOS on Apple silicon), whose BLAS builds differ anyway.
 
 And on any number of cores: fuelid's matrix products are N × d with d up to about a hundred, where BLAS threads
-cost more time than they save (PEM 8× slower on 2 cores, measured), and OpenBLAS sums some of them in another order
-on several threads than on one. The fits and the diagnosis run in `one_blas_thread()` (`in_one_blas_thread` for a
-whole function), so their numbers are a fleet worker's, which runs one thread (fleet.jobs), on a laptop of any size.
+cost more time than they save (README), and OpenBLAS sums some products, long dot products among them, in another
+order on several threads than on one. The fits, the validation's correlations and fit % and the diagnosis run in
+`one_blas_thread()` (`in_one_blas_thread` for a whole function), so their numbers are a fleet worker's, which runs
+one thread (fleet.jobs), on a laptop of any size.
 """
 from __future__ import annotations
 
