@@ -36,12 +36,13 @@ import tempfile
 import time
 from pathlib import Path
 
+from versions import blas_threads_env
+
 HERE = Path(__file__).resolve().parent
 PEERS = HERE / ".venv-peers"
 PEER_PYTHON = PEERS / "bin" / "python"
 NB, NF, NK, NC = (4, 5), 5, (3, 0), 11
 FIR_TAPS = 15
-ONE_CORE_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 # ---- peers: run inside benchmarks/.venv-peers, given u (N × 2) and y (N) in an .npz ----
@@ -97,7 +98,7 @@ def run_peer(name, u, y, timeout):
         t0 = time.perf_counter()
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
-                                  env={**os.environ, **ONE_CORE_ENV})
+                                  env={**os.environ, **blas_threads_env(1)})
         except subprocess.TimeoutExpired:
             return {"status": f"timeout after {timeout:.0f} s", "wall_time_s": time.perf_counter() - t0}
         if proc.returncode != 0 or not out.exists():
