@@ -21,7 +21,8 @@ def trip(tmp_path_factory):
 def test_identify_diagnose_add_the_effect_and_watch_the_error_fall(trip, capsys):
     data, before, after = trip / "trip.mcap", trip / "before.json", trip / "after.json"
     run_json(capsys, "identify", data, "-o", before)
-    result = run_json(capsys, "diagnose", before, data)
+    result = run_json(capsys, "diagnose", before, data, "--workers", 1)  # what identify builds, built ahead
+    assert run_json(capsys, "diagnose", before, data, "--workers", 0) == result  # the same, built when needed
     top = result["candidates"][0]
     assert top["effect"] == "dpf_regeneration" and top["significant"] and 3700 in top["spns"]
     assert "add effect dpf_regeneration" in top["explanation"] and result["verdict"].startswith("Missing effect")

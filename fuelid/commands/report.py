@@ -3,6 +3,7 @@ import json
 from pathlib import Path
 
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
+from fuelid.commands.diagnose import add_workers_argument
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis import diagnose
 from fuelid.ident.modelfile import load_model
@@ -27,6 +28,7 @@ def add_arguments(p):
                         "diagnosing again")
     p.add_argument("--max-points", type=int, default=6000, metavar="N",
                    help="points per curve before min/max decimation (default 6000)")
+    add_workers_argument(p)
     add_dataset_arguments(p)
 
 
@@ -71,7 +73,7 @@ def run(args) -> int:
         diagnosis = saved_diagnosis(args.diagnosis, model_paths[0], data_paths)
         verdict = diagnosis["verdict"]
     else:
-        diagnosis = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify)
+        diagnosis = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, workers=args.workers)
         verdict = diagnosis.verdict
     out = write_report(args.output, model, ds, diagnosis=diagnosis, label=Path(model_paths[0]).name,
                        after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],

@@ -110,6 +110,15 @@ def test_on_the_map_engine_a_hidden_dpf_regeneration_is_found_on_top_of_the_map_
     assert dpf["conditional"]["rmse_drop_percent"] >= 25.0, dpf["conditional"]
 
 
+def test_on_the_map_engine_building_ahead_in_a_worker_gives_the_same_diagnosis():
+    """`fuelid diagnose --workers 1` (ident.diagnosis.builds): the models `fuelid identify` would build — with the
+    map term, with it and the regeneration, without either — on which what is recommended is checked, built ahead in
+    a worker process: the same diagnosis, to the bit, as with each built when needed."""
+    ds, _, _ = hidden.simulated("dpf_regeneration", 3000, truth="map")
+    out, _, _ = diagnosed("dpf_regeneration", 3000, truth="map")
+    assert dg.diagnose(hidden.identify(ds), ds, workers=1).to_json() == out
+
+
 def built_rmse(ds, val, memo: FitMemo, effects) -> float:
     """RMS simulation error [L/h] on the trip val of the model `fuelid identify` builds on ds with `effects`; memo
     shared by one test's calls, whose sets of effects nest (each fit made once)."""

@@ -95,6 +95,7 @@ import numpy as np
 from fuelid.blas import in_one_blas_thread
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis.builds import ModelBuilds
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP, MISSING_EFFECT, Candidate
 from fuelid.ident.diagnosis.carryover import WAYS, left_out_trips
 from fuelid.ident.diagnosis.entries import ENTRIES
@@ -104,7 +105,7 @@ from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm
 from fuelid.ident.diagnosis.verification import MIN_IDENTIFIABILITY, held_out, held_out_scores
 from fuelid.ident.filters import lfilter
-from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
+from fuelid.ident.identify import FitMemo, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.polymodel import PolyModel, Structure
@@ -457,6 +458,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
             refitted = _refit(c, model, run, ds, effects, min_drop_percent,
                               built if c.effect in (MAP_TERM, PRODUCT_TERM) else None,
                               built.memo if built is not None else None)
+            if built is not None and c.effect not in (MAP_TERM, PRODUCT_TERM) and _may_be_built(c, refitted):
+                built.expect(c)
             if refitted is not None:
                 rivals = [r for r in found[k + 1:] if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
                 c.alternatives = _indistinguishable(c, rivals, model, refitted, ds, alpha, min_effect_percent, effects)
@@ -466,9 +469,20 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
             break
         found = _retest(pool, model, run, ds, [a.effect for a in named if a.refit["verified"]], alpha,
                         min_effect_percent, min_drop_percent, n_verify) if pool else []
+        if built is not None and found and not _generic(found[0]):
+            built.guess(found[0])  # the one accepted next, if its refit holds
     for c in pool:
         (c.conditional or {}).pop("explanation", None)
     return named
+
+
+def _may_be_built(c: Candidate, refitted) -> bool:
+    """Whether the final check may build the model with c, accepted by forward selection (`refitted` its verified
+    refit, or None): when its refit is verified, unless a generic bus signal found on one trip (never
+    recommended), or when only the warm-started refit was worse (`_only_the_warm_refit_worse`)."""
+    if refitted is None:
+        return _only_the_warm_refit_worse(c)
+    return not (_generic(c) and "trips" not in (c.verification or {}))
 
 
 def _own_structure(model: PolyModel) -> Structure:
@@ -489,18 +503,37 @@ class _Built:
     (ident.identify.identify_model: PEM from its own initialisation and from the effects added in turn, not from
     the model diagnosed), kept with its RMS simulation error [output unit] on those data (module docstring, 5)."""
 
-    def __init__(self, model: PolyModel, ds, effects=()):
-        self.structure, self.ds, self.defined = _own_structure(model), ds, effects
-        self.base = model if not model.effects else None  # its second start (identify_model), when it is one
+    def __init__(self, model: PolyModel, ds, effects=(), workers: int = 0):
         self.specs, self.rmse = list(model.effects), None
-        self.memo = FitMemo()  # the model with E + [c] is built through the fits of E's: fitted once
-        self._models: dict[tuple[str, ...], PolyModel] = {}  # the engine's term's: searched on, then checked
+        # its second start (identify_model) is the model diagnosed, when that is one; the model with E + [c] is built
+        # through the fits of E's: fitted once
+        self.builds = ModelBuilds(ds, _own_structure(model), effects, model if not model.effects else None, workers)
+        self.memo = self.builds.memo
+        self._expected: list[str] = []  # the effects expected to be added, in the order `add` will take them
+
+    @property
+    def ahead(self) -> bool:
+        """Whether builds asked for ahead run in a worker process beside the diagnosis."""
+        return self.builds.ahead
+
+    def close(self) -> None:
+        """Stop the builds' worker (builds.ModelBuilds.close)."""
+        self.builds.close()
+
+    def expect(self, c: Candidate) -> None:
+        """c is expected to be added after those expected before it: ask ahead for the model `add` will build with
+        them (builds.ModelBuilds.ask), and, for the first, the one without it that `add` compares it with."""
+        if not self._expected:
+            self.builds.ask(self.specs)
+        self._expected.append(c.spec)
+        self.builds.ask(self.specs + self._expected)
+
+    def guess(self, c: Candidate) -> None:
+        """Ask ahead for the model built with c after those expected, c not expected yet (a likely next one)."""
+        self.builds.ask(self.specs + self._expected + [c.spec])
 
     def _model(self, specs: list[str]) -> PolyModel:
-        if tuple(specs) not in self._models:
-            self._models[tuple(specs)] = identify_model(self.ds, self.structure, specs, defined=self.defined,
-                                                        base=self.base, memo=self.memo)
-        return self._models[tuple(specs)]
+        return self.builds.model(specs)
 
     def _rmse(self, specs: list[str]) -> float:
         return self._model(specs).validation["rmse"]["simulation"]
@@ -671,7 +704,7 @@ def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | 
 
 @in_one_blas_thread
 def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_effect_percent: float = 1.0,
-             candidates=None, min_drop_percent: float = 2.0, effects=()) -> Diagnosis:
+             candidates=None, min_drop_percent: float = 2.0, effects=(), workers: int = 0) -> Diagnosis:
     """The whole diagnosis of `model` on dataset ds (ident.diagnosis and its modules).
 
     Returns a Diagnosis: model, data, compare (ident.validation.metrics of its run), held_out (held_out_scores of
@@ -693,9 +726,30 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     whenever its tests find it). effects: effects the engineer defined (ident.effectfile),
     tested beside the built-in ones. BLAS runs on one thread throughout: every product here is N × d with d up to
     about a hundred, where its threads cost more time than they save, and the diagnosis is then the same to the bit
-    on any number of cores (a fleet worker runs one thread: fleet.jobs)."""
+    on any number of cores (a fleet worker runs one thread: fleet.jobs). workers: 1 to build the models `fuelid
+    identify` would build, on which what is recommended is checked (5), ahead in a worker process beside the
+    diagnosis (ident.diagnosis.builds: the same diagnosis, sooner on two cores), 0 to build each here when needed
+    (the fleet's jobs: one per core already)."""
     mrun = run_model(model, ds)
     run = run_gradients(mrun)
+    built = _Built(model, ds, effects, workers)  # what is recommended is verified on the model identify builds (5)
+    try:
+        return _diagnosed(model, ds, mrun, run, built, candidates, alpha, n_verify, min_effect_percent,
+                          min_drop_percent, effects)
+    finally:
+        built.close()
+
+
+def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, candidates, alpha: float,
+               n_verify: int, min_effect_percent: float, min_drop_percent: float, effects) -> Diagnosis:
+    """`diagnose` with its model run, gradients and the builds it checks on."""
+    relevant = lambda c: c.test_significant and c.estimated_drop_percent >= min_effect_percent  # noqa: E731
+    if built.ahead and n_verify and candidates is None and MAP_TERM not in model.effects:
+        # the engine's term tested first, alone (at α, as in rank_candidates): its build starts in the worker
+        # while the other candidates are tested
+        early = rank_candidates(model, ds, run, [fx.EFFECTS[MAP_TERM]], alpha)[0]
+        if relevant(early):
+            built.guess(early)
     rows = rank_candidates(model, ds, run, candidates, alpha, effects)
     testable = [c for c in rows if c.testable]
     try:  # the model as it is, scored on each block left out: the reference every verification is measured against
@@ -705,10 +759,11 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         base = base_ysim = None
     if n_verify and base is None and any(c.test_significant for c in testable):
         raise InputError("the model cannot be scored on held-out blocks of these data")
-    built = _Built(model, ds, effects)  # what is recommended is verified on the model identify builds of it (5)
+    full = next((c for c in testable if c.effect == MAP_TERM), None)
+    if n_verify and full is not None and relevant(full):  # the build the engine's term needs, ahead (builds.py)
+        built.guess(full)
     term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify,
                            built)
-    relevant = lambda c: c.test_significant and c.estimated_drop_percent >= min_effect_percent  # noqa: E731
     others = sorted((c for c in testable if c.effect not in (MAP_TERM, PRODUCT_TERM) and relevant(c)),
                     key=lambda c: -_priority(c))
     for c in others[:n_verify] + [c for c in others[n_verify:] if n_verify and not c.entry.retested]:
@@ -734,6 +789,9 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     confirmed.sort(key=lambda c: (c.verification is None, -_priority(c)))  # verified ones first
     accepted = [c for c in confirmed if not c.entry.retested]  # the fuel delay: the signal path (delay.py)
     first = [term] if term is not None else [c for c in confirmed if c.entry.retested]
+    if term is not None:  # the builds `add` takes if the term and the fuel delay are added (the others: select_forward)
+        for c in [term] + accepted:
+            built.expect(c)
     if first:
         pool = [c for c in hidden if c.entry.retested]
         found = select_forward(first, pool, run, model, ds, alpha, min_effect_percent, min_drop_percent, n_verify,

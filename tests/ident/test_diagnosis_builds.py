@@ -1,0 +1,58 @@
+"""ident.diagnosis.builds: the models `fuelid identify` would build, built once each, ahead in a worker process —
+the same models, to the bit, as built here, the worker's errors raised here, and the worker stopped on close."""
+import multiprocessing
+
+import numpy as np
+import pytest
+
+from fuelid.errors import FuelidError
+from fuelid.ident.diagnosis.builds import ModelBuilds
+from fuelid.ident.identify import identify_model
+from tests.ident import hidden
+
+
+@pytest.fixture(scope="module")
+def ds():
+    return hidden.make("dpf_regeneration", n=4000, seed=1)
+
+
+def test_a_model_built_in_the_worker_is_the_one_identify_builds(ds):
+    with ModelBuilds(ds, hidden.STRUCTURE, workers=1) as builds:
+        builds.ask(["dpf_regeneration"])
+        ahead = builds.model(["dpf_regeneration"])
+        here = builds.model([])  # never asked for: built in the worker too, where the fits before it are
+        assert builds.model(["dpf_regeneration"]) is ahead  # built once
+    for built, effects in ((ahead, ["dpf_regeneration"]), (here, [])):
+        expected = identify_model(ds, hidden.STRUCTURE, effects)
+        assert np.array_equal(built.theta, expected.theta)
+        assert built.validation == expected.validation and built.effects == expected.effects
+
+
+def test_without_a_worker_each_model_is_built_when_taken(ds):
+    builds = ModelBuilds(ds, hidden.STRUCTURE)
+    builds.ask(["dpf_regeneration"])  # nothing to build ahead in
+    assert not builds.ahead and len(builds.memo) == 0
+    model = builds.model(["dpf_regeneration"])
+    assert np.array_equal(model.theta, identify_model(ds, hidden.STRUCTURE, ["dpf_regeneration"]).theta)
+    builds.close()
+
+
+def test_what_the_worker_cannot_build_is_raised_here_each_time_it_is_asked_for(ds):
+    with ModelBuilds(ds, hidden.STRUCTURE, workers=1) as builds:
+        builds.ask(["no_such_effect"])
+        for _ in range(2):
+            with pytest.raises(FuelidError, match="no_such_effect"):
+                builds.model(["no_such_effect"])
+
+
+def test_closing_stops_the_worker_whatever_it_is_building(ds):
+    builds = ModelBuilds(ds, hidden.STRUCTURE, workers=1)
+    builds.ask(["dpf_regeneration"])
+    builds.close()
+    assert not builds.ahead and multiprocessing.active_children() == []
+    builds.close()  # closing twice is harmless
+
+
+def test_one_worker_or_none():
+    with pytest.raises(ValueError, match="workers"):
+        ModelBuilds(None, hidden.STRUCTURE, workers=2)
