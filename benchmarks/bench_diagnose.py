@@ -76,7 +76,7 @@ def timing(truth: str, engine: str = ""):
           f"{ahead:.2f} s ({ahead / t:.2f})   top: {top['spec']}")
     days, _, _ = hidden.simulated("hot_intake_air", 3000, truth=truth, engine=engine, days=GENERIC_DAYS)
     days_model = hidden.identify(days)
-    named = [c["effect"] for c in same_either_way(days_model, days)["candidates"] if c["recommended"]]
+    named = [c["effect"] for c in same_either_way(days_model, days)["candidates"] if c.get("recommended")]
     t, ahead = (best_of(lambda: dg.diagnose(days_model, days, workers=w)) for w in (0, 1))
     print(f" {GENERIC_DAYS} days of 20 min with the hot intake air (generic signals checked leave-one-trip-out by PEM): "
           f"{t:.2f} s, with a worker {ahead:.2f} s ({ahead / t:.2f})   recommended: {', '.join(named)}")

@@ -59,6 +59,15 @@ class FitMemo:
         """The number of fits made."""
         return len(self._fits)
 
+    def items(self) -> list[tuple[tuple[bytes, int], tuple[PolyModel, LMResult]]]:
+        """The fits made, ((digest, max_iter), (model, search)): what another memo of the same calls takes (`update`;
+        the diagnosis's worker process, ident.diagnosis.builds)."""
+        return list(self._fits.items())
+
+    def update(self, items) -> None:
+        """Keep the fits `items` (another memo's `items()`) as if made here."""
+        self._fits.update(items)
+
     @staticmethod
     def _key(u, y, structure: Structure, Ts: float, segments, u0, y0: float, init: PolyModel | None) -> bytes:
         """A digest of everything pem's result depends on but its iteration limit (the start: init's θ, which is

@@ -20,9 +20,13 @@ def test_a_model_built_in_the_worker_is_the_one_identify_builds(ds):
     with ModelBuilds(ds, hidden.STRUCTURE, workers=1) as builds:
         builds.ask(["dpf_regeneration"])
         ahead = builds.model(["dpf_regeneration"])
-        here = builds.model([])  # never asked for: built in the worker too, where the fits before it are
-        assert builds.model(["dpf_regeneration"]) is ahead  # built once
-    for built, effects in ((ahead, ["dpf_regeneration"]), (here, [])):
+        assert builds.model(["dpf_regeneration"]) is ahead and len(builds.memo) == 0  # built once, in the worker
+        # never asked for, but built through the fits of the one with the regeneration: in the worker too
+        after = builds.model(["dpf_regeneration", "inertia"])
+        assert len(builds.memo) == 0
+        here = builds.model([])  # never asked for, and nothing to build it through: built here
+        assert len(builds.memo) == 1
+    for built, effects in ((ahead, ["dpf_regeneration"]), (after, ["dpf_regeneration", "inertia"]), (here, [])):
         expected = identify_model(ds, hidden.STRUCTURE, effects)
         assert np.array_equal(built.theta, expected.theta)
         assert built.validation == expected.validation and built.effects == expected.effects

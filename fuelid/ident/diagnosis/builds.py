@@ -1,16 +1,21 @@
 """The models `fuelid identify --effects-from` would build on the diagnosed data (ident.identify.identify_model),
-each built once — ahead, in a worker process beside the diagnosis, when it is given one.
+each built once — ahead, in a worker process beside the diagnosis, when it has one.
 
 The diagnosis checks what it recommends on the model identify builds with it (ranking, 5), and on a real engine
-those builds are most of its time (PEM from two starts of a model of 70–80 parameters). It can tell early which it
-may need: the model with the engine's map term once that term's test rejects, the one with each effect forward
-selection accepts once the refit with it is verified. `ModelBuilds.ask` hands such a build to the worker, which runs
-it while the diagnosis goes on testing and verifying; `ModelBuilds.model` takes it when the diagnosis needs it (and
-builds it here if it was never asked for). identify_model is deterministic and the worker runs the same code on the
-same kernels (it imports fuelid first, fuelid.blas) on one BLAS thread, so a model built there is the one built
-here, to the bit: the diagnosis is the same with a worker or without (`workers=0`, what the fleet's jobs use: one job
-per core already). A build asked for in vain costs the worker's time only; the worker is stopped, whatever it is
-doing, when the diagnosis closes its builds.
+those builds are most of its time (PEM from two starts, 70–80 parameters). It can tell early which it may need —
+the model with the engine's map term once that term's test rejects, the one with each effect forward selection
+accepts — and `ModelBuilds.ask` hands such a build to the worker, with the fits made here since (forward selection's
+warm-started refits, which the builds continue: ident.identify.FitMemo); the worker builds it while the diagnosis
+goes on testing and verifying, and `ModelBuilds.model` takes it when the diagnosis needs it. A model never asked for
+is built in the worker too when the worker built one with its leading effects (whose fits it is built through), else
+here, beside whatever the worker is doing. identify_model is deterministic and the worker runs the same code on the
+same kernels on one BLAS thread (fuelid.blas), so a model built there is the one built here, to the bit: the
+diagnosis is the same with a worker or without (`workers=0`, the fleet's jobs, which run one per core already). A
+build asked for in vain costs the worker's time only; the worker is stopped, whatever it is doing, on `close`.
+
+The worker is forked (multiprocessing's "fork"): it starts with the data as this process's pages, nothing pickled,
+and this process copies only the pages it writes afterwards. Python 3.12 and later warn when a process with threads
+forks; the worker only builds models and exits.
 """
 from __future__ import annotations
 
@@ -24,8 +29,6 @@ from fuelid.errors import FuelidError
 from fuelid.ident.identify import FitMemo, identify_model
 from fuelid.ident.polymodel import PolyModel, Structure
 
-# A worker is forked from a server process that imported fuelid before numpy (fuelid.blas), never from the
-# diagnosing process itself: after a fork every page that process writes and the child shares is copied first.
 _CONTEXT = multiprocessing.get_context("fork")
 
 _worker: ModelBuilds | None = None  # the worker process's own builds (`_start_worker`)
@@ -44,6 +47,8 @@ class ModelBuilds:
         self.memo = FitMemo()
         self._done: dict[tuple[str, ...], PolyModel | Exception] = {}
         self._asked: dict[tuple[str, ...], multiprocessing.pool.AsyncResult] = {}
+        self._asked_ever: set[tuple[str, ...]] = set()  # what the worker has built or is building
+        self._sent: set = set()  # the fits of `memo` the worker has too
         self._pool = _CONTEXT.Pool(1, _start_worker, (ds, structure, self.defined, base)) if workers else None
 
     @property
@@ -55,14 +60,19 @@ class ModelBuilds:
         """Start building the model with `effects` in the worker, if there is one and it was not asked for yet."""
         key = tuple(effects)
         if self._pool is not None and key not in self._done and key not in self._asked:
-            self._asked[key] = self._pool.apply_async(_build_in_worker, (key,))
+            fits = [(k, fit) for k, fit in self.memo.items() if k not in self._sent]  # e.g. the warm-started refits,
+            self._sent.update(k for k, _ in fits)  # which the builds continue (ident.identify.FitMemo)
+            self._asked[key] = self._pool.apply_async(_build_in_worker, (key, fits))
+            self._asked_ever.add(key)
 
     def model(self, effects) -> PolyModel:
-        """The model with `effects`: the worker's when asked for, else built here. Raises what identify_model
-        raised (FuelidError, numpy.linalg.LinAlgError)."""
+        """The model with `effects`: the worker's when asked for, or when the worker built a model with its leading
+        effects (whose fits it is built through); else built here, beside whatever the worker is building. Raises
+        what identify_model raised (FuelidError, numpy.linalg.LinAlgError)."""
         key = tuple(effects)
         if key not in self._done:
-            self.ask(key)  # built in the worker, asked for or not: its memo holds the fits of the builds before
+            if any(key[:j] in self._asked_ever for j in range(1, len(key))):
+                self.ask(key)  # the worker fitted the stages it is built through (its leading effects): built there
             asked = self._asked.pop(key, None)
             try:
                 self._done[key] = asked.get() if asked is not None else self.build(key)
@@ -97,5 +107,6 @@ def _start_worker(ds, structure: Structure, defined, base: PolyModel | None) -> 
     _worker = ModelBuilds(ds, structure, defined, base)
 
 
-def _build_in_worker(effects: tuple[str, ...]) -> PolyModel:
+def _build_in_worker(effects: tuple[str, ...], fits) -> PolyModel:
+    _worker.memo.update(fits)
     return _worker.build(effects)

@@ -522,9 +522,8 @@ class _Built:
 
     def expect(self, c: Candidate) -> None:
         """c is expected to be added after those expected before it: ask ahead for the model `add` will build with
-        them (builds.ModelBuilds.ask), and, for the first, the one without it that `add` compares it with."""
-        if not self._expected:
-            self.builds.ask(self.specs)
+        them (builds.ModelBuilds.ask). The one without any, which `add` compares the first with, is not asked for: it
+        is built here when needed, beside the worker's."""
         self._expected.append(c.spec)
         self.builds.ask(self.specs + self._expected)
 
