@@ -1,6 +1,8 @@
 """ident.diagnosis.builds: the models `fuelid identify` would build, built once each, ahead in a worker process —
 the same models, to the bit, as built here, the worker's errors raised here, and the worker stopped on close."""
 import multiprocessing
+import os
+import signal
 
 import numpy as np
 import pytest
@@ -47,6 +49,16 @@ def test_what_the_worker_cannot_build_is_raised_here_each_time_it_is_asked_for(d
         for _ in range(2):
             with pytest.raises(FuelidError, match="no_such_effect"):
                 builds.model(["no_such_effect"])
+
+
+def test_a_lost_worker_costs_its_builds_not_the_answer(ds):
+    """A worker killed while building (out of memory, say): what was asked of it is built here, and the rest too."""
+    with ModelBuilds(ds, hidden.STRUCTURE, workers=1) as builds:
+        builds.ask(["dpf_regeneration"])
+        os.kill(builds._worker.process.pid, signal.SIGKILL)
+        model = builds.model(["dpf_regeneration"])
+        assert not builds.ahead and len(builds.memo) > 0  # built here
+    assert np.array_equal(model.theta, identify_model(ds, hidden.STRUCTURE, ["dpf_regeneration"]).theta)
 
 
 def test_closing_stops_the_worker_whatever_it_is_building(ds):

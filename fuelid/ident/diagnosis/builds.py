@@ -20,7 +20,8 @@ forks; the worker only builds models and exits.
 from __future__ import annotations
 
 import multiprocessing
-import multiprocessing.pool
+import pickle
+import queue
 
 import numpy as np
 
@@ -30,8 +31,11 @@ from fuelid.ident.identify import FitMemo, identify_model
 from fuelid.ident.polymodel import PolyModel, Structure
 
 _CONTEXT = multiprocessing.get_context("fork")
+POLL_S = 0.5  # [s] how often a wait for the worker checks that it is still running
 
-_worker: ModelBuilds | None = None  # the worker process's own builds (`_start_worker`)
+
+class WorkerLost(RuntimeError):
+    """The worker process ended without building what it was asked for (killed, out of memory)."""
 
 
 class ModelBuilds:
@@ -46,41 +50,48 @@ class ModelBuilds:
         self.ds, self.structure, self.defined, self.base = ds, structure, tuple(defined), base
         self.memo = FitMemo()
         self._done: dict[tuple[str, ...], PolyModel | Exception] = {}
-        self._asked: dict[tuple[str, ...], multiprocessing.pool.AsyncResult] = {}
-        self._asked_ever: set[tuple[str, ...]] = set()  # what the worker has built or is building
+        self._asked: set[tuple[str, ...]] = set()  # what the worker has built or is building
         self._sent: set = set()  # the fits of `memo` the worker has too
-        self._pool = _CONTEXT.Pool(1, _start_worker, (ds, structure, self.defined, base)) if workers else None
+        self._worker = _Worker(ds, structure, self.defined, base) if workers else None
 
     @property
     def ahead(self) -> bool:
         """Whether there is a worker to build ahead in."""
-        return self._pool is not None
+        return self._worker is not None
 
     def ask(self, effects) -> None:
         """Start building the model with `effects` in the worker, if there is one and it was not asked for yet."""
         key = tuple(effects)
-        if self._pool is not None and key not in self._done and key not in self._asked:
+        if self._worker is not None and key not in self._done and key not in self._asked:
             fits = [(k, fit) for k, fit in self.memo.items() if k not in self._sent]  # e.g. the warm-started refits,
             self._sent.update(k for k, _ in fits)  # which the builds continue (ident.identify.FitMemo)
-            self._asked[key] = self._pool.apply_async(_build_in_worker, (key, fits))
-            self._asked_ever.add(key)
+            self._worker.submit(key, fits)
+            self._asked.add(key)
 
     def model(self, effects) -> PolyModel:
         """The model with `effects`: the worker's when asked for, or when the worker built a model with its leading
-        effects (whose fits it is built through); else built here, beside whatever the worker is building. Raises
-        what identify_model raised (FuelidError, numpy.linalg.LinAlgError)."""
+        effects (whose fits it is built through); else built here, beside whatever the worker is building (and here
+        whenever the worker was lost: WorkerLost). Raises what identify_model raised (FuelidError,
+        numpy.linalg.LinAlgError)."""
         key = tuple(effects)
         if key not in self._done:
-            if any(key[:j] in self._asked_ever for j in range(1, len(key))):
+            if any(key[:j] in self._asked for j in range(1, len(key))):
                 self.ask(key)  # the worker fitted the stages it is built through (its leading effects): built there
-            asked = self._asked.pop(key, None)
             try:
-                self._done[key] = asked.get() if asked is not None else self.build(key)
+                self._done[key] = self._from_worker(key) if key in self._asked else self.build(key)
             except (FuelidError, np.linalg.LinAlgError) as exc:  # raised again when asked again: it would be
                 self._done[key] = exc
         if isinstance(self._done[key], Exception):
             raise self._done[key]
         return self._done[key]
+
+    def _from_worker(self, key: tuple[str, ...]) -> PolyModel:
+        try:
+            return self._worker.result(key)
+        except WorkerLost:  # what it had built is lost with it: the rest is built here
+            self.close()
+            self._asked.clear()
+            return self.build(key)
 
     def build(self, effects) -> PolyModel:
         """identify_model's model with `effects`, built here (on one BLAS thread, as in the diagnosis)."""
@@ -90,10 +101,9 @@ class ModelBuilds:
 
     def close(self) -> None:
         """Stop the worker, whatever it is building."""
-        if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
-            self._pool = None
+        if self._worker is not None:
+            self._worker.stop()
+            self._worker = None
 
     def __enter__(self) -> ModelBuilds:
         return self
@@ -102,11 +112,60 @@ class ModelBuilds:
         self.close()
 
 
-def _start_worker(ds, structure: Structure, defined, base: PolyModel | None) -> None:
-    global _worker
-    _worker = ModelBuilds(ds, structure, defined, base)
+class _Worker:
+    """One forked process building models in the order asked (`_serve`): tasks go through a queue whose feeder
+    thread never blocks this process, results come back in order."""
+
+    def __init__(self, ds, structure: Structure, defined, base: PolyModel | None):
+        self._tasks, self._results = _CONTEXT.Queue(), _CONTEXT.Queue()
+        self.process = _CONTEXT.Process(target=_serve, args=(self._tasks, self._results, ds, structure, defined, base),
+                                        daemon=True)
+        self.process.start()
+        self._outcomes: dict[tuple[str, ...], tuple[bool, object]] = {}
+
+    def submit(self, key: tuple[str, ...], fits) -> None:
+        self._tasks.put((key, fits))
+
+    def result(self, key: tuple[str, ...]) -> PolyModel:
+        """The model built for key (asked for by `submit`), or what its build raised; WorkerLost if the process
+        ended first."""
+        while key not in self._outcomes:
+            try:
+                done, outcome = self._results.get(timeout=POLL_S)
+            except queue.Empty:
+                if not self.process.is_alive():
+                    raise WorkerLost(f"the worker process ended (exit code {self.process.exitcode})") from None
+                continue
+            self._outcomes[done] = outcome
+        ok, value = self._outcomes.pop(key)
+        if not ok:
+            raise value
+        return value
+
+    def stop(self) -> None:
+        self.process.terminate()
+        self.process.join()
+        for q in (self._tasks, self._results):
+            q.cancel_join_thread()  # what is left in them is dropped with the worker
+            q.close()
 
 
-def _build_in_worker(effects: tuple[str, ...], fits) -> PolyModel:
-    _worker.memo.update(fits)
-    return _worker.build(effects)
+def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | None) -> None:
+    """The worker: build each model asked for, in order, and send it (or what its build raised) back."""
+    builds = ModelBuilds(ds, structure, defined, base)
+    while True:
+        key, fits = tasks.get()
+        builds.memo.update(fits)
+        try:
+            results.put((key, (True, builds.build(key))))
+        except Exception as exc:  # noqa: BLE001 — raised in the diagnosis, where it is handled or is a bug
+            results.put((key, (False, exc if _picklable(exc) else RuntimeError(f"in the worker process: {exc!r}"))))
+
+
+def _picklable(exc: Exception) -> bool:
+    """Whether exc survives the way back (an exception that does not would be lost on the queue's thread)."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return True
+    except Exception:  # noqa: BLE001 — any failure to pickle or unpickle
+        return False
