@@ -63,10 +63,26 @@ def test_a_lost_worker_costs_its_builds_not_the_answer(ds):
 
 def test_closing_stops_the_worker_whatever_it_is_building(ds):
     builds = ModelBuilds(ds, hidden.STRUCTURE, workers=1)
+    assert multiprocessing.active_children() == []  # started when first asked for a build
     builds.ask(["dpf_regeneration"])
+    assert len(multiprocessing.active_children()) == 1
     builds.close()
     assert not builds.ahead and multiprocessing.active_children() == []
     builds.close()  # closing twice is harmless
+
+
+def test_the_worker_stops_whatever_signal_handlers_this_process_has(ds):
+    """A service that handles SIGTERM itself (to shut down cleanly) forks the worker with that handler: closing must
+    still stop it, and not wait for it for ever."""
+    previous = signal.signal(signal.SIGTERM, lambda *_: None)
+    try:
+        builds = ModelBuilds(ds, hidden.STRUCTURE, workers=1)
+        builds.ask(["dpf_regeneration"])
+        builds.model(["dpf_regeneration"])  # the worker is now idle, waiting for the next build
+        builds.close()
+        assert multiprocessing.active_children() == []
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def test_one_worker_or_none():

@@ -13,8 +13,8 @@ same kernels on one BLAS thread (fuelid.blas), so a model built there is the one
 diagnosis is the same with a worker or without (`workers=0`, the fleet's jobs, which run one per core already). A
 build asked for in vain costs the worker's time only; the worker is stopped, whatever it is doing, on `close`.
 
-The worker is forked (multiprocessing's "fork"): it starts with the data as this process's pages, nothing pickled,
-and this process copies only the pages it writes afterwards. Python 3.12 and later warn when a process with threads
+The worker is forked (multiprocessing's "fork") when the first build is asked for: it starts with the data as this
+process's pages, nothing pickled, and this process copies only the pages it writes afterwards. Python 3.12 and later warn when a process with threads
 forks; the worker only builds models and exits.
 """
 from __future__ import annotations
@@ -22,6 +22,7 @@ from __future__ import annotations
 import multiprocessing
 import pickle
 import queue
+import signal
 
 import numpy as np
 
@@ -52,17 +53,15 @@ class ModelBuilds:
         self._done: dict[tuple[str, ...], PolyModel | Exception] = {}
         self._asked: set[tuple[str, ...]] = set()  # what the worker has built or is building
         self._sent: set = set()  # the fits of `memo` the worker has too
-        self._worker = _Worker(ds, structure, self.defined, base) if workers else None
-
-    @property
-    def ahead(self) -> bool:
-        """Whether there is a worker to build ahead in."""
-        return self._worker is not None
+        self.ahead = bool(workers)  # whether builds asked for are built ahead in a worker process
+        self._worker: _Worker | None = None  # started when first asked for a build: none where none is asked for
 
     def ask(self, effects) -> None:
         """Start building the model with `effects` in the worker, if there is one and it was not asked for yet."""
         key = tuple(effects)
-        if self._worker is not None and key not in self._done and key not in self._asked:
+        if self.ahead and key not in self._done and key not in self._asked:
+            if self._worker is None:
+                self._worker = _Worker(self.ds, self.structure, self.defined, self.base)
             fits = [(k, fit) for k, fit in self.memo.items() if k not in self._sent]  # e.g. the warm-started refits,
             self._sent.update(k for k, _ in fits)  # which the builds continue (ident.identify.FitMemo)
             self._worker.submit(key, fits)
@@ -100,7 +99,8 @@ class ModelBuilds:
                                   memo=self.memo)
 
     def close(self) -> None:
-        """Stop the worker, whatever it is building."""
+        """Stop the worker, whatever it is building; builds asked for after are built here."""
+        self.ahead = False
         if self._worker is not None:
             self._worker.stop()
             self._worker = None
@@ -143,7 +143,8 @@ class _Worker:
         return value
 
     def stop(self) -> None:
-        self.process.terminate()
+        # SIGKILL, not SIGTERM: a handler the process had when it was forked (a service's) could keep it alive
+        self.process.kill()
         self.process.join()
         for q in (self._tasks, self._results):
             q.cancel_join_thread()  # what is left in them is dropped with the worker
@@ -152,6 +153,8 @@ class _Worker:
 
 def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | None) -> None:
     """The worker: build each model asked for, in order, and send it (or what its build raised) back."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the forking process's handler: a SIGTERM ends the worker
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the diagnosis's to handle; it stops the worker
     builds = ModelBuilds(ds, structure, defined, base)
     while True:
         key, fits = tasks.get()
