@@ -14,8 +14,8 @@ diagnosis is the same with a worker or without (`workers=0`, the fleet's jobs, w
 build asked for in vain costs the worker's time only; the worker is stopped, whatever it is doing, on `close`.
 
 The worker is forked (multiprocessing's "fork") when the first build is asked for: it starts with the data as this
-process's pages, nothing pickled, and this process copies only the pages it writes afterwards. Python 3.12 and later warn when a process with threads
-forks; the worker only builds models and exits.
+process's pages, nothing pickled, and this process copies only the pages it writes afterwards. (Python 3.12 and
+later warn when a process with threads forks, OpenBLAS's among them; the worker takes no lock those threads hold.)
 """
 from __future__ import annotations
 
