@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from fuelid.ident.diagnosis.builds import ModelBuilds
+from fuelid.ident.diagnosis.builds import ModelBuilds, likely_added
 from fuelid.ident.identify import identify_model
 from tests.ident import hidden
 
@@ -83,6 +83,37 @@ def test_the_worker_stops_whatever_signal_handlers_this_process_has(ds):
         assert multiprocessing.active_children() == []
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_an_effect_is_likely_added_unless_the_models_built_show_it_simulates_worse():
+    rmse = {("map",): 1.0, ("map", "delay"): 1.2, ("map", "inertia"): 0.9, ("fan",): None}  # [L/h]; None: failed
+    assert likely_added(("map", "delay", "inertia"), rmse) == ("map", "inertia")
+    assert likely_added(("map", "inertia", "delay"), rmse) == ("map", "inertia", "delay")  # not built: no evidence
+    assert likely_added(("map", "fan"), rmse) == ("map", "fan")
+    assert likely_added(("fan", "map"), rmse) == ("map",)  # the build with the fan failed: not added
+    assert likely_added(("map", "ambient"), {**rmse, ("map", "ambient"): None}) == ("map",)
+    assert likely_added(("map", "delay"), {**rmse, ("map", "delay"): 1.0}) == ("map", "delay")  # no worse: added
+
+
+def test_the_worker_builds_the_model_without_an_effect_that_simulates_worse_instead(ds):
+    """Asked for the model with the regeneration, a fuel delay these data do not have, and the inertia: once its own
+    builds show the delay simulates the data worse, the worker builds the one without it — what the diagnosis will
+    ask for (ranking._Built.add) — and a model it skipped is built here, the same."""
+    spurious = "fuel_delay=0.4"
+    with ModelBuilds(ds, hidden.STRUCTURE, workers=1) as builds:
+        for effects in (["dpf_regeneration"], ["dpf_regeneration", spurious],
+                        ["dpf_regeneration", spurious, "inertia"]):
+            builds.ask(effects)
+        rmse = [builds.model(e).validation["rmse"]["simulation"] for e in (["dpf_regeneration"],
+                                                                          ["dpf_regeneration", spurious])]
+        assert rmse[1] > rmse[0]  # the data this test needs
+        instead = builds.model(["dpf_regeneration", "inertia"])
+        assert len(builds.memo) == 0  # built in the worker, unasked
+        skipped = builds.model(["dpf_regeneration", spurious, "inertia"])
+        assert len(builds.memo) > 0  # built here
+    for built, effects in ((instead, ["dpf_regeneration", "inertia"]),
+                           (skipped, ["dpf_regeneration", spurious, "inertia"])):
+        assert np.array_equal(built.theta, identify_model(ds, hidden.STRUCTURE, effects).theta)
 
 
 def test_one_worker_or_none():

@@ -8,7 +8,10 @@ accepts — and `ModelBuilds.ask` hands such a build to the worker, with the fit
 warm-started refits, which the builds continue: ident.identify.FitMemo); the worker builds it while the diagnosis
 goes on testing and verifying, and `ModelBuilds.model` takes it when the diagnosis needs it. A model never asked for
 is built in the worker too when the worker built one with its leading effects (whose fits it is built through), else
-here, beside whatever the worker is doing. identify_model is deterministic and the worker runs the same code on the
+here, beside whatever the worker is doing. The worker skips an effect its own builds show will not be added (the
+model built with it simulates the data worse than the one without: the test the diagnosis's `_Built.add` makes) and
+builds the model without it instead, which the diagnosis then asks for; if the diagnosis asks for the one skipped
+after all, it is built here. identify_model is deterministic and the worker runs the same code on the
 same kernels on one BLAS thread (fuelid.blas), so a model built there is the one built here, to the bit: the
 diagnosis is the same with a worker or without (`workers=0`, the fleet's jobs, which run one per core already). A
 build asked for in vain costs the worker's time only; the worker is stopped, whatever it is doing, on `close`.
@@ -37,6 +40,10 @@ POLL_S = 0.5  # [s] how often a wait for the worker checks that it is still runn
 
 class WorkerLost(RuntimeError):
     """The worker process ended without building what it was asked for (killed, out of memory)."""
+
+
+class Skipped(RuntimeError):
+    """The worker built a model without an effect its builds show will not be added instead (`likely_added`)."""
 
 
 class ModelBuilds:
@@ -87,6 +94,8 @@ class ModelBuilds:
     def _from_worker(self, key: tuple[str, ...]) -> PolyModel:
         try:
             return self._worker.result(key)
+        except Skipped:
+            return self.build(key)
         except WorkerLost:  # what it had built is lost with it: the rest is built here
             self.close()
             self._asked.clear()
@@ -127,8 +136,8 @@ class _Worker:
         self._tasks.put((key, fits))
 
     def result(self, key: tuple[str, ...]) -> PolyModel:
-        """The model built for key (asked for by `submit`), or what its build raised; WorkerLost if the process
-        ended first."""
+        """The model built for key (asked for by `submit`, or built instead of one asked for), or what its build
+        raised; Skipped when the worker built another instead, WorkerLost if the process ended first."""
         while key not in self._outcomes:
             try:
                 done, outcome = self._results.get(timeout=POLL_S)
@@ -138,6 +147,8 @@ class _Worker:
                 continue
             self._outcomes[done] = outcome
         ok, value = self._outcomes.pop(key)
+        if ok is None:
+            raise Skipped(f"built {list(value)} instead of {list(key)}")
         if not ok:
             raise value
         return value
@@ -151,18 +162,41 @@ class _Worker:
             q.close()
 
 
+def likely_added(effects: tuple[str, ...], rmse: dict) -> tuple[str, ...]:
+    """effects without those that the models already built show will not be added (ranking._Built.add): one whose
+    model (with the effects kept before it) failed to build, or simulates the data worse than the model without it
+    when both were built. rmse: {effects: RMS simulation error [output unit] of the model built, None if it failed}."""
+    kept: tuple[str, ...] = ()
+    for e in effects:
+        with_ = kept + (e,)
+        if with_ in rmse and (rmse[with_] is None or rmse.get(kept) is not None and rmse[with_] > rmse[kept]):
+            continue
+        kept = with_
+    return kept
+
+
 def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | None) -> None:
-    """The worker: build each model asked for, in order, and send it (or what its build raised) back."""
+    """The worker: build each model asked for, in order, once — or, for one with an effect its builds show will not
+    be added (`likely_added`), the model without it — and send it (or what its build raised) back."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the forking process's handler: a SIGTERM ends the worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the diagnosis's to handle; it stops the worker
     builds = ModelBuilds(ds, structure, defined, base)
+    rmse: dict[tuple[str, ...], float | None] = {}  # of each model built here [output unit]; None: its build failed
     while True:
         key, fits = tasks.get()
         builds.memo.update(fits)
+        likely = likely_added(key, rmse)
+        if likely != key:
+            results.put((key, (None, likely)))
+        if likely in rmse:  # sent already
+            continue
         try:
-            results.put((key, (True, builds.build(key))))
+            model = builds.build(likely)
+            rmse[likely] = model.validation["rmse"]["simulation"]
+            results.put((likely, (True, model)))
         except Exception as exc:  # noqa: BLE001 — raised in the diagnosis, where it is handled or is a bug
-            results.put((key, (False, exc if _picklable(exc) else RuntimeError(f"in the worker process: {exc!r}"))))
+            rmse[likely] = None
+            results.put((likely, (False, exc if _picklable(exc) else RuntimeError(f"in the worker process: {exc!r}"))))
 
 
 def _picklable(exc: Exception) -> bool:

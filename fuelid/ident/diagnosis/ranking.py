@@ -761,14 +761,15 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
     full = next((c for c in testable if c.effect == MAP_TERM), None)
     if n_verify and full is not None and relevant(full):  # the build the engine's term needs, ahead (builds.py)
         built.guess(full)
-    term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify,
-                           built)
     others = sorted((c for c in testable if c.effect not in (MAP_TERM, PRODUCT_TERM) and relevant(c)),
                     key=lambda c: -_priority(c))
+    # verified before the engine's term, whose check waits for that build: they do not depend on it
     for c in others[:n_verify] + [c for c in others[n_verify:] if n_verify and not c.entry.retested]:
         # the signal path's candidate (the fuel delay) is a family of its own, verified on its own reference: it
         # does not compete with the fuelling effects for the verification budget
         _verify(c, model, ds, run, base, base_ysim)
+    term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify,
+                           built)
     outranking = [c for c in others if term is not None and c.entry.retested and c.rmse_drop_percent is not None
                   and _confirmed(c, c.verification, min_drop_percent) and _priority(c) > term.rmse_drop_percent]
     if outranking:  # a hidden effect the map's columns would partly absorb: no map term first (module docstring, 0)
