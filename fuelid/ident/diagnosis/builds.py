@@ -185,11 +185,13 @@ def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | 
     while True:
         key, fits = tasks.get()
         builds.memo.update(fits)
+        if key in rmse:  # built instead of another, and sent then
+            continue
         likely = likely_added(key, rmse)
         if likely != key:
             results.put((key, (None, likely)))
-        if likely in rmse:  # sent already
-            continue
+            if likely in rmse:
+                continue
         try:
             model = builds.build(likely)
             rmse[likely] = model.validation["rmse"]["simulation"]
