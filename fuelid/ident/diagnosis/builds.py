@@ -2,19 +2,19 @@
 each built once — ahead, in a worker process beside the diagnosis, when it has one.
 
 The diagnosis checks what it recommends on the model identify builds with it (ranking, 5), and on a real engine
-those builds are most of its time (PEM from two starts, 70–80 parameters). It can tell early which it may need —
-the model with the engine's map term once that term's test rejects, the one with each effect forward selection
-accepts — and `ModelBuilds.ask` hands such a build to the worker, with the fits made here since (forward selection's
+those builds are most of its time (PEM from two starts, 70–80 parameters). It can tell early which it may need — the
+model with the engine's map term once that term's test rejects, the one with each effect forward selection accepts —
+and `ModelBuilds.ask` hands such a build to the worker, with the fits made here since (forward selection's
 warm-started refits, which the builds continue: ident.identify.FitMemo); the worker builds it while the diagnosis
 goes on testing and verifying, and `ModelBuilds.model` takes it when the diagnosis needs it. A model never asked for
 is built in the worker too when the worker built one with its leading effects (whose fits it is built through), else
 here, beside whatever the worker is doing. The worker skips an effect its own builds show will not be added (the
-model built with it simulates the data worse than the one without: the test the diagnosis's `_Built.add` makes) and
-builds the model without it instead, which the diagnosis then asks for; if the diagnosis asks for the one skipped
-after all, it is built here. identify_model is deterministic and the worker runs the same code on the
-same kernels on one BLAS thread (fuelid.blas), so a model built there is the one built here, to the bit: the
-diagnosis is the same with a worker or without (`workers=0`, the fleet's jobs, which run one per core already). A
-build asked for in vain costs the worker's time only; the worker is stopped, whatever it is doing, on `close`.
+model built with it failed, or simulates the data worse than the one without: the test the diagnosis's `_Built.add`
+makes) and builds the model without it instead, which the diagnosis then asks for; if the diagnosis asks for the one
+skipped after all, it is built here. identify_model is deterministic and the worker runs the same code on the same
+kernels on one BLAS thread (fuelid.blas), so a model built there is the one built here, to the bit: the diagnosis is
+the same with a worker or without (`workers=0`, the fleet's jobs, which run one per core already). A build asked for
+in vain costs the worker's time only; the worker is stopped, whatever it is doing, on `close`.
 
 The worker is forked (multiprocessing's "fork") when the first build is asked for: it starts with the data as this
 process's pages, nothing pickled, and this process copies only the pages it writes afterwards. (Python 3.12 and
