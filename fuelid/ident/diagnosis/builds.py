@@ -162,14 +162,21 @@ class _Worker:
             q.close()
 
 
+def simulates_worse(rmse_with: float, rmse_without: float) -> bool:
+    """Whether the model built with an effect simulates the data worse than the one without it (RMS simulation
+    errors, [output unit] both): the effect is then not added (ranking._Built.add)."""
+    return rmse_with > rmse_without
+
+
 def likely_added(effects: tuple[str, ...], rmse: dict) -> tuple[str, ...]:
     """effects without those that the models already built show will not be added (ranking._Built.add): one whose
-    model (with the effects kept before it) failed to build, or simulates the data worse than the model without it
-    when both were built. rmse: {effects: RMS simulation error [output unit] of the model built, None if it failed}."""
+    model (with the effects kept before it) failed to build, or `simulates_worse` than the model without it when
+    both were built. rmse: {effects: RMS simulation error [output unit] of the model built, None if it failed}."""
     kept: tuple[str, ...] = ()
     for e in effects:
         with_ = kept + (e,)
-        if with_ in rmse and (rmse[with_] is None or rmse.get(kept) is not None and rmse[with_] > rmse[kept]):
+        if with_ in rmse and (rmse[with_] is None
+                              or rmse.get(kept) is not None and simulates_worse(rmse[with_], rmse[kept])):
             continue
         kept = with_
     return kept

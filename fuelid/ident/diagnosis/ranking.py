@@ -95,7 +95,7 @@ import numpy as np
 from fuelid.blas import in_one_blas_thread
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.builds import ModelBuilds
+from fuelid.ident.diagnosis.builds import ModelBuilds, simulates_worse
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP, MISSING_EFFECT, Candidate
 from fuelid.ident.diagnosis.carryover import WAYS, left_out_trips
 from fuelid.ident.diagnosis.entries import ENTRIES
@@ -558,7 +558,7 @@ class _Built:
             record["built"] = {"effects": list(self.specs), "error": str(exc)}
             return False
         record["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_}
-        if with_ > self.rmse:
+        if simulates_worse(with_, self.rmse):
             return False
         self.specs.append(c.spec)
         self.rmse = with_
