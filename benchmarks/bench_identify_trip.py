@@ -40,7 +40,8 @@ def worker(path: str):
     t2 = time.process_time()
     info = model.info
     print(json.dumps({"dataset_s": t1 - t0, "identify_s": t2 - t1, "total_s": t2 - t0, "V": info["loss_V"],
-                      "oe_iterations": info["initialisation_iterations"]["output_error"],
+                      "oe_iterations": info["initialisation_iterations"]["output_error"]
+                      + info["initialisation_iterations"].get("output_error_projected", 0),
                       "iterations": info["iterations"]}))
 
 

@@ -98,7 +98,9 @@ def worker(paths, repeat: int, perturb: float):
                                  for k in ((1, -1) if perturb else ())]
         print(json.dumps({"problem": Path(path).stem, "V": info["loss_V"], "cpu_s": cpu,
                           "V_spread": max(vs) / min(vs) - 1,
-                          "oe_iterations": info["initialisation_iterations"]["output_error"],
+                          # the OE start's LM and variable projection iterations (a version may have no projection)
+                          "oe_iterations": sum(info["initialisation_iterations"].get(k, 0)
+                                               for k in ("output_error", "output_error_projected")),
                           "iterations": info["iterations"], "stop_reason": info["stop_reason"]}), flush=True)
 
 

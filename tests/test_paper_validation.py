@@ -60,7 +60,7 @@ def model_path(engine, converted):
 
 def test_table_one_cycle_fuel_error(engine, converted, model_path, capsys):
     """Table I. On the paper engine fuelid's cycle fuel error RMS is within the paper's 2.4 % and below the engine
-    map's. The paper's map scored 8.1 %; here the gap is small (measured 0.53 % vs 0.72 %, ratio 0.74) because
+    map's. The paper's map scored 8.1 %; here the gap is small (measured 0.51 % vs 0.72 %, ratio 0.71) because
     the simulated engine is the paper's linear model, whose static map integrates like the model itself (next
     test). On the map engine it is the other way round (measured 2.95 % vs 1.40 %): the linear model is a plane
     through a curved map, right on average on its mixed identification trip and off on other driving (README,

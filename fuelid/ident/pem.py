@@ -63,9 +63,28 @@ Initialisation (`initial_estimate`): the input part by least squares (ARX, when 
 A), or for OE/BJ by a high-order ARX (A_h, B_h,i), whose per-input responses B_h,i/A_h u_i are reduced to
 B_i/F_i by Steiglitz–McBride iterations and refined by the same LM as an OE model on data prefiltered by
 A_h ≈ H⁻¹ (prefiltering by the inverse noise model makes the OE criterion the BJ one with H fixed, Ljung
-sec. 14.4); then the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
+sec. 14.4) — by LM for OE_LM_ITERATIONS iterations, then, when it is still going, by variable projection; then
+the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
 w = A y − Σ B_i/F_i u_i, refined by LM as an ARMA model. Hand-written because SciPy has no PEM; the linear
 algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter's (ident.filters: the same numbers, compiled).
+
+Variable projection (Golub & Pereyra 1973; Kaufman's Jacobian, Ruhe & Wedin 1980) for the OE start's flat valleys.
+The Steiglitz–McBride start reduces each input's response on its own, so where inputs are collinear (the engine
+map term's) their split is arbitrary, and the LM then moves b and f together along a valley it crawls through
+(hundreds of iterations). Given the F_i the OE error is linear in every b:
+
+    ε = y − Φ(f) b,   Φ(f) = [v_i(t − l)],  v_i = u_i/F_i  (v_i = u_i for an FIR input),
+
+so b̂(f) = argmin_b ‖y − Φ(f) b‖² and the search runs over f alone on the projected residual
+r(f) = P⊥(f) y, P⊥ = I − Φ Φ⁺. Kaufman's Jacobian keeps the term of ∂r/∂f that acts through Φ b̂:
+
+    ψ_f,i,k = −∂r/∂f_i,k ≈ −P⊥ x_i(t − k)/F_i,   x_i = B̂_i/F_i u_i,
+
+and LM steps on f as above. The FIR inputs' columns do not depend on f: their QR is made once and the other
+columns are projected against it. A well-started LM is left alone (the same iterates); one still going after
+OE_LM_ITERATIONS continues by projection from where it is, whose first b̂ already lowers V (the least-squares b
+at the same F). Written here because scipy.optimize.least_squares has no variable projection and no per-input
+filters; its LM would need Φ⁺'s derivative by finite differences.
 """
 from __future__ import annotations
 
@@ -90,6 +109,10 @@ HIGH_ORDER_ARX = 30  # order of the ARX model behind the OE/BJ initialisation
 # off at a limit leaves the BJ fit in a valley it crawls along (shipped 20-min DPF trip: OE stopped at 100
 # iterations → BJ V = 565.6, not converged after 100; OE run to its minimum in 161 → BJ converged in 7 at 558.7).
 INIT_MAX_ITER = 500
+# The OE start's LM iterations before variable projection takes over (module docstring): well-started fits
+# converge within them and are left as they were; a fit still going is in a valley where b and f move together.
+OE_LM_ITERATIONS = 30
+PROJECTION_WINDOW = 10  # variable projection stops when V fell by less than λ̂/2 over this many iterations
 # `stabilize` skips np.roots when the Schur–Cohn test puts every root within rho · STABLE_MARGIN: a margin far
 # above np.roots' error (≲ 1e-8 relative for a double root), so that the roots it would compute are ≤ rho too.
 STABLE_MARGIN = 1.0 - 1e-4
@@ -473,14 +496,104 @@ def _noise_model(w, nc: int, nd: int, *, starts=(0,), max_iter: int, tol: float)
     return np.r_[1.0, fit.theta[:nc]], np.r_[1.0, fit.theta[nc:]], fit.iterations
 
 
+class _Projection(NamedTuple):
+    """Variable projection at one set of F_i (`_output_error_by_projection`): the B/F inputs' lagged v_i = u_i/F_i
+    as rows Φ_F (d_F × N), Q R = P_0⊥ Φ_Fᵀ over the used samples (P_0⊥ removes the FIR inputs' columns),
+    c = Qᵀ y⊥ (y⊥ = P_0⊥ y), the residual r = y⊥ − Q c and V = ½ rᵀr."""
+
+    F: dict
+    rows: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    c: np.ndarray
+    r: np.ndarray
+    V: float
+
+
+def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_iter: int, tol: float,
+                                ftol: float = 1e-3) -> tuple[np.ndarray, int]:
+    """(θ, iterations) of the OE model y = Σ B_i/F_i u_i + e (s has no A, C, D) by variable projection from the F_i
+    of θ (module docstring): LM over f alone, b = b̂(f) by least squares. Stops when the Gauss–Newton decrement is
+    ≤ tol · V, when V was flat (as `levenberg_marquardt`), when it fell by less than λ̂/2 over the last
+    PROJECTION_WINDOW iterations (what one standard error is worth: a valley too flat to matter), when no damping
+    lowers V, or after max_iter iterations."""
+    used = _used(y.size, starts, s.n_start)
+    each = _filter_each(starts)
+    rational = [i for i in range(s.n_inputs) if s.nf[i]]
+    fir = [i for i in range(s.n_inputs) if not s.nf[i]]
+    lags = {i: range(s.nk[i], s.nk[i] + s.nb[i]) for i in range(s.n_inputs)}
+    Q0, R0 = np.linalg.qr(_regressors([(u[:, i], lags[i]) for i in fir], y.size, starts)[:, used].T)
+
+    def fir_removed(X):
+        return X - Q0 @ (Q0.T @ X)
+
+    y_perp = fir_removed(y[used])
+
+    def projection(F: dict) -> _Projection:
+        v = each([([1.0], F[i], u[:, i]) for i in rational])
+        rows = _regressors([(vi, lags[i]) for i, vi in zip(rational, v)], y.size, starts)
+        Q, R = np.linalg.qr(fir_removed(rows[:, used].T))
+        c = Q.T @ y_perp
+        r = y_perp - Q @ c
+        return _Projection(F, rows, Q, R, c, r, 0.5 * float(r @ r))
+
+    def b_rational(p: _Projection) -> dict:
+        b = lstsq(p.R, p.c, check_finite=False)[0]
+        return dict(zip(rational, np.split(b, np.cumsum([s.nb[i] for i in rational])[:-1])))
+
+    def jacobian(p: _Projection) -> np.ndarray:
+        b = b_rational(p)
+        x = each([(np.r_[np.zeros(s.nk[i]), b[i]], p.F[i], u[:, i]) for i in rational])
+        xf = each([([1.0], p.F[i], xi) for i, xi in zip(rational, x)])
+        G = fir_removed(_regressors([(xi, range(1, s.nf[i] + 1)) for i, xi in zip(rational, xf)], y.size,
+                                    starts)[:, used].T)
+        return -(G - p.Q @ (p.Q.T @ G))
+
+    def with_f(f: np.ndarray) -> dict:
+        return {i: stabilize(np.r_[1.0, fi]) for i, fi in zip(rational, np.split(f, np.cumsum(
+            [s.nf[i] for i in rational])[:-1]))}
+
+    f = np.asarray(theta, float)[sum(s.nb):]
+    p = projection(with_f(f))
+    mu, flat, dof, history = 1e-4, 0, max(y_perp.size - s.n_params, 1), [p.V]
+    iterations = 0
+    while iterations < max_iter:
+        scale, Q, ell, g = _scaled_normal_equations(jacobian(p), p.r, slice(None))
+        decrement = 0.5 * g @ (g / np.maximum(ell, ell[-1] * 1e-14))
+        window = history[-1 - PROJECTION_WINDOW] - p.V if len(history) > PROJECTION_WINDOW else np.inf
+        if decrement <= tol * p.V or (flat >= FLAT_ITERATIONS and decrement <= p.V / dof) or window < p.V / dof:
+            break
+        f = np.concatenate([p.F[i][1:] for i in rational])
+        best, damping = None, mu
+        for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
+            candidate = projection(with_f(f + Q @ (g / (ell + trial * ell[-1])) / scale))
+            if candidate.V < (p.V if best is None else best.V):
+                best, damping = candidate, trial
+            if trial >= mu and best is not None:
+                break
+        if best is None:
+            break
+        flat = flat + 1 if p.V - best.V <= ftol * p.V / dof else 0
+        p, mu = best, max(damping, 1e-15)
+        history.append(p.V)
+        iterations += 1
+    b = b_rational(p)
+    if fir:  # the FIR inputs' b by least squares on what the others leave
+        b_rest = p.rows[:, used].T @ np.concatenate([b[i] for i in rational])
+        b_fir = lstsq(R0, Q0.T @ (y[used] - b_rest), check_finite=False)[0]
+        b.update(zip(fir, np.split(b_fir, np.cumsum([s.nb[i] for i in fir])[:-1])))
+    return np.concatenate([b[i] for i in range(s.n_inputs)] + [p.F[i][1:] for i in rational]), iterations
+
+
 def _input_model(u, y, s: Structure, *, starts=(0,), max_iter: int, tol: float):
-    """(A, [B_i], [F_i], OE LM iterations) for `initial_estimate`: least-squares ARX when there is no F_i or there is an A;
-    for OE/BJ a high-order ARX, its per-input responses reduced to B_i/F_i by Steiglitz–McBride, then the
-    OE model B_i/F_i refined by LM (consistent whatever the noise colour)."""
+    """(A, [B_i], [F_i], OE LM iterations, variable projection iterations) for `initial_estimate`: least-squares
+    ARX when there is no F_i or there is an A; for OE/BJ a high-order ARX, its per-input responses reduced to
+    B_i/F_i by Steiglitz–McBride, then the OE model B_i/F_i refined by LM (consistent whatever the noise colour),
+    by variable projection once the LM has run OE_LM_ITERATIONS without converging (module docstring)."""
     m = u.shape[1]
     if not any(s.nf) or s.na > 0:
         A, B = _arx_ls(u, y, s.na, s.nb, s.nk, starts)
-        return A, B, [np.r_[1.0, np.zeros(nf)] for nf in s.nf], 0
+        return A, B, [np.r_[1.0, np.zeros(nf)] for nf in s.nf], 0, 0
     n = max(HIGH_ORDER_ARX, *(k + b + f for k, b, f in zip(s.nk, s.nb, s.nf)))
     Ah, Bh = _arx_ls(u, y, n, (n + 1,) * m, (0,) * m, starts)
     Ahs = stabilize(Ah)
@@ -490,9 +603,13 @@ def _input_model(u, y, s: Structure, *, starts=(0,), max_iter: int, tol: float):
     theta = np.concatenate([b[k:] for (b, _), k in zip(fits, s.nk)] + [f[1:] for _, f in fits])
     uf = _restarted(lambda p: lfilter(Ah, [1.0], p, axis=0), u, starts)
     yf = _restarted(lambda p: lfilter(Ah, [1.0], p), y, starts)
-    fit = levenberg_marquardt(theta, oe, uf, yf, starts=starts, max_iter=max_iter, tol=tol)
-    g = from_theta(fit.theta, oe, 1.0)
-    return g.A, g.B, g.F, fit.iterations
+    fit = levenberg_marquardt(theta, oe, uf, yf, starts=starts, max_iter=min(OE_LM_ITERATIONS, max_iter), tol=tol)
+    theta, projected = fit.theta, 0
+    if fit.reason == "max_iterations" and fit.iterations < max_iter:
+        theta, projected = _output_error_by_projection(fit.theta, oe, uf, yf, starts=starts,
+                                                       max_iter=max_iter - fit.iterations, tol=tol)
+    g = from_theta(theta, oe, 1.0)
+    return g.A, g.B, g.F, fit.iterations, projected
 
 
 def _drop_warmup(x: np.ndarray, starts, n0: int):
@@ -502,25 +619,27 @@ def _drop_warmup(x: np.ndarray, starts, n0: int):
 
 
 class InitialEstimate(NamedTuple):
-    """θ₀ from `initial_estimate` and the LM iterations its OE and ARMA fits took (0: no such fit)."""
+    """θ₀ from `initial_estimate` and the iterations its OE fit (LM, then variable projection) and ARMA fit took
+    (0: no such fit)."""
 
     theta: np.ndarray
     oe_iterations: int
     arma_iterations: int
+    projected_iterations: int = 0
 
 
 def initial_estimate(u, y, s: Structure, *, starts=(0,), max_iter: int = INIT_MAX_ITER,
                      tol: float = 1e-7) -> InitialEstimate:
     """θ₀ for `pem` from deviation data (segments beginning at `starts`): the input part (`_input_model`), then
     the noise model C/D fitted to the residual w = A y − Σ B_i/F_i u_i (`_noise_model`)."""
-    A, B, F, oe_iterations = _input_model(u, y, s, starts=starts, max_iter=max_iter, tol=tol)
+    A, B, F, oe_iterations, projected_iterations = _input_model(u, y, s, starts=starts, max_iter=max_iter, tol=tol)
     g = PolyModel(A=A, B=B, F=F, C=[1.0], D=[1.0], Ts=1.0, nk=s.nk)
     w = (_restarted(lambda p: lfilter(A, [1.0], p), y, starts)
          - _restarted(lambda p: input_responses(g, p), u, starts).sum(axis=1))
     w, w_starts = _drop_warmup(w, starts, s.n_start)
     C, D, arma_iterations = _noise_model(w, s.nc, s.nd, starts=w_starts, max_iter=max_iter, tol=tol)
     theta = np.concatenate([A[1:]] + [b[k:] for b, k in zip(B, s.nk)] + [f[1:] for f in F] + [C[1:], D[1:]])
-    return InitialEstimate(theta, oe_iterations, arma_iterations)
+    return InitialEstimate(theta, oe_iterations, arma_iterations, projected_iterations)
 
 
 def at_stability_bound(model: PolyModel) -> list[str]:
@@ -583,11 +702,13 @@ def pem_with_search(u, y, structure: Structure, Ts: float, *, segments=None, ini
     every filter restarts from zero state in each, the first n0 samples of each are left out of V, and the
     initialisation and the covariance use them all; None = one record. init: a PolyModel of the
     same structure to start from instead of `initial_estimate`. max_iter, tol, ftol: the stopping rules of
-    `levenberg_marquardt` for the final fit (the initialisation's own fits stop at INIT_MAX_ITER). Warns (and records in info['warnings']) on a near pole–zero cancellation closer
-    than cancel_tol, when LM stops without converging, and when it converged on a flat loss.
+    `levenberg_marquardt` for the final fit (the initialisation's own fits stop at INIT_MAX_ITER in all). Warns
+    (and records in info['warnings']) on a near pole–zero cancellation closer than cancel_tol, when LM stops
+    without converging, and when it converged on a flat loss.
     info records converged, stop_reason (a key of STOP_REASONS), iterations, loss_history (V per iteration)
     and gauss_newton_step_se, the length √(δᵀP⁻¹δ) of the Gauss–Newton step still left at θ̂ [standard errors];
-    initialisation_iterations ({output_error, arma}: the LM iterations of the initialisation's fits, 0 with init)
+    initialisation_iterations ({output_error, arma, output_error_projected}: the LM iterations of the
+    initialisation's fits and the variable projection's after the OE one, 0 with init)
     and initialisation_time_s [s], the wall time up to the final fit.
     Names and units of the signals are set afterwards with dataclasses.replace.
     after: the search (`LMResult.searched`) of an earlier call with the same data, init and a lower max_iter that
@@ -646,7 +767,8 @@ def pem_with_search(u, y, structure: Structure, Ts: float, *, segments=None, ini
                               "samples of each excluded from V",
         "segments": len(starts),
         "iterations": fit.iterations,
-        "initialisation_iterations": {"output_error": start.oe_iterations, "arma": start.arma_iterations},
+        "initialisation_iterations": {"output_error": start.oe_iterations, "arma": start.arma_iterations,
+                                      "output_error_projected": start.projected_iterations},
         "initialisation_time_s": t_init - t_start,
         "converged": fit.converged,
         "stop_reason": fit.reason,

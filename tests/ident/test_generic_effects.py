@@ -128,21 +128,25 @@ def test_signals_these_data_cannot_tell_apart_are_named_together(effect, seed, s
 
 
 def test_a_bus_signal_that_does_not_carry_over_once_re_identified_is_named_not_recommended():
-    """On the VECTO map engine's three trips in different weather (seed 3000, ambient air hidden), a scaling of the
-    fuel by EEC1's demand torque lowers these data's error once re-identified with it, but leads the engine's
-    transient fuelling rather than anything that carries over: fitted on the other trips, as `--effects-from` adds
-    it (its own dynamics, the model re-identified), it does not lower the trips left out's error by the 2 % every
-    candidate's held-out blocks must gain (diagnosis.carryover; the level of that signal passed a check that asked
-    only not to rise and raised another day's error, 0.492 → 0.495 L/h). It is named but not recommended."""
+    """On the VECTO map engine's three trips in different weather (seed 3000, ambient air hidden), bus signals that
+    lead the engine's transient fuelling (EEC1's demand torque, EEC3's desired speed) scale the fuel significantly on
+    these data, and one of them lowers their error once re-identified with it, yet nothing that carries over: fitted
+    on the other trips, as `--effects-from` adds it (its own dynamics, the model re-identified), it does not lower
+    the trips left out's error by the 2 % every candidate's held-out blocks must gain (diagnosis.carryover; the level
+    of such a signal passed a check that asked only not to rise and raised another day's error, 0.492 → 0.495 L/h).
+    Each is named, none recommended. Which signal gets that far depends on the model's last bits (README: the OE
+    start), so every one that does is checked."""
     ds, _, _ = hidden.simulated("ambient", 3000, truth="map")
     out = dg.diagnose(hidden.identify(ds), ds)
-    by_id = {c.effect: c for c in out.candidates}
-    generic = by_id["scales:EEC1.EngDemandPercentTorque"]
-    assert generic.significant and not generic.recommended
-    carry = generic.refit["trips"]
-    assert not carry["carries_over"]
-    assert any(carry[w]["rmse_with"] > 0.98 * carry[w]["rmse_without"] for w in ("own_dynamics", "re_identified")
-               if w in carry)
-    assert "the trips left out by 2 % (" in generic.explanation
-    assert "leave-one-trip-out by PEM): not recommended" in generic.explanation
+    generic = [c for c in out.candidates if c.significant and ":" in c.effect]  # FORM:SIGNAL, no known physics
+    assert generic and not any(c.recommended for c in generic)
+    left_out = [c for c in generic if "trips" in (c.refit or {})]  # re-identified, then trips left out
+    assert left_out, [c.explanation for c in generic]
+    for c in left_out:
+        carry = c.refit["trips"]
+        assert not carry["carries_over"]
+        assert any(carry[w]["rmse_with"] > 0.98 * carry[w]["rmse_without"]
+                   for w in ("own_dynamics", "re_identified") if w in carry)
+        assert "the trips left out by 2 % (" in c.explanation
+        assert "leave-one-trip-out by PEM): not recommended" in c.explanation
     assert {"engine_map", "ambient"} <= {c.effect for c in out.candidates if c.recommended}

@@ -214,6 +214,37 @@ def test_a_search_stopped_at_its_limit_continues_to_the_iterates_of_one_longer_s
         pem_with_search(u, y, SEG_TRUTH.structure, 1.0, max_iter=40, after=search)
 
 
+def test_variable_projection_finds_an_output_error_model_from_its_f_alone():
+    """The OE start's variable projection (`_output_error_by_projection`) searches f alone, b solved by least
+    squares: from F = 1 and b = 0, noise-free data of a B/F input beside an FIR one give the model back, in one
+    record and in two (each filtered from rest)."""
+    truth = PolyModel(A=[1], B=[[0, 0.5, 0.3], [0.2, -0.1, 0.05]], F=[[1, -1.2, 0.6], [1]], C=[1], D=[1], Ts=1.0,
+                      nk=(1, 0))
+    s = truth.structure
+    u = lfilter([1.0], [1.0, -0.5], np.random.default_rng(3).normal(size=(3000, 2)), axis=0)
+    for starts in ((0,), (0, 1700)):
+        y = np.concatenate([simulate(truth, p) for p in np.split(u, starts[1:])])
+        theta, iterations = pem_module._output_error_by_projection(np.zeros(s.n_params), s, u, y, starts=starts,
+                                                                   max_iter=100, tol=1e-12)
+        np.testing.assert_allclose(theta, truth.theta, atol=1e-6)
+        assert 0 < iterations < 100
+
+
+def test_an_output_error_start_still_going_continues_by_variable_projection(monkeypatch):
+    """The initialisation's OE fit gets OE_LM_ITERATIONS of LM; one still going then continues by variable
+    projection from where it is, to the minimum the LM would reach, and pem ends at the same V."""
+    u, y = trip(2000, 6)
+    s = SEG_TRUTH.structure
+    by_lm = fit_quiet(u, y, s)
+    monkeypatch.setattr(pem_module, "OE_LM_ITERATIONS", 1)
+    projected = fit_quiet(u, y, s)
+    assert by_lm.info["initialisation_iterations"]["output_error_projected"] == 0
+    assert projected.info["initialisation_iterations"]["output_error"] == 1
+    assert projected.info["initialisation_iterations"]["output_error_projected"] > 0
+    assert projected.info["loss_history"][0] == pytest.approx(by_lm.info["loss_history"][0], rel=1e-3)
+    assert projected.info["loss_V"] == pytest.approx(by_lm.info["loss_V"], rel=1e-9)
+
+
 def test_not_converging_is_said():
     """Stopped by the iteration limit: converged is False, the reason and the step still left are reported."""
     u, y = trip(2000, 4)
@@ -223,7 +254,8 @@ def test_not_converging_is_said():
         est = pem(u, y, SEG_TRUTH.structure, 1.0, init=start, max_iter=1)
     assert not est.info["converged"] and est.info["stop_reason"] == "max_iterations"
     assert est.info["gauss_newton_step_se"] > 1
-    assert est.info["initialisation_iterations"] == {"output_error": 0, "arma": 0}  # started from `start`
+    assert est.info["initialisation_iterations"] == {"output_error": 0, "arma": 0,  # started from `start`
+                                                     "output_error_projected": 0}
 
 
 def test_stabilize_reflects_roots():
