@@ -402,6 +402,24 @@ def test_an_untested_candidate_lists_only_what_was_found():
                                  "explanation", "rmse_drop_percent", "verification", "conditional", "explained_by"]
 
 
+def test_an_effect_accepted_given_a_signal_not_added_is_recommended_only_if_verified_given_those_added_before_it():
+    """Forward selection accepted the overrun cut-off given two bus signals that are not added; its first round had
+    found and verified it given the map term alone. With the regeneration recommended before it, that round did
+    not verify it on the model `fuelid identify --effects-from` builds (map term and regeneration): not recommended
+    (on the map engine's DPF trip, seed 3000, with the fuel × (1 + 1e-13), it raised another day's error); with the
+    map term alone recommended before it, that round did."""
+    c = dg.Candidate("overrun_cutoff", "overrun fuel cut-off", "state", [], [], "…", "…")
+    signals = ["scales:EEC3.EngDesiredOperatingSpeed", "level:EEC1.EngDemandPercentTorque"]
+    c.conditional = {"given": ["engine_map", "dpf_regeneration", *signals],
+                     "found_given": [["engine_map"], ["engine_map", "dpf_regeneration", *signals]]}
+    assert ranking._found_given_added(c, {"engine_map", "dpf_regeneration"}) is None
+    assert ranking._given_not_added(c, {"engine_map", "dpf_regeneration"}) == signals
+    c.conditional["given"] = ["engine_map", *signals]
+    c.conditional["found_given"] = [["engine_map"], ["engine_map", *signals]]
+    assert ranking._found_given_added(c, {"engine_map"}) == ["engine_map"]
+    assert ranking._given_not_added(c, {"engine_map"}) == []
+
+
 @pytest.mark.parametrize("n", [2989, 11989])  # 2n − 1 and 2n with a large prime factor (11989 = 19 · 631)
 def test_the_whitener_is_yule_walker_on_the_linear_autocovariances(n):
     """ar_whitener's FFT autocovariances are the biased linear ones (no circular wrap-around), so its a(q) is the

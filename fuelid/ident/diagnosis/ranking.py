@@ -81,9 +81,10 @@ Forward selection still re-identifies the model with such a signal when it accep
 twins and what it stands in for), but what is recommended must have been verified on the model `fuelid identify
 --effects-from` builds: an effect found given a signal that is not added is named, not recommended
 (`_given_not_added`; one accepted that way and added without it can make the model worse on another day: README) —
-unless an earlier round of forward selection found and verified it given effects that are all added
-(`_found_given_added`: it was then confirmed on such a model, only not accepted first, a one-trip signal's drop
-being larger; on the map engine a hidden inertia is so).
+unless an earlier round of forward selection found and verified it given exactly the effects recommended before it
+(`_found_given_added`: it was then confirmed on the model identify builds with them, only not accepted first, a
+one-trip signal's drop being larger; on the map engine a hidden inertia is so). A round given only some of them does
+not count: the others, absent there, may explain it away.
 """
 from __future__ import annotations
 
@@ -590,10 +591,11 @@ def _given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
 
 def _found_given_added(c: Candidate, recommended: set[str]) -> list[str] | None:
     """The effects given which a round of forward selection found c (significant, relevant, confirmed: `_retest`),
-    the first such round whose effects are all among `recommended` — so c was verified on a model `fuelid identify
-    --effects-from` builds, though accepted in a later round given a bus signal that is not added (a one-trip signal
-    with a larger drop accepted before it); None when no round was."""
-    return next((g for g in (c.conditional or {}).get("found_given", []) if set(g) <= recommended), None)
+    the first such round whose effects are those recommended before c (`recommended`), no more and no fewer — so c
+    was verified on the model `fuelid identify --effects-from` builds with them, though accepted in a later round
+    given a bus signal that is not added (a one-trip signal with a larger drop accepted before it); None when no round
+    was. (A round given only some of them verified c on a model without the others, which may explain it away.)"""
+    return next((g for g in (c.conditional or {}).get("found_given", []) if set(g) == recommended), None)
 
 
 def _round_drop(c: Candidate) -> float | None:
