@@ -371,6 +371,17 @@ STOP_REASONS = {
 }
 
 
+def _damping_trials(mu: float) -> tuple[float, ...]:
+    """The LM damping factors tried in turn from the last accepted one, mu: one tenth of it, it, then ten times
+    more each time (a step search stops at the first that lowers V from mu on)."""
+    return (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12)))
+
+
+def _split(x: np.ndarray, sizes) -> list[np.ndarray]:
+    """x cut into consecutive pieces of the given sizes."""
+    return np.split(x, np.cumsum(sizes)[:-1])
+
+
 def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int = 100, tol: float = 1e-7,
                         ftol: float = 1e-3, after: LMResult | None = None) -> LMResult:
     """Minimise V(θ) from θ (module docstring); starts: segment starts (filters restart there, the first n0
@@ -424,7 +435,7 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         if flat >= FLAT_ITERATIONS and (small_step or cut):
             return stopped(it - 1, True, "stability_bound" if cut and not small_step else "flat_loss")
         best, all_cut = (V, None, mu, False, None), True
-        for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
+        for trial in _damping_trials(mu):
             raw = theta + Q @ (g / (ell + trial * ell[-1])) / scale
             cand, m_c = _stable_theta(raw, s)
             cut_c = cand is not raw and not np.array_equal(cand, raw)
@@ -451,7 +462,7 @@ def _arx_ls(u, y, na: int, nb, nk, starts=(0,)):
     n0 = max([na] + [k + b - 1 for k, b in zip(nk, nb)])
     blocks = [(-y, range(1, na + 1))] + [(u[:, i], range(nk[i], nk[i] + nb[i])) for i in range(u.shape[1])]
     th = _least_squares(_regressors(blocks, y.size, starts), y, _used(y.size, starts, n0))
-    parts = np.split(th, np.cumsum([na, *nb])[:-1])
+    parts = _split(th, [na, *nb])
     return np.r_[1.0, parts[0]], [np.r_[np.zeros(k), b] for b, k in zip(parts[1:], nk)]
 
 
@@ -539,7 +550,7 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
 
     def b_rational(p: _Projection) -> dict:
         b = lstsq(p.R, p.c, check_finite=False)[0]
-        return dict(zip(rational, np.split(b, np.cumsum([s.nb[i] for i in rational])[:-1])))
+        return dict(zip(rational, _split(b, [s.nb[i] for i in rational])))
 
     def jacobian(p: _Projection) -> np.ndarray:
         b = b_rational(p)
@@ -550,8 +561,7 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
         return -(G - p.Q @ (p.Q.T @ G))
 
     def with_f(f: np.ndarray) -> dict:
-        return {i: stabilize(np.r_[1.0, fi]) for i, fi in zip(rational, np.split(f, np.cumsum(
-            [s.nf[i] for i in rational])[:-1]))}
+        return {i: stabilize(np.r_[1.0, fi]) for i, fi in zip(rational, _split(f, [s.nf[i] for i in rational]))}
 
     f = np.asarray(theta, float)[sum(s.nb):]
     p = projection(with_f(f))
@@ -565,7 +575,7 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
             break
         f = np.concatenate([p.F[i][1:] for i in rational])
         best, damping = None, mu
-        for trial in (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12))):
+        for trial in _damping_trials(mu):
             candidate = projection(with_f(f + Q @ (g / (ell + trial * ell[-1])) / scale))
             if candidate.V < (p.V if best is None else best.V):
                 best, damping = candidate, trial
@@ -581,7 +591,7 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
     if fir:  # the FIR inputs' b by least squares on what the others leave
         b_rest = p.rows[:, used].T @ np.concatenate([b[i] for i in rational])
         b_fir = lstsq(R0, Q0.T @ (y[used] - b_rest), check_finite=False)[0]
-        b.update(zip(fir, np.split(b_fir, np.cumsum([s.nb[i] for i in fir])[:-1])))
+        b.update(zip(fir, _split(b_fir, [s.nb[i] for i in fir])))
     return np.concatenate([b[i] for i in range(s.n_inputs)] + [p.F[i][1:] for i in rational]), iterations
 
 
