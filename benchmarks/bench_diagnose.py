@@ -179,7 +179,7 @@ def validation(case, seed: int, routes_of, truth: str, ds, model, recommended: l
     if not recommended and case is None:
         return Validation()
     val, _, _ = simulated(case, seed + VALIDATION_SEED_OFFSET, routes_of=routes_of, truth=truth, engine=engine,
-                                 days=days)
+                          days=days)
     as_is = evaluate(model, val)["rmse"]["simulation"]
     memo = FitMemo()
 

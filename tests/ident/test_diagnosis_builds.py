@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from fuelid.ident.diagnosis.builds import ModelBuilds, likely_added
+from fuelid.ident.diagnosis.builds import ModelBuilds, likely_added, simulates_worse
 from fuelid.ident.identify import identify_model
 from tests.ident import hidden
 
@@ -93,6 +93,12 @@ def test_an_effect_is_likely_added_unless_the_models_built_show_it_simulates_wor
     assert likely_added(("fan", "map"), rmse) == ("map",)  # the build with the fan failed: not added
     assert likely_added(("map", "ambient"), {**rmse, ("map", "ambient"): None}) == ("map",)
     assert likely_added(("map", "delay"), {**rmse, ("map", "delay"): 1.0}) == ("map", "delay")  # no worse: added
+
+
+def test_a_model_built_with_an_effect_simulates_worse_unless_it_gains_what_is_asked():
+    """RMS simulation errors [L/h] with and without the effect: no worse is enough, unless a gain is asked for."""
+    assert not simulates_worse(1.0, 1.0) and simulates_worse(1.001, 1.0)
+    assert simulates_worse(0.99, 1.0, min_gain_percent=2) and not simulates_worse(0.97, 1.0, min_gain_percent=2)
 
 
 def test_the_worker_builds_the_model_without_an_effect_that_simulates_worse_instead(ds):

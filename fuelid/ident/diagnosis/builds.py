@@ -162,10 +162,11 @@ class _Worker:
             q.close()
 
 
-def simulates_worse(rmse_with: float, rmse_without: float) -> bool:
+def simulates_worse(rmse_with: float, rmse_without: float, min_gain_percent: float = 0.0) -> bool:
     """Whether the model built with an effect simulates the data worse than the one without it (RMS simulation
-    errors, [output unit] both): the effect is then not added (ranking._Built.add)."""
-    return rmse_with > rmse_without
+    errors, [output unit] both), or better by less than min_gain_percent [%] (0: no worse is enough): the effect is
+    then not added (ranking._Built.add)."""
+    return rmse_with > (1 - min_gain_percent / 100) * rmse_without
 
 
 def likely_added(effects: tuple[str, ...], rmse: dict) -> tuple[str, ...]:

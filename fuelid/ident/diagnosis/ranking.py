@@ -39,21 +39,22 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    way round: the accepted one on the model re-identified with the rival instead. When neither is, the data cannot
    tell the two apart: the rival is listed in the accepted one's `alternatives` and its explanation says so (data
    where they differ, another day, can).
-   An accepted candidate whose
-   re-identified model simulates the data worse than the model without it (RMS simulation error over the tested
-   samples: the refit cannot be verified) is not built on: the search goes on from the model without it, with
-   the next candidate found; it is named, and recommended only when it brings its physics (catalogued or
-   engineer-defined) and the model identify builds (below) simulates the data no worse with it
-   (`_only_the_warm_refit_worse`). The warm-started refits are the search, not the model `fuelid
-   identify --effects-from` builds: that one is identified by PEM from its own initialisation and from the
-   effects added in turn (ident.identify.identify_model), and the two can end in minima far apart (a warm start
-   keeps the dynamics of the model without the effects). So what is to be recommended is checked once more, in the
-   order found, on the model identify builds (`_Built`, `refit.built`): built from the effects recommended before
-   it plus the candidate, it must simulate the data no worse than built without it; otherwise the candidate is
-   named, not recommended, and those found given it are not recommended either (`_given_not_added`). The fuel
-   delay, verified on its reference model and on the model as it is (delay.py), is checked so too when the
-   engine's term is added (`verification.built`): the model identify builds then has the term's taps, which
-   absorb a delay, and with a delay estimated 0.05 s off it can simulate worse than without it (README).
+   An accepted candidate whose re-identified model simulates the data worse than the model without it (RMS simulation
+   error over the tested samples: the refit cannot be verified) is not built on: the search goes on from the model
+   without it, with the next candidate found; it is named, and recommended only when it brings its physics
+   (catalogued or engineer-defined) and the model identify builds (below) simulates the data better with it by at
+   least min_drop_percent (`_only_the_warm_refit_worse`): the relevance its refit could not show. Less is a tie
+   within the fits' reproducibility, not evidence (on the map engine one such tie added an effect that raised another
+   day's error: README). The warm-started refits are the search, not the model `fuelid identify --effects-from`
+   builds: that one is identified by PEM from its own initialisation and from the effects added in turn
+   (ident.identify.identify_model), and the two can end in minima far apart (a warm start keeps the dynamics of the
+   model without the effects). So what is to be recommended is checked once more, in the order found, on the model
+   identify builds (`_Built`, `refit.built`): built from the effects recommended before it plus the candidate, it
+   must simulate the data no worse than built without it; otherwise the candidate is named, not recommended, and
+   those found given it are not recommended either (`_given_not_added`). The fuel delay, verified on its reference
+   model and on the model as it is (delay.py), is checked so too when the engine's term is added
+   (`verification.built`): the model identify builds then has the term's taps, which absorb a delay, and with a delay
+   estimated 0.05 s off it can simulate worse than without it (README).
 
 A candidate is `significant` — a missing effect the diagnosis names — when the Holm-corrected test rejects
 AND it explains at least min_effect_percent (default 1 %) of the simulation error AND, when verified, the
@@ -66,25 +67,25 @@ then the rest by p-value. README gives the measured false alarms and the table p
 A significant candidate is `recommended` (what `fuelid identify --effects-from` adds) when it was verified, the
 model re-identified with it simulates the data no worse than the model without it (or, for an effect with its
 physics, forward selection's warm-started refit alone did not: 5), and so does the model `fuelid identify` builds
-with it and the effects recommended before it (5) — and, for a decoded bus signal in a generic form (level, rate,
-scales, torque, state of a signal fuelid has no physics for), only when the data held several trips and it held up
-left out of each (leave-one-trip-out): in the linearised refit (4; NOT_DETERMINED_BY_OTHER_TRIPS when no trip's fold
-determined it) and, once accepted, with its own dynamics and the model re-identified by PEM on the other trips
-(diagnosis.carryover: its refit counts as not verified unless the pooled error on the trips left out falls by
-min_drop_percent both ways). A signal engine speed and torque determine (a static map of them leaves less than
-MIN_IDENTIFIABILITY² of its variance, `_why_inputs_determine`: EEC3's desired speed is the engine speed but in
-neutral) is never added: whatever it explains is a function of speed and torque, the engine's own fuelling, and
-other days cannot make it a hidden effect. On one trip any other such signal can stand in for whatever else moves
-with the operating point that day (on a real engine its transient fuelling): named, with ONE_TRIP_ONLY, but not
-added. A catalogued or engineer-defined effect brings its physics (sign, form) and is recommended from one trip.
-Forward selection still re-identifies the model with such a signal when it accepts one (so that it explains away its
-twins and what it stands in for), but what is recommended must have been verified on the model `fuelid identify
---effects-from` builds: an effect found given a signal that is not added is named, not recommended
-(`_given_not_added`; one accepted that way and added without it can make the model worse on another day: README) —
-unless an earlier round of forward selection found and verified it given exactly the effects recommended before it
-(`_found_given_added`: it was then confirmed on the model identify builds with them, only not accepted first, a
-one-trip signal's drop being larger; on the map engine a hidden inertia is so). A round given only some of them does
-not count: the others, absent there, may explain it away.
+with it and the effects recommended before it (5; better by min_drop_percent where the warm refit was worse) — and,
+for a decoded bus signal in a generic form (level, rate, scales, torque, state of a signal fuelid has no physics
+for), only when the data held several trips and it held up left out of each (leave-one-trip-out): in the linearised
+refit (4; NOT_DETERMINED_BY_OTHER_TRIPS when no trip's fold determined it) and, once accepted, with its own dynamics
+and the model re-identified by PEM on the other trips (diagnosis.carryover: its refit counts as not verified unless
+the pooled error on the trips left out falls by min_drop_percent both ways). A signal engine speed and torque
+determine (a static map of them leaves less than MIN_IDENTIFIABILITY² of its variance, `_why_inputs_determine`:
+EEC3's desired speed is the engine speed but in neutral) is never added: whatever it explains is a function of speed
+and torque, the engine's own fuelling, and other days cannot make it a hidden effect. On one trip any other such
+signal can stand in for whatever else moves with the operating point that day (on a real engine its transient
+fuelling): named, with ONE_TRIP_ONLY, but not added. A catalogued or engineer-defined effect brings its physics
+(sign, form) and is recommended from one trip. Forward selection still re-identifies the model with such a signal
+when it accepts one (so that it explains away its twins and what it stands in for), but what is recommended must
+have been verified on the model `fuelid identify --effects-from` builds: an effect found given a signal that is not
+added is named, not recommended (`_given_not_added`; one accepted that way and added without it can make the model
+worse on another day: README) — unless an earlier round of forward selection found and verified it given exactly the
+effects recommended before it (`_found_given_added`: it was then confirmed on the model identify builds with them,
+only not accepted first, a one-trip signal's drop being larger; on the map engine a hidden inertia is so). A round
+given only some of them does not count: the others, absent there, may explain it away.
 """
 from __future__ import annotations
 
@@ -235,6 +236,11 @@ def _why_built_worse(b: dict) -> str:
     after = f", after {', '.join(b['effects'])}" if b["effects"] else ""
     if "error" in b:
         return f" — but `fuelid identify` cannot build the model with it{after} ({b['error']}): not recommended"
+    if b["min_gain_percent"] and b["rmse_with"] <= b["rmse_without"]:
+        return f" — but forward selection's warm-started refit with it simulated these data worse, and the model " \
+               f"`fuelid identify --effects-from` builds with it{after} (PEM from its own initialisation) lowers " \
+               f"their RMS error by less than {b['min_gain_percent']:g} % ({b['rmse_without']:.3f} → " \
+               f"{b['rmse_with']:.3f}): not recommended"
     return f" — but the model `fuelid identify --effects-from` builds with it{after} (PEM from its own " \
            f"initialisation) simulates these data worse (RMS error {b['rmse_without']:.3f} → " \
            f"{b['rmse_with']:.3f}): not recommended"
@@ -546,10 +552,11 @@ class _Built:
         """RMS simulation error [output unit] of the model built with c added to the effects so far."""
         return self._rmse(self.specs + [c.spec])
 
-    def add(self, c: Candidate) -> bool:
+    def add(self, c: Candidate, min_gain_percent: float = 0.0) -> bool:
         """Whether the model built with c added to the effects so far simulates the data no worse than the one
-        without it; recorded as "built" (or its error) in c.refit, or in c.verification for one forward selection
-        did not refit (the fuel delay), c added when so."""
+        without it — better by at least min_gain_percent [%] when that is given (`builds.simulates_worse`);
+        recorded as "built" (or its error) in c.refit, or in c.verification for one forward selection did not
+        refit (the fuel delay), c added when so."""
         record = _built_record(c)
         try:
             if self.rmse is None:
@@ -558,8 +565,9 @@ class _Built:
         except (FuelidError, np.linalg.LinAlgError) as exc:
             record["built"] = {"effects": list(self.specs), "error": str(exc)}
             return False
-        record["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_}
-        if simulates_worse(with_, self.rmse):
+        record["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_,
+                           "min_gain_percent": min_gain_percent}
+        if simulates_worse(with_, self.rmse, min_gain_percent):
             return False
         self.specs.append(c.spec)
         self.rmse = with_
@@ -837,7 +845,9 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
             _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
         if c.recommended and c.refit is None and not term_added:  # the fuel delay, on the model as it is
             built.given(c)
-        elif c.recommended and not built.add(c):  # (the fuel delay: given the engine's term)
+        elif c.recommended and not built.add(c, min_drop_percent if warm_only else 0.0):
+            # (the fuel delay: given the engine's term.) Where only the warm refit was worse, the built model must
+            # show the relevance the refit could not: a smaller gain is a tie within the fits' reproducibility
             if c.refit is not None:
                 c.refit["verified"] = False
             _not_recommended(c, _why_built_worse(_built_record(c)["built"]))
@@ -846,8 +856,8 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
             b = c.refit["built"]
             c.explanation += f" (forward selection's warm-started refit with it simulated these data worse, RMS " \
                              f"error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}; the model " \
-                             f"`fuelid identify --effects-from` builds with it simulates them no worse, " \
-                             f"{b['rmse_without']:.3f} → {b['rmse_with']:.3f})"
+                             f"`fuelid identify --effects-from` builds with it simulates them at least " \
+                             f"{min_drop_percent:g} % better, {b['rmse_without']:.3f} → {b['rmse_with']:.3f})"
         if c.recommended and (missing := _accepted_given_not_added(c, recommended)):
             c.explanation += f" (accepted given {', '.join(missing)}, not added; found and verified before that " \
                              f"given {', '.join(_found_given_added(c, recommended))} alone)"
