@@ -857,7 +857,7 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
             c.explanation += f" (forward selection's warm-started refit with it simulated these data worse, RMS " \
                              f"error {c.refit['rmse_without']:.3f} → {c.refit['rmse_with']:.3f}; the model " \
                              f"`fuelid identify --effects-from` builds with it simulates them at least " \
-                             f"{min_drop_percent:g} % better, {b['rmse_without']:.3f} → {b['rmse_with']:.3f})"
+                             f"{b['min_gain_percent']:g} % better, {b['rmse_without']:.3f} → {b['rmse_with']:.3f})"
         if c.recommended and (missing := _accepted_given_not_added(c, recommended)):
             c.explanation += f" (accepted given {', '.join(missing)}, not added; found and verified before that " \
                              f"given {', '.join(_found_given_added(c, recommended))} alone)"
