@@ -1,11 +1,11 @@
 """Diagnosis time of two checkouts of fuelid side by side: `fuelid diagnose` on the 60- and 90-minute trips with a
 DPF regeneration (seed 7, as `bench_diagnose.py` times them) on both engines, CPU seconds of every thread of the
 process and wall seconds (each the least of 3 in a process), fresh processes alternating between the checkouts, on
-one core with one BLAS thread unless asked otherwise; and whether both name the same effects. With --with-worker,
-instead, the map engine's trips that decide issue 16's time criterion (60 and 90 min with a DPF regeneration, 90 min
-with a hidden 0.4 s fuel delay, three days of 20 min with the hot intake air, as `bench_diagnose.py --truth map`
-makes them), diagnosed as `fuelid diagnose` does on two cores: the models identify would build made ahead in a worker
-process (workers=1), any core.
+one core with one BLAS thread unless asked otherwise; and whether both name, and recommend, the same effects. With
+--with-worker, instead, the map engine's trips that decide issue 16's time criterion (60 and 90 min with a DPF
+regeneration, 90 min with a hidden 0.4 s fuel delay, three days of 20 min with the hot intake air, as
+`bench_diagnose.py --truth map` makes them), diagnosed as `fuelid diagnose` does on two cores: the models identify
+would build made ahead in a worker process (workers=1), any core.
 
     .venv/bin/python benchmarks/bench_diagnose_versions.py --before /path/to/other/checkout [--rounds 2] [--cpu 0]
     .venv/bin/python benchmarks/bench_diagnose_versions.py --before CHECKOUT --cpu -1 --blas-threads 2  # all cores
@@ -49,7 +49,7 @@ WORKER_CASES = [Case("map", 60), Case("map", 90), Case("map", 90, "fuel_delay"),
 
 def worker(root: str, case: Case, workers: int):
     """Diagnose the trip with the fuelid of checkout `root` (`workers` processes building ahead); one JSON line:
-    least CPU (this process's threads) and wall time [s] of 3, effects named."""
+    least CPU (this process's threads) and wall time [s] of 3, effects named and recommended."""
     sys.path.insert(0, root)  # the checkout's fuelid, imported only now
     import time
     import warnings
@@ -66,7 +66,8 @@ def worker(root: str, case: Case, workers: int):
         out = dg.diagnose(model, ds, workers=workers)
         cpu.append(time.process_time() - c)
         wall.append(time.perf_counter() - t)
-    print(json.dumps({"cpu_s": min(cpu), "wall_s": min(wall), "named": [c.effect for c in out.candidates if c.role]}))
+    print(json.dumps({"cpu_s": min(cpu), "wall_s": min(wall), "named": [c.effect for c in out.candidates if c.role],
+                      "recommended": [c.effect for c in out.candidates if c.recommended]}))
 
 
 def main():
@@ -88,7 +89,7 @@ def main():
         p.error("--before is required")
     roots = {"before": str(Path(args.before).resolve()), "after": str(Path(__file__).resolve().parents[1])}
     print(f"{'engine':12} {'trip':>22}  {'before [CPU s]':>14}  {'after [CPU s]':>13}  after/before  "
-          f"{'before [wall s]':>15}  {'after [wall s]':>14}  after/before  same effects named  load")
+          f"{'before [wall s]':>15}  {'after [wall s]':>14}  after/before  same effects named  same recommended  load")
     for case in WORKER_CASES if args.with_worker else CASES:
         runs = {name: [] for name in roots}
         for _ in range(args.rounds):
@@ -98,10 +99,11 @@ def main():
                                                   "--cpu", str(cpu)], args.blas_threads)[-1])
         (cpu_before, cpu_after), (wall_before, wall_after) = ([min(r[key] for r in runs[n]) for n in roots]
                                                               for key in ("cpu_s", "wall_s"))
-        same = runs["before"][-1]["named"] == runs["after"][-1]["named"]
+        same = [runs["before"][-1][key] == runs["after"][-1][key] for key in ("named", "recommended")]
         print(f"{case.truth:12} {case.label():>22}  {cpu_before:14.2f}  {cpu_after:13.2f}"
               f"  {cpu_after / cpu_before:11.2f}×  "
-              f"{wall_before:15.2f}  {wall_after:14.2f}  {wall_after / wall_before:11.2f}×  {str(same):>18}"
+              f"{wall_before:15.2f}  {wall_after:14.2f}  {wall_after / wall_before:11.2f}×  {str(same[0]):>18}"
+              f"  {str(same[1]):>16}"
               f"  {os.getloadavg()[0]:.2f}", flush=True)
 
 

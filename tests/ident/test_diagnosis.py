@@ -447,6 +447,39 @@ def test_an_effect_accepted_given_a_signal_not_added_is_recommended_only_if_veri
     assert ranking._given_not_added(c, {"engine_map"}) == []
 
 
+def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_recommended():
+    """On one trip a bus signal fuelid knows no physics for is never added (ranking.ONE_TRIP_ONLY). Once the search
+    is built on one, whatever a later round finds is found given it and not recommended: it stops — unless a
+    candidate that may be added was found in an earlier round given no such signal (ranking._found_given_added)."""
+    ds = hidden.make("dpf_regeneration", seed=1)
+    run = dg.run_gradients(run_model(fitted(ds), ds))  # one trip
+    generic = {e.id: e for e in fx.generic_effects(ds)}
+
+    def candidate(effect: str, **records) -> dg.Candidate:
+        return dg.Candidate(effect, effect, "…", [], [], "…", "…", definition=generic.get(effect), **records)
+
+    signal = candidate("scales:ET1.EngOilTemp1", refit={"verified": True}, verification={"rmse_drop_percent": 5.0})
+    twin = candidate("level:ET1.EngOilTemp1", conditional={"found_given": [["engine_map"]]})
+    overrun = candidate("overrun_cutoff", conditional={"found_given": [["engine_map"]]})
+
+    def stops(named, pool) -> bool:
+        return ranking._nothing_left_to_recommend(named, pool, ds, run)
+
+    assert ranking._why_never_added(signal, ds) == ranking.ONE_TRIP_ONLY
+    assert not stops([], [overrun, twin])  # not built on such a signal: the next round may find one to add
+    assert not stops([signal], [overrun, twin])  # found given the map term alone: may be recommended after it
+    assert stops([signal], [twin])  # on one trip a generic signal is never added, whatever round found it
+    overrun.conditional["found_given"] = [["engine_map", signal.effect]]
+    assert stops([signal], [overrun, twin])  # found given the signal only
+    signal.refit["verified"] = False  # its refit not verified: the search was not built on it
+    assert not stops([signal], [overrun, twin])
+    # a candidate the last round found beside the signal accepted there is not "explained by" anything: it says so
+    signal.conditional = {"given": ["engine_map"]}
+    said = ranking._why_left_at_the_stop(["engine_map"], [candidate("engine_map"), signal])
+    assert said.startswith(" — found given engine_map too, but forward selection accepted scales:ET1.EngOilTemp1 "
+                           "there and stopped")
+
+
 @pytest.mark.parametrize("n", [2989, 11989])  # 2n − 1 and 2n with a large prime factor (11989 = 19 · 631)
 def test_the_whitener_is_yule_walker_on_the_linear_autocovariances(n):
     """ar_whitener's FFT autocovariances are the biased linear ones (no circular wrap-around), so its a(q) is the

@@ -85,7 +85,12 @@ added is named, not recommended (`_given_not_added`; one accepted that way and a
 worse on another day: README) — unless an earlier round of forward selection found and verified it given exactly the
 effects recommended before it (`_found_given_added`: it was then confirmed on the model identify builds with them,
 only not accepted first, a one-trip signal's drop being larger; on the map engine a hidden inertia is so). A round
-given only some of them does not count: the others, absent there, may explain it away.
+given only some of them does not count: the others, absent there, may explain it away. So once the search is built
+on a signal that is never added (`_why_never_added`), every later round is given it and only a candidate that may
+be added and was found in an earlier round given no such signal could still be recommended; with none left,
+forward selection stops (`_nothing_left_to_recommend`). What is recommended is the same as with the search run to
+its end; what would have been named after it, found given it, is not (on the map engine's DPF trip the overrun
+cut-off and EEC1's demand torque after EEC3's desired speed).
 """
 from __future__ import annotations
 
@@ -105,7 +110,7 @@ from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm
-from fuelid.ident.diagnosis.verification import MIN_IDENTIFIABILITY, held_out, held_out_scores
+from fuelid.ident.diagnosis.verification import MIN_IDENTIFIABILITY, held_out, held_out_scores, trips
 from fuelid.ident.filters import lfilter
 from fuelid.ident.identify import FitMemo, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
@@ -308,6 +313,23 @@ def _why_inputs_determine(c: Candidate, ds) -> str | None:
            "operating point — the engine's term and the model's gains hold that — not a hidden effect"
 
 
+def _why_never_added(c: Candidate, ds, v: dict | None = None) -> str | None:
+    """Why c, a generic bus-signal candidate, is never recommended whatever else is (module docstring): speed and
+    torque determine its signal (`_why_inputs_determine`), it was verified on one trip (ONE_TRIP_ONLY), or no trip
+    left out determined it (NOT_DETERMINED_BY_OTHER_TRIPS); None when none holds, when c has known physics, or when
+    its verification v (default c's own) is missing (which then decides: not verified)."""
+    if not _generic(c):
+        return None
+    if (why := _why_inputs_determine(c, ds)) is not None:
+        return why
+    v = c.verification if v is None else v
+    if v is None or "error" in v:
+        return None
+    if "trips" not in v:
+        return ONE_TRIP_ONLY
+    return None if any(v["trips"]["determined"]) else NOT_DETERMINED_BY_OTHER_TRIPS
+
+
 def _said_with_drop(c: Candidate) -> str:
     """c's explanation as the verdict says it: with the held-out RMS error drop adding it makes (`_added_drop`,
     where its entry kind says it), before the clause saying why it is not recommended, if one begins
@@ -426,7 +448,7 @@ def _retest(pool: list[Candidate], model: PolyModel, run: Run, ds, given: list[s
     found = []
     for c in pool:
         r = rows[c.effect]
-        rounds = (c.conditional or {}).get("found_given", [])
+        rounds = _rounds_found(c)
         c.conditional = {"given": given, "p_value": r.p_value, "p_holm": r.p_holm,
                          "estimated_drop_percent": r.estimated_drop_percent, "rmse_drop_percent": r.rmse_drop_percent,
                          "found_given": rounds}
@@ -448,9 +470,10 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     of `pool` (the other re-testable candidates) significant, relevant and verified on the model re-identified with
     those accepted so far. Returns the candidates named in order, `first`'s first; each has its `refit` record (those
     not verified are named, not recommended) and its `alternatives` (`_indistinguishable`); each one tested after
-    them has its `conditional` record (the last round's for those never accepted). effects: the engineer-defined
-    effects the candidates may name; built: the models `fuelid identify` builds, which the search continues from
-    once the engine's term is accepted (`_searched_on`)."""
+    them has its `conditional` record (the last round's for those never accepted). Stops early once nothing a later
+    round could accept can be recommended (`_nothing_left_to_recommend`). effects: the engineer-defined effects the
+    candidates may name; built: the models `fuelid identify` builds, which the search continues from once the
+    engine's term is accepted (`_searched_on`)."""
     named, pool, found = [], list(pool), list(first)  # the confirmed ones not accepted first are re-tested too
     while found:
         for k, c in enumerate(found):
@@ -459,8 +482,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
                 pool.remove(c)
             if "explanation" in (c.conditional or {}):  # said as the test on the model re-identified measures it
                 c.explanation = c.conditional.pop("explanation")
-                if (c.verification is None or "error" in c.verification) and "verification" in c.conditional:
-                    c.verification = c.conditional["verification"]  # (none without verification: n_verify = 0)
+                if _verification_when_named(c) is not c.verification:
+                    c.verification = c.conditional["verification"]
                     c.rmse_drop_percent = c.verification["rmse_drop_percent"]
             refitted = _refit(c, model, run, ds, effects, min_drop_percent,
                               built if c.effect in (MAP_TERM, PRODUCT_TERM) else None,
@@ -474,6 +497,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
                 break
         else:  # no refit verified: nothing to re-test the rest on
             break
+        if _nothing_left_to_recommend(named, pool, ds, run):
+            break
         found = _retest(pool, model, run, ds, [a.effect for a in named if a.refit["verified"]], alpha,
                         min_effect_percent, min_drop_percent, n_verify) if pool else []
         if built is not None and found and not _generic(found[0]):
@@ -481,6 +506,45 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     for c in pool:
         (c.conditional or {}).pop("explanation", None)
     return named
+
+
+def _verification_when_named(c: Candidate) -> dict | None:
+    """The verification c has once forward selection names it: its own, or when it has none (or its own failed)
+    its re-test's (none without verification: n_verify = 0)."""
+    if (c.verification is None or "error" in c.verification) and "verification" in (c.conditional or {}):
+        return c.conditional["verification"]
+    return c.verification
+
+
+def _nothing_left_to_recommend(named: list[Candidate], pool: list[Candidate], ds, run: Run) -> bool:
+    """Whether no later round of forward selection can find an effect that will be recommended (module docstring,
+    5): the search is built on a signal that is never added (`_why_never_added`), so whatever a later round finds
+    is found given it (`_given_not_added`), and no candidate left that may be added itself (on one trip, no generic
+    bus signal) was found in an earlier round given none such (`_found_given_added`). run: the model's, on ds."""
+    never = {c.effect for c in named if c.refit is not None and c.refit["verified"] and _why_never_added(c, ds)}
+    if not never:
+        return False
+    one_trip = len(trips(ds, run)) < 2  # a generic signal's verification then holds no trips: ONE_TRIP_ONLY
+
+    def may_be_added(c: Candidate) -> bool:
+        return not (one_trip and _generic(c)) and _why_never_added(c, ds, _verification_when_named(c)) is None
+
+    return not any(may_be_added(c) and any(not never.intersection(g) for g in _rounds_found(c)) for c in pool)
+
+
+def _why_left_at_the_stop(given: list[str], named: list[Candidate]) -> str:
+    """What the explanation of a candidate found in the last round of forward selection, which stopped there
+    (`_nothing_left_to_recommend`), but not accepted adds: given those effects, and which of `named` the round
+    accepted instead."""
+    instead = [a.effect for a in named if (a.conditional or {}).get("given") == given]
+    return f" — found given {', '.join(given)} too, but forward selection accepted {', '.join(instead)} there and " \
+           "stopped: it had re-identified the model with a signal that is never added, after which nothing it finds " \
+           "can be recommended"
+
+
+def _rounds_found(c: Candidate) -> list[list[str]]:
+    """The effects given which each round of forward selection that found c had re-identified the model."""
+    return (c.conditional or {}).get("found_given", [])
 
 
 def _may_be_built(c: Candidate, refitted) -> bool:
@@ -603,7 +667,7 @@ def _found_given_added(c: Candidate, recommended: set[str]) -> list[str] | None:
     was verified on the model `fuelid identify --effects-from` builds with them, though accepted in a later round
     given a bus signal that is not added (a one-trip signal with a larger drop accepted before it); None when no round
     was. (A round given only some of them verified c on a model without the others, which may explain it away.)"""
-    return next((g for g in (c.conditional or {}).get("found_given", []) if set(g) == recommended), None)
+    return next((g for g in _rounds_found(c) if set(g) == recommended), None)
 
 
 def _round_drop(c: Candidate) -> float | None:
@@ -807,10 +871,13 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
         found = select_forward(first, pool, run, model, ds, alpha, min_effect_percent, min_drop_percent, n_verify,
                                effects, built)
         accepted += [c for c in found if c is not term]
-        explaining = ", ".join(a.effect for a in found)
         for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
             if c not in accepted and (c.test_significant or c.effect in (MAP_TERM, PRODUCT_TERM)):
-                c.explained_by = explaining
+                last = (c.conditional or {}).get("given")
+                if last is not None and last in _rounds_found(c):  # found by its last re-test, not explained away
+                    c.explanation += _why_left_at_the_stop(last, found)
+                else:  # what its last re-test was given (forward selection may stop before a round given them all)
+                    c.explained_by = ", ".join(last or [a.effect for a in found])
     if term is not None:
         term.significant, term.role = True, ENGINE_MAP
         term.recommended = term.verification is not None and "error" not in term.verification \
@@ -835,12 +902,8 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
             _not_recommended(c, f" — not verified (`fuelid diagnose --verify {n_verify}`): not recommended")
         elif not _refit_verified(c) and not warm_only:
             _not_recommended(c, _why_refit_not_verified(c))
-        elif c.recommended and _generic(c) and (why := _why_inputs_determine(c, ds)) is not None:
+        elif c.recommended and (why := _why_never_added(c, ds)) is not None:
             _not_recommended(c, why)
-        elif c.recommended and _generic(c) and "trips" not in c.verification:
-            _not_recommended(c, ONE_TRIP_ONLY)
-        elif c.recommended and _generic(c) and not any(c.verification["trips"]["determined"]):
-            _not_recommended(c, NOT_DETERMINED_BY_OTHER_TRIPS)
         elif c.recommended and (missing := _given_not_added(c, recommended)):
             _not_recommended(c, f" — but it was found given {', '.join(missing)}, which is not added: not recommended")
         if c.recommended and c.refit is None and not term_added:  # the fuel delay, on the model as it is
