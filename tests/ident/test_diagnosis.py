@@ -473,11 +473,9 @@ def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_
     assert stops([signal], [overrun, twin])  # found given the signal only
     signal.refit["verified"] = False  # its refit not verified: the search was not built on it
     assert not stops([signal], [overrun, twin])
-    # a candidate the last round found beside the signal accepted there is not "explained by" anything: it says so
-    signal.conditional = {"given": ["engine_map"]}
-    said = ranking._why_left_at_the_stop(["engine_map"], [candidate("engine_map"), signal])
-    assert said.startswith(" — found given engine_map too, but forward selection accepted scales:ET1.EngOilTemp1 "
-                           "there and stopped")
+    said = ranking._why_left_at_the_stop(signal.effect)  # what one found beside it says: not "explained by" it
+    assert said.startswith(" — found beside scales:ET1.EngOilTemp1, but forward selection accepted that one and "
+                           "stopped")
 
 
 @pytest.mark.parametrize("n", [2989, 11989])  # 2n − 1 and 2n with a large prime factor (11989 = 19 · 631)

@@ -471,9 +471,10 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
     those accepted so far. Returns the candidates named in order, `first`'s first; each has its `refit` record (those
     not verified are named, not recommended) and its `alternatives` (`_indistinguishable`); each one tested after
     them has its `conditional` record (the last round's for those never accepted). Stops early once nothing a later
-    round could accept can be recommended (`_nothing_left_to_recommend`). effects: the engineer-defined effects the
-    candidates may name; built: the models `fuelid identify` builds, which the search continues from once the
-    engine's term is accepted (`_searched_on`)."""
+    round could accept can be recommended (`_nothing_left_to_recommend`); the others that round found then hold the
+    one it accepted in conditional["stopped_after"]. effects: the engineer-defined effects the candidates may name;
+    built: the models `fuelid identify` builds, which the search continues from once the engine's term is accepted
+    (`_searched_on`)."""
     named, pool, found = [], list(pool), list(first)  # the confirmed ones not accepted first are re-tested too
     while found:
         for k, c in enumerate(found):
@@ -498,6 +499,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
         else:  # no refit verified: nothing to re-test the rest on
             break
         if _nothing_left_to_recommend(named, pool, ds, run):
+            for rest in found[k + 1:]:  # found beside c, never tested given it
+                rest.conditional = {**(rest.conditional or {}), "stopped_after": c.effect}
             break
         found = _retest(pool, model, run, ds, [a.effect for a in named if a.refit["verified"]], alpha,
                         min_effect_percent, min_drop_percent, n_verify) if pool else []
@@ -532,14 +535,11 @@ def _nothing_left_to_recommend(named: list[Candidate], pool: list[Candidate], ds
     return not any(may_be_added(c) and any(not never.intersection(g) for g in _rounds_found(c)) for c in pool)
 
 
-def _why_left_at_the_stop(given: list[str], named: list[Candidate]) -> str:
-    """What the explanation of a candidate found in the last round of forward selection, which stopped there
-    (`_nothing_left_to_recommend`), but not accepted adds: given those effects, and which of `named` the round
-    accepted instead."""
-    instead = [a.effect for a in named if (a.conditional or {}).get("given") == given]
-    return f" — found given {', '.join(given)} too, but forward selection accepted {', '.join(instead)} there and " \
-           "stopped: it had re-identified the model with a signal that is never added, after which nothing it finds " \
-           "can be recommended"
+def _why_left_at_the_stop(accepted: str) -> str:
+    """What the explanation of a candidate found in the round of forward selection that stopped the search
+    (`_nothing_left_to_recommend`), beside the one it accepted there, adds."""
+    return f" — found beside {accepted}, but forward selection accepted that one and stopped: it had re-identified " \
+           "the model with a signal that is never added, after which nothing it finds can be recommended"
 
 
 def _rounds_found(c: Candidate) -> list[list[str]]:
@@ -873,11 +873,11 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
         accepted += [c for c in found if c is not term]
         for c in confirmed + [c for c in testable if term is not None and c not in hidden and c is not term]:
             if c not in accepted and (c.test_significant or c.effect in (MAP_TERM, PRODUCT_TERM)):
-                last = (c.conditional or {}).get("given")
-                if last is not None and last in _rounds_found(c):  # found by its last re-test, not explained away
-                    c.explanation += _why_left_at_the_stop(last, found)
+                cond = c.conditional or {}
+                if "stopped_after" in cond:  # found in the round that stopped the search, not explained away
+                    c.explanation += _why_left_at_the_stop(cond["stopped_after"])
                 else:  # what its last re-test was given (forward selection may stop before a round given them all)
-                    c.explained_by = ", ".join(last or [a.effect for a in found])
+                    c.explained_by = ", ".join(cond.get("given") or [a.effect for a in found])
     if term is not None:
         term.significant, term.role = True, ENGINE_MAP
         term.recommended = term.verification is not None and "error" not in term.verification \
