@@ -532,7 +532,8 @@ def _nothing_left_to_recommend(named: list[Candidate], pool: list[Candidate], ds
     def may_be_added(c: Candidate) -> bool:
         return not (one_trip and _generic(c)) and _why_never_added(c, ds, _verification_when_named(c)) is None
 
-    return not any(may_be_added(c) and any(not never.intersection(g) for g in _rounds_found(c)) for c in pool)
+    # the rounds first: whether speed and torque determine a signal is a regression over the data
+    return not any(any(not never.intersection(g) for g in _rounds_found(c)) and may_be_added(c) for c in pool)
 
 
 def _why_left_at_the_stop(accepted: str) -> str:
