@@ -16,7 +16,7 @@ from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis import ranking
 from fuelid.ident.diagnosis import statistics as st
 from fuelid.ident.diagnosis.entries import ENTRIES
-from fuelid.ident.diagnosis.verification import block_cv, trip_cv
+from fuelid.ident.diagnosis.verification import block_cv, trip_cv, trip_folds
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from tests.ident import hidden
@@ -149,7 +149,7 @@ def test_trip_cv_fits_what_the_other_trips_determine_and_leaves_the_rest_at_zero
     for x in (varying * g, level * g):
         r = 0.5 * x + 0.2 * rng.normal(size=3 * n)
         r -= G @ (G.T @ r)  # the model fitted on all the data: its residual is orthogonal to its own columns
-        out, determined = trip_cv(r, G, x[:, None], trips)
+        out, determined = trip_cv(r, trip_folds(G, trips), x[:, None])
         assert determined == [True, True, True]
         for t in trips:
             fit = np.setdiff1d(np.arange(3 * n), t)
@@ -161,9 +161,29 @@ def test_trip_cv_fits_what_the_other_trips_determine_and_leaves_the_rest_at_zero
     r = 0.5 * x + 0.2 * rng.normal(size=2 * n)
     r -= G[: 2 * n] @ np.linalg.lstsq(G[: 2 * n], r, rcond=None)[0]
     G2 = G[: 2 * n] / np.linalg.norm(G[: 2 * n])
-    out, determined = trip_cv(r, G2, x[:, None], two)
-    without, _ = trip_cv(r, G2, np.zeros((2 * n, 0)), two)
+    out, determined = trip_cv(r, trip_folds(G2, two), x[:, None])
+    without, _ = trip_cv(r, trip_folds(G2, two), np.zeros((2 * n, 0)))
     assert determined == [False, False] and np.array_equal(out, without)
+
+
+def test_trip_cv_leaves_a_direction_of_the_model_only_the_trip_left_out_holds_at_zero():
+    """A model parameter only one trip excites (an input that is zero on the others, as a regeneration seen on one
+    day): fitted on the other trips its direction is not determined, and it stays where the model fitted on all the
+    data has it — the minimum-norm fit in the model's orthonormal columns — instead of being extrapolated."""
+    rng = np.random.default_rng(7)
+    n = 200
+    trips = [np.arange(k * n, (k + 1) * n) for k in range(3)]
+    h = np.zeros(3 * n)
+    h[:n] = rng.normal(size=n)  # only the first trip holds it
+    G = np.linalg.qr(np.column_stack([20.0 + np.sin(np.arange(3 * n) / 30.0), h]))[0]
+    r = rng.normal(size=3 * n)
+    r -= G @ (G.T @ r)
+    out, _ = trip_cv(r, trip_folds(G, trips), np.zeros((3 * n, 0)))
+    for t in trips:
+        fit = np.setdiff1d(np.arange(3 * n), t)
+        assert np.linalg.matrix_rank(G[fit]) == (1 if t is trips[0] else 2)
+        coef = np.linalg.lstsq(G[fit], r[fit], rcond=None)[0]  # minimum norm where the other trips leave it open
+        assert np.allclose(out[t], r[t] - G[t] @ coef)
 
 
 def test_free_responses_span_any_initial_state():

@@ -21,8 +21,8 @@ from fuelid.ident.diagnosis.delay import reference_fit, shift_test, verify_shift
 from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain, signals_text, static_gain
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import lagged, level_test, score_test
-from fuelid.ident.diagnosis.verification import (MIN_IDENTIFIABILITY, identifiability, leave_one_trip_out,
-                                                 slow_drifts, trip_groups, verify)
+from fuelid.ident.diagnosis.verification import (MIN_IDENTIFIABILITY, Baseline, identifiability, leave_one_trip_out,
+                                                 slow_drifts, verify)
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
@@ -86,27 +86,22 @@ class Additive:
     def through_torque(self, c: Candidate, ds) -> bool:
         return self.also_through_torque and c.definition.form == "input" and c.reg.units == (ds.input_units[1],)
 
-    def verify(self, c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray,
-               X_given: np.ndarray | None = None) -> dict:
-        """verify() the candidate against the model as it is, or, given the verified columns X_given of effects
-        accepted before it (w domain), against the model refitted with them; its explanation re-made from the
-        refit's β."""
+    def verify(self, c: Candidate, model: PolyModel, ds, run: Run, base: Baseline) -> dict:
+        """verify() the candidate against the model as it is (`base`, its Baseline on run); its explanation re-made
+        from the refit's β."""
         X, Xy = self.refit_columns(c, model, ds, run)
         c.X = X  # for the refits on top of it
-        given = np.zeros((run.r.size, 0)) if X_given is None else X_given
-        X = np.column_stack([given, X])
-        v, beta, change = verify(run, X, model, ds, base, base_ysim)
-        beta = beta[given.shape[1]:]
+        X = np.ascontiguousarray(X)  # the refit's products' last bits depend on the layout: one for every entry kind
+        v, beta, change = verify(run, X, model, ds, base)
         # does the fuel rise or fall with the effect? The covariance of the change adding it makes to the held-out
         # fuel (its own part and the model's re-fitted gains and offset together) with its direction regressor
         x0 = self.direction_regressor(c, run)
         v["direction"] = int(np.sign((change - change.mean()) @ (x0 - x0.mean())))
         v["identifiability"] = identifiability(run, *self.varying_column(c, run), self.confounders(c, ds, run))
         v["identifiable"] = bool(v["identifiability"] >= MIN_IDENTIFIABILITY)
-        groups = trip_groups(ds, run)
-        if len(groups) > 1:  # the refit fitted on the other trips, scored on each one
-            without, with_ = leave_one_trip_out(model, run, given, groups), leave_one_trip_out(model, run, X, groups)
-            n = np.array([g.size for g in groups])
+        if len(base.groups) > 1:  # the refit fitted on the other trips, scored on each one
+            without, with_ = base.trips, leave_one_trip_out(model, run, X, base.folds)
+            n = np.array([g.size for g in base.groups])
             pooled = [np.sqrt(n @ np.square(e) / n.sum()) for e in (without.rmse, with_.rmse)]
             v["trips"] = {"rmse_without": without.rmse, "rmse_with": with_.rmse,
                           "rmse_drop_percent": [100.0 * (1.0 - b / a) for a, b in zip(without.rmse, with_.rmse)],
@@ -218,8 +213,8 @@ class Shift(Additive):
         reg = fx.Regressors(grid[:, None], ("d/dt reference model's fuel",), (f"{ds.output_unit}/s",))
         return Evidence(reg, x, {"reference_model_shift": test}, left, test.coef, ref)
 
-    def verify(self, c, model, ds, run, base, base_ysim, X_given=None):
-        v = verify_shift(c.ref, model, ds, run, base)
+    def verify(self, c, model, ds, run, base):
+        v = verify_shift(c.ref, model, ds, run, base.scores)
         tau = v["reference"]["delay_s"]
         # y(t − τ) ≈ (1 − τ/Ts) y(t) + (τ/Ts) y(t − Ts) for τ < Ts: the model's own taps hold such a delay
         v["sample_period_s"], v["within_one_sample"] = ds.Ts, bool(abs(tau) < ds.Ts)

@@ -110,7 +110,7 @@ from fuelid.ident.diagnosis.explanation import as_evidence, contribution_on_grid
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.statistics import holm
-from fuelid.ident.diagnosis.verification import MIN_IDENTIFIABILITY, held_out, held_out_scores, trips
+from fuelid.ident.diagnosis.verification import MIN_IDENTIFIABILITY, Baseline, baseline, trips
 from fuelid.ident.filters import lfilter
 from fuelid.ident.identify import FitMemo, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
@@ -263,7 +263,7 @@ def _why_refit_not_verified(c: Candidate) -> str:
             return f" — but the model cannot be re-identified with it leaving a trip out ({t['error']}): " \
                    "not recommended"
         short = [f"{way.words}, RMS error {t[name]['rmse_without']:.3f} → {t[name]['rmse_with']:.3f}"
-                 for name, way in WAYS.items() if not t[name]["lowered"]]
+                 for name, way in WAYS.items() if name in t and not t[name]["lowered"]]
         return f" — but fitted on the other trips it does not lower the error on the trips left out by " \
                f"{t['min_drop_percent']:g} % ({'; '.join(short)}, pooled, leave-one-trip-out by PEM): not recommended"
     return f" — but the model re-identified with it (PEM, from the model without it) simulates these data worse " \
@@ -441,10 +441,9 @@ def _retest(pool: list[Candidate], model: PolyModel, run: Run, ds, given: list[s
     eligible = sorted((r for r in rows.values() if r.test_significant and r.estimated_drop_percent >= min_effect_percent),
                       key=lambda r: -_priority(r))
     if n_verify and eligible:
-        base_ysim = held_out(model, run, np.zeros((run.r.size, 0)))["ysim"]
-        base = held_out_scores({"y": run.y, "ysim": base_ysim}, ds)
+        base = baseline(model, run, ds)
         for r in eligible[:n_verify]:
-            _verify(r, model, ds, run, base, base_ysim)
+            _verify(r, model, ds, run, base)
     found = []
     for c in pool:
         r = rows[c.effect]
@@ -504,8 +503,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
             break
         found = _retest(pool, model, run, ds, [a.effect for a in named if a.refit["verified"]], alpha,
                         min_effect_percent, min_drop_percent, n_verify) if pool else []
-        if built is not None and found and not _generic(found[0]):
-            built.guess(found[0])  # the one accepted next, if its refit holds
+        if built is not None and (likely := next((c for c in found if _may_be_added(c, ds, run)), None)):
+            built.guess(likely)  # the one accepted next that may be added, if its refit holds
     for c in pool:
         (c.conditional or {}).pop("explanation", None)
     return named
@@ -527,13 +526,17 @@ def _nothing_left_to_recommend(named: list[Candidate], pool: list[Candidate], ds
     never = {c.effect for c in named if c.refit is not None and c.refit["verified"] and _why_never_added(c, ds)}
     if not never:
         return False
-    one_trip = len(trips(ds, run)) < 2  # a generic signal's verification then holds no trips: ONE_TRIP_ONLY
-
-    def may_be_added(c: Candidate) -> bool:
-        return not (one_trip and _generic(c)) and _why_never_added(c, ds, _verification_when_named(c)) is None
-
     # the rounds first: whether speed and torque determine a signal is a regression over the data
-    return not any(any(not never.intersection(g) for g in _rounds_found(c)) and may_be_added(c) for c in pool)
+    return not any(any(not never.intersection(g) for g in _rounds_found(c)) and _may_be_added(c, ds, run) for c in pool)
+
+
+def _may_be_added(c: Candidate, ds, run: Run) -> bool:
+    """Whether c, once forward selection names it, may be added (recommended) on ds (run: the model's): not a generic
+    bus signal on one trip (its verification then holds no trips: ONE_TRIP_ONLY) nor one `_why_never_added` rules
+    out."""
+    if _generic(c) and len(trips(ds, run)) < 2:
+        return False
+    return _why_never_added(c, ds, _verification_when_named(c)) is None
 
 
 def _why_left_at_the_stop(accepted: str) -> str:
@@ -594,14 +597,20 @@ class _Built:
 
     def expect(self, c: Candidate) -> None:
         """c is expected to be added after those expected before it: ask ahead for the model `add` will build with
-        them (builds.ModelBuilds.ask). The one without any, which `add` compares the first with, is not asked for: it
-        is built here when needed, beside the worker's."""
+        them (`_ask`)."""
         self._expected.append(c.spec)
-        self.builds.ask(self.specs + self._expected)
+        self._ask(self.specs + self._expected)
 
     def guess(self, c: Candidate) -> None:
         """Ask ahead for the model built with c after those expected, c not expected yet (a likely next one)."""
-        self.builds.ask(self.specs + self._expected + [c.spec])
+        self._ask(self.specs + self._expected + [c.spec])
+
+    def _ask(self, specs: list[str]) -> None:
+        """Ask ahead for the model with specs (builds.ModelBuilds.ask), then (once) for the one without any effect
+        added, which `add` compares the first added with: taken only at the end, it is built while the worker waits
+        for forward selection to tell it the next (the diagnosis would otherwise build it then, itself)."""
+        self.builds.ask(specs)
+        self.builds.ask(self.specs)
 
     def _model(self, specs: list[str]) -> PolyModel:
         return self.builds.model(specs)
@@ -700,18 +709,19 @@ def _indistinguishable(c: Candidate, rivals: list[Candidate], model: PolyModel, 
     return alike
 
 
-def _verify(c: Candidate, model: PolyModel, ds, run: Run, base: dict, base_ysim: np.ndarray) -> None:
-    """c's verification against the model as it is (its entry kind's), kept on c; an error recorded, not raised."""
+def _verify(c: Candidate, model: PolyModel, ds, run: Run, base: Baseline) -> None:
+    """c's verification against the model as it is (base: its Baseline; the entry kind's), kept on c; an error
+    recorded, not raised."""
     try:
-        c.verification = v = c.entry.verify(c, model, ds, run, base, base_ysim)
+        c.verification = v = c.entry.verify(c, model, ds, run, base)
         c.rmse_drop_percent = v["rmse_drop_percent"]
     except (ValueError, np.linalg.LinAlgError) as exc:
         c.verification = {"error": str(exc)}
 
 
-def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, base: dict | None,
-                    base_ysim: np.ndarray | None, min_effect_percent: float, min_drop_percent: float,
-                    n_verify: int, built: _Built) -> Candidate | None:
+def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, base: Baseline | None,
+                    min_effect_percent: float, min_drop_percent: float, n_verify: int,
+                    built: _Built) -> Candidate | None:
     """The engine map term (module docstring, 0): the `engine_map` candidate when its test (alone, at α) rejects,
     it explains min_effect_percent and (n_verify > 0) its verification confirms it; the `power_nonlinearity`
     candidate instead when that product term alone, verified too, comes within min_drop_percent of its held-out
@@ -726,7 +736,7 @@ def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, b
     product = next((c for c in testable if c.effect == PRODUCT_TERM), None)
     for c in (full, product):
         if c is not None:
-            _verify(c, model, ds, run, base, base_ysim)
+            _verify(c, model, ds, run, base)
     if "error" in full.verification or not _confirmed(full, full.verification, min_drop_percent):
         return None
     if product is not None and "error" not in product.verification \
@@ -827,10 +837,9 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
     rows = rank_candidates(model, ds, run, candidates, alpha, effects)
     testable = [c for c in rows if c.testable]
     try:  # the model as it is, scored on each block left out: the reference every verification is measured against
-        base_ysim = held_out(model, run, np.zeros((run.r.size, 0)))["ysim"]
-        base = held_out_scores({"y": run.y, "ysim": base_ysim}, ds)
+        base = baseline(model, run, ds)
     except (ValueError, np.linalg.LinAlgError):
-        base = base_ysim = None
+        base = None
     if n_verify and base is None and any(c.test_significant for c in testable):
         raise InputError("the model cannot be scored on held-out blocks of these data")
     full = next((c for c in testable if c.effect == MAP_TERM), None)
@@ -842,9 +851,8 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
     for c in others[:n_verify] + [c for c in others[n_verify:] if n_verify and not c.entry.retested]:
         # the signal path's candidate (the fuel delay) is a family of its own, verified on its own reference: it
         # does not compete with the fuelling effects for the verification budget
-        _verify(c, model, ds, run, base, base_ysim)
-    term = engine_map_term(testable, model, ds, run, base, base_ysim, min_effect_percent, min_drop_percent, n_verify,
-                           built)
+        _verify(c, model, ds, run, base)
+    term = engine_map_term(testable, model, ds, run, base, min_effect_percent, min_drop_percent, n_verify, built)
     outranking = [c for c in others if term is not None and c.entry.retested and c.rmse_drop_percent is not None
                   and _confirmed(c, c.verification, min_drop_percent) and _priority(c) > term.rmse_drop_percent]
     if outranking:  # a hidden effect the map's columns would partly absorb: no map term first (module docstring, 0)
@@ -857,7 +865,7 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
     hidden = [c for c in testable if c.effect != MAP_TERM and (term is None or c.effect != PRODUCT_TERM)]
     eligible = sorted((c for c in hidden if relevant(c)), key=lambda c: -_priority(c))
     for c in [c for c in eligible if c.verification is None][:max(n_verify - len(others[:n_verify]), 0)]:
-        _verify(c, model, ds, run, base, base_ysim)
+        _verify(c, model, ds, run, base)
     confirmed, unconfirmed = [], []
     for c in eligible:
         (confirmed if _confirmed(c, c.verification, min_drop_percent) else unconfirmed).append(c)
@@ -963,7 +971,7 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
         model={"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
         data=ds.summary() if hasattr(ds, "summary") else {},
         compare={**metrics(mrun, ds), "unit": ds.output_unit},
-        held_out=base,
+        held_out=None if base is None else base.scores,
         where_it_fails=where_it_fails(model, ds, run),
         test={"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "
                         "the simulation errors; Newey-West robust, chi2(k); Bonferroni over the two, Holm "

@@ -60,6 +60,8 @@
 """
 from __future__ import annotations
 
+import functools
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -153,25 +155,50 @@ def trip_groups(ds, run: Run, break_s: float = TRIP_BREAK_S) -> list[np.ndarray]
             for trip in trips(ds, run, break_s)]
 
 
-def trip_cv(r: np.ndarray, G: np.ndarray, X: np.ndarray, groups) -> tuple[np.ndarray, list[bool]]:
-    """Leave-one-trip-out errors of the least-squares fit of r (N) on the model's orthonormal columns G (N × q) and
-    the extra columns X (N × p): on each group g of positions, r − [G X] c_(−g), c_(−g) fitted on the samples
-    outside g — G by minimum norm (columns scaled to unit norm there; one that is zero there gets 0), X only in the
-    directions those samples determine (`fold_directions`): a coefficient the other trips hardly determine (a signal
-    nearly constant on each of them, confounded with the model's own gains) is not extrapolated to the trip left
-    out, it stays at 0 as in the model without it. Also, per group, whether the others determined any direction."""
+class TripFolds(NamedTuple):
+    """What every candidate's leave-one-trip-out refit on one run shares (`trip_cv`; made by `trip_folds`): the
+    model's own columns G (N × q, orthonormal over all samples), the positions `held` of each trip and the Gram
+    matrix G_gᵀG_g of G's rows there (q × q each: the folds cost q² each to keep, not N q)."""
+
+    G: np.ndarray
+    held: list[np.ndarray]
+    grams: list[np.ndarray]
+
+
+def trip_folds(G: np.ndarray, groups) -> TripFolds:
+    """The TripFolds of the model's orthonormal columns G (N × q) and the trips' positions `groups` (trip_groups)."""
+    return TripFolds(G, list(groups), [G[g].T @ G[g] for g in groups])
+
+
+def trip_cv(r: np.ndarray, folds: TripFolds, X: np.ndarray) -> tuple[np.ndarray, list[bool]]:
+    """Leave-one-trip-out errors of the least-squares fit of r (N) on the model's orthonormal columns G (folds.G,
+    N × q) and the extra columns X (N × p): on each trip's positions g (folds.held), r − [G X] c_(−g), c_(−g) fitted on
+    the samples outside g — X only in the directions those samples determine (`fold_directions`): a coefficient the
+    other trips hardly determine (a signal nearly constant on each of them, confounded with the model's own gains)
+    is not extrapolated to the trip left out, it stays at 0 as in the model without it. Also, per trip, whether the
+    others determined any direction.
+
+    With Z = [G, U V] (U an orthonormal basis of X's part beside G, V the directions kept: Z orthonormal over all
+    samples) the fit without g is the deletion formula of `block_cv` on g: with e = r − Z Zᵀ r,
+        e_(g) = e_g + Z_g (I − Z_gᵀ Z_g)⁺ Z_gᵀ e_g,
+    made of the trip's own rows, and of G_gᵀG_g (folds.grams), which every candidate shares: no least-squares
+    problem over the other trips' samples is solved. (I − G_gᵀG_g)⁺ is `_deletion_solve`'s: where a direction of G
+    lies (nearly) inside g, the minimum-norm solution, which leaves it at 0."""
+    G = folds.G
     U = _added_directions(X - G @ (G.T @ X), X)
+    Gr, Ur = G.T @ r, U.T @ r
     out, determined = r.copy(), []
-    for g in groups:
-        fit = np.ones(r.size, bool)
-        fit[g] = False
-        V = fold_directions(G[fit], U[fit])
+    for g, gram in zip(folds.held, folds.grams):
+        Gg, Ug = G[g], U[g]
+        M_G = np.eye(gram.shape[0]) - gram
+        V = fold_directions(M_G, Gg.T @ Ug, np.eye(U.shape[1]) - Ug.T @ Ug)
         determined.append(V.shape[1] > 0)
-        Z = np.column_stack([G, U @ V])
-        norms = np.linalg.norm(Z[fit], axis=0)
-        scale = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0)
-        coef = lstsq(Z[fit] * scale, r[fit], cond=1e-8, check_finite=False)[0] * scale
-        out[g] = r[g] - Z[g] @ coef
+        Bg = Ug @ V
+        GB = Gg.T @ Bg
+        M = np.block([[M_G, -GB], [-GB.T, np.eye(V.shape[1]) - Bg.T @ Bg]])
+        Zg = np.column_stack([Gg, Bg])
+        eg = r[g] - Zg @ np.concatenate([Gr, V.T @ Ur])
+        out[g] = eg + Zg @ _deletion_solve(M, Zg.T @ eg)
     return out, determined
 
 
@@ -182,16 +209,16 @@ def _added_directions(Xt: np.ndarray, X: np.ndarray) -> np.ndarray:
     return U[:, sig > 1e-4]
 
 
-def fold_directions(G: np.ndarray, U: np.ndarray) -> np.ndarray:
+def fold_directions(M_G: np.ndarray, C: np.ndarray, M_U: np.ndarray) -> np.ndarray:
     """The directions V (columns, orthonormal) of the extra columns U (orthonormal over all samples, ⊥ G) that the
-    samples given (rows of G and U) determine beside the model's own columns G: the eigenvectors of WᵀW, W = P⊥_G U
-    on those samples, whose eigenvalue — the share of the direction's variation over all samples that these hold
-    and G does not explain there — is at least MIN_IDENTIFIABILITY² (a variance inflation factor of at most 10,
-    the rule `identifiability` applies to all the data)."""
-    if U.shape[1] == 0:
+    samples outside a trip g determine beside the model's own columns G: the eigenvectors of WᵀW, W = P⊥_G U on
+    those samples, whose eigenvalue — the share of the direction's variation over all samples that these hold and G
+    does not explain there — is at least MIN_IDENTIFIABILITY² (a variance inflation factor of at most 10, the rule
+    `identifiability` applies to all the data). From g's rows alone: M_G = I − G_gᵀG_g, C = G_gᵀU_g (the other
+    samples' G_fᵀU_f is −C, since GᵀU = 0), M_U = I − U_gᵀU_g; WᵀW = M_U − Cᵀ M_G⁺ C."""
+    if C.shape[1] == 0:
         return np.zeros((0, 0))
-    W = U - G @ lstsq(G, U, cond=1e-8, check_finite=False)[0]
-    share, V = np.linalg.eigh(W.T @ W)
+    share, V = np.linalg.eigh(M_U - C.T @ _deletion_solve(M_G, C))
     return V[:, share >= MIN_IDENTIFIABILITY ** 2]
 
 
@@ -203,13 +230,13 @@ class TripScores(NamedTuple):
     determined: list[bool]
 
 
-def leave_one_trip_out(model: PolyModel, run: Run, X: np.ndarray, groups) -> TripScores:
-    """The linearised refit with the extra columns X (w domain, stacked like run.r) on each trip of `groups`
-    (trip_groups), fitted on the other trips (trip_cv)."""
+def leave_one_trip_out(model: PolyModel, run: Run, X: np.ndarray, folds: TripFolds) -> TripScores:
+    """The linearised refit with the extra columns X (w domain, stacked like run.r) on each trip (folds: trip_folds
+    of run.QG.dense), fitted on the other trips (trip_cv)."""
     with one_blas_thread():
-        err, determined = trip_cv(run.r, run.QG.dense, X, groups)
+        err, determined = trip_cv(run.r, folds, X)
     err = _through_1_over_A(model, run, err)
-    return TripScores([float(np.sqrt(np.mean(err[g] ** 2))) for g in groups], determined)
+    return TripScores([float(np.sqrt(np.mean(err[g] ** 2))) for g in folds.held], determined)
 
 
 def identifiability(run: Run, varying: np.ndarray, column: np.ndarray,
@@ -261,14 +288,46 @@ def held_out_scores(cv: dict, ds) -> dict:
             "cycle_fuel_error_percent": error_table(cycle_fuel_error(np.where(ok, y, np.nan), ysim, ds.cycle, ds.Ts))}
 
 
-def verify(run: Run, X: np.ndarray, model: PolyModel, ds, before: dict,
-           before_ysim: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
-    """The held-out scores with the candidate columns X (w domain) against `before` (held_out_scores of the
-    model as it is, whose held-out simulation is before_ysim): (`without_with`: RMS simulation error [output unit]
-    and cycle fuel error [%] without and with, the drop [%]; β the candidate's coefficients fitted on all the data;
-    the change of the held-out simulated fuel [output unit] that adding it makes, stacked like run.r)."""
+@dataclass(eq=False)
+class Baseline:
+    """The model as it is, scored on data it was not fitted on: what every verification on its run measures a
+    candidate against (`verify`; made by `baseline`). ysim: its held-out simulation block by block (`held_out`
+    without extra columns; N on the dataset grid), scores: held_out_scores of it; groups: the run's positions of
+    each trip (trip_groups)."""
+
+    model: PolyModel
+    run: Run
+    groups: list[np.ndarray]
+    ysim: np.ndarray
+    scores: dict
+
+    @functools.cached_property
+    def folds(self) -> TripFolds:
+        """The trips' folds of the model's own columns (trip_folds), which every candidate's leave_one_trip_out on
+        this run shares: made once, when first read."""
+        with one_blas_thread():
+            return trip_folds(self.run.QG.dense, self.groups)
+
+    @functools.cached_property
+    def trips(self) -> TripScores:
+        """Scored leaving one trip out (leave_one_trip_out without extra columns): every candidate verified on this
+        run on several trips is compared with it, so it is made once, when first read."""
+        return leave_one_trip_out(self.model, self.run, np.zeros((self.run.r.size, 0)), self.folds)
+
+
+def baseline(model: PolyModel, run: Run, ds) -> Baseline:
+    """The Baseline of `model`, whose Run on dataset ds is `run`."""
+    ysim = held_out(model, run, np.zeros((run.r.size, 0)))["ysim"]
+    return Baseline(model, run, trip_groups(ds, run), ysim, held_out_scores({"y": run.y, "ysim": ysim}, ds))
+
+
+def verify(run: Run, X: np.ndarray, model: PolyModel, ds, base: Baseline) -> tuple[dict, np.ndarray, np.ndarray]:
+    """The held-out scores with the candidate columns X (w domain) against the model as it is (`base`, its
+    Baseline): (`without_with`: RMS simulation error [output unit] and cycle fuel error [%] without and with, the
+    drop [%]; β the candidate's coefficients fitted on all the data; the change of the held-out simulated fuel
+    [output unit] that adding it makes, stacked like run.r)."""
     after = held_out_scores(cv := held_out(model, run, X), ds)
-    return without_with(before, after), cv["beta"], (cv["ysim"] - before_ysim)[run.index]
+    return without_with(base.scores, after), cv["beta"], (cv["ysim"] - base.ysim)[run.index]
 
 
 def without_with(before: dict, after: dict) -> dict:
