@@ -377,6 +377,41 @@ def _damping_trials(mu: float) -> tuple[float, ...]:
     return (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12)))
 
 
+def _decrement(ell: np.ndarray, g: np.ndarray) -> float:
+    """The Gauss–Newton decrement Δ = ½ gᵀ diag(1/ℓ) g of `_scaled_normal_equations`' ℓ and g (ℓ floored at
+    1e-14 ℓ_max): the fall of V a full Gauss–Newton step promises."""
+    return 0.5 * g @ (g / np.maximum(ell, ell[-1] * 1e-14))
+
+
+def _damped_step(scale: np.ndarray, Q: np.ndarray, ell: np.ndarray, g: np.ndarray, mu: float) -> np.ndarray:
+    """δ(μ) = S⁻¹ Q diag(1/(ℓ + μ ℓ_max)) g from `_scaled_normal_equations`' (S, Q, ℓ, g) (module docstring)."""
+    return Q @ (g / (ell + mu * ell[-1])) / scale
+
+
+def _descent(mu: float, V: float, trial):
+    """(μ, trial(μ)) of the lowest V among the damping factors `_damping_trials(mu)` tried in turn, up to the first
+    from mu on that lowers V below V; None when none does. trial(μ) is the search's candidate at the step δ(μ), with
+    its loss as the field V."""
+    best = None
+    for damping in _damping_trials(mu):
+        candidate = trial(damping)
+        if candidate.V < (V if best is None else best[1].V):
+            best = (damping, candidate)
+        if damping >= mu and best is not None:
+            break
+    return best
+
+
+class _Trial(NamedTuple):
+    """One damped step of `levenberg_marquardt`: V at the stabilised θ, whether the stability projection cut the
+    step back, and the filtered signals of θ."""
+
+    V: float
+    theta: np.ndarray
+    cut: bool
+    r: _Responses
+
+
 def _split(x: np.ndarray, sizes) -> list[np.ndarray]:
     """x cut into consecutive pieces of the given sizes."""
     return np.split(x, np.cumsum(sizes)[:-1])
@@ -428,30 +463,29 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
 
     for it in range(first, max_iter + 1):
         scale, Q, ell, g = _scaled_normal_equations(psi, eps, used)
-        decrement = 0.5 * g @ (g / np.maximum(ell, ell[-1] * 1e-14))
+        decrement = _decrement(ell, g)
         small_step = decrement <= V / dof  # 2Δ/λ̂ ≤ 1 with λ̂ = 2V/dof
         if decrement <= tol * V:
             return stopped(it - 1, True, "expected_improvement")
         if flat >= FLAT_ITERATIONS and (small_step or cut):
             return stopped(it - 1, True, "stability_bound" if cut and not small_step else "flat_loss")
-        best, all_cut = (V, None, mu, False, None), True
-        for trial in _damping_trials(mu):
-            raw = theta + Q @ (g / (ell + trial * ell[-1])) / scale
-            cand, m_c = _stable_theta(raw, s)
-            cut_c = cand is not raw and not np.array_equal(cand, raw)
-            all_cut &= cut_c
-            r_c = _responses(m_c, u, y, starts)
-            V_c = _loss(r_c.eps, used)
-            if V_c < best[0]:
-                best = (V_c, cand, trial, cut_c, r_c)
-            if trial >= mu and best[1] is not None:
-                break
-        if best[1] is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
-            if all_cut and not small_step:
+        cuts = []
+
+        def trial(damping: float) -> _Trial:
+            raw = theta + _damped_step(scale, Q, ell, g, damping)
+            stable, m = _stable_theta(raw, s)
+            cuts.append(stable is not raw and not np.array_equal(stable, raw))
+            r = _responses(m, u, y, starts)
+            return _Trial(_loss(r.eps, used), stable, cuts[-1], r)
+
+        best = _descent(mu, V, trial)
+        if best is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
+            if all(cuts) and not small_step:
                 return stopped(it - 1, True, "stability_bound")
             return stopped(it - 1, bool(small_step or cut), "no_descent")
-        flat = flat + 1 if V - best[0] <= ftol * V / dof else 0
-        V, theta, mu, cut, r = best[0], best[1], max(best[2], 1e-15), best[3], best[4]
+        damping, taken = best
+        flat = flat + 1 if V - taken.V <= ftol * V / dof else 0
+        V, theta, mu, cut, r = taken.V, taken.theta, max(damping, 1e-15), taken.cut, taken.r
         history.append(V)
         eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)  # the accepted trial's signals, not filtered again
     return stopped(max_iter, False, "max_iterations")
@@ -569,22 +603,17 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
     iterations = 0
     while iterations < max_iter:
         scale, Q, ell, g = _scaled_normal_equations(jacobian(p), p.r, slice(None))
-        decrement = 0.5 * g @ (g / np.maximum(ell, ell[-1] * 1e-14))
+        decrement = _decrement(ell, g)
         window = history[-1 - PROJECTION_WINDOW] - p.V if len(history) > PROJECTION_WINDOW else np.inf
         if decrement <= tol * p.V or (flat >= FLAT_ITERATIONS and decrement <= p.V / dof) or window < p.V / dof:
             break
         f = np.concatenate([p.F[i][1:] for i in rational])
-        best, damping = None, mu
-        for trial in _damping_trials(mu):
-            candidate = projection(with_f(f + Q @ (g / (ell + trial * ell[-1])) / scale))
-            if candidate.V < (p.V if best is None else best.V):
-                best, damping = candidate, trial
-            if trial >= mu and best is not None:
-                break
+        best = _descent(mu, p.V, lambda damping: projection(with_f(f + _damped_step(scale, Q, ell, g, damping))))
         if best is None:
             break
-        flat = flat + 1 if p.V - best.V <= ftol * p.V / dof else 0
-        p, mu = best, max(damping, 1e-15)
+        damping, taken = best
+        flat = flat + 1 if p.V - taken.V <= ftol * p.V / dof else 0
+        p, mu = taken, max(damping, 1e-15)
         history.append(p.V)
         iterations += 1
     b = b_rational(p)
@@ -753,7 +782,7 @@ def pem_with_search(u, y, structure: Structure, Ts: float, *, segments=None, ini
     lam = 2.0 * V / (n_used - s.n_params)
     inv_ell = np.where(ell > ell[-1] * 1e-14, 1.0 / np.maximum(ell, 1e-300), 0.0)
     P = lam * ((Q * inv_ell) @ Q.T) / np.outer(scale, scale)
-    step_se = float(np.sqrt(g @ (g / np.maximum(ell, ell[-1] * 1e-14)) / lam))  # √(2Δ/λ̂)
+    step_se = float(np.sqrt(2.0 * _decrement(ell, g) / lam))  # √(2Δ/λ̂)
 
     model = from_theta(fit.theta, s, Ts, u0=tuple(u0), y0=y0, covariance=P)
     msgs = cancellations(model, cancel_tol)

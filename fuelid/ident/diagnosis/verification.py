@@ -158,16 +158,16 @@ def trip_groups(ds, run: Run, break_s: float = TRIP_BREAK_S) -> list[np.ndarray]
 class TripFolds(NamedTuple):
     """What every candidate's leave-one-trip-out refit on one run shares (`trip_cv`; made by `trip_folds`): the
     model's own columns G (N × q, orthonormal over all samples), the positions `held` of each trip and the Gram
-    matrix G_gᵀG_g of G's rows there (q × q each: the folds cost q² each to keep, not N q)."""
+    matrix of G's rows outside each, I − G_gᵀG_g (q × q each: the folds cost q² each to keep, not N q)."""
 
     G: np.ndarray
     held: list[np.ndarray]
-    grams: list[np.ndarray]
+    outside: list[np.ndarray]
 
 
 def trip_folds(G: np.ndarray, groups) -> TripFolds:
     """The TripFolds of the model's orthonormal columns G (N × q) and the trips' positions `groups` (trip_groups)."""
-    return TripFolds(G, list(groups), [G[g].T @ G[g] for g in groups])
+    return TripFolds(G, list(groups), [np.eye(G.shape[1]) - G[g].T @ G[g] for g in groups])
 
 
 def trip_cv(r: np.ndarray, folds: TripFolds, X: np.ndarray) -> tuple[np.ndarray, list[bool]]:
@@ -181,16 +181,15 @@ def trip_cv(r: np.ndarray, folds: TripFolds, X: np.ndarray) -> tuple[np.ndarray,
     With Z = [G, U V] (U an orthonormal basis of X's part beside G, V the directions kept: Z orthonormal over all
     samples) the fit without g is the deletion formula of `block_cv` on g: with e = r − Z Zᵀ r,
         e_(g) = e_g + Z_g (I − Z_gᵀ Z_g)⁺ Z_gᵀ e_g,
-    made of the trip's own rows, and of G_gᵀG_g (folds.grams), which every candidate shares: no least-squares
+    made of the trip's own rows, and of I − G_gᵀG_g (folds.outside), which every candidate shares: no least-squares
     problem over the other trips' samples is solved. (I − G_gᵀG_g)⁺ is `_deletion_solve`'s: where a direction of G
     lies (nearly) inside g, the minimum-norm solution, which leaves it at 0."""
     G = folds.G
     U = _added_directions(X - G @ (G.T @ X), X)
     Gr, Ur = G.T @ r, U.T @ r
     out, determined = r.copy(), []
-    for g, gram in zip(folds.held, folds.grams):
+    for g, M_G in zip(folds.held, folds.outside):
         Gg, Ug = G[g], U[g]
-        M_G = np.eye(gram.shape[0]) - gram
         V = fold_directions(M_G, Gg.T @ Ug, np.eye(U.shape[1]) - Ug.T @ Ug)
         determined.append(V.shape[1] > 0)
         Bg = Ug @ V
