@@ -19,7 +19,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from versions import worker_results
+from versions import oe_iterations, worker_results
 
 
 def worker(path: str):
@@ -40,8 +40,7 @@ def worker(path: str):
     t2 = time.process_time()
     info = model.info
     print(json.dumps({"dataset_s": t1 - t0, "identify_s": t2 - t1, "total_s": t2 - t0, "V": info["loss_V"],
-                      "oe_iterations": info["initialisation_iterations"]["output_error"]
-                      + info["initialisation_iterations"].get("output_error_projected", 0),
+                      "oe_iterations": oe_iterations(info),
                       "iterations": info["iterations"]}))
 
 

@@ -36,7 +36,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from versions import blas_threads_env
+from versions import blas_threads_env, oe_iterations
 
 HERE = Path(__file__).resolve().parent
 PEERS = HERE / ".venv-peers"
@@ -167,8 +167,7 @@ def effort(model) -> dict:
     """Iterations of the initialisation's OE and ARMA fits and of the final fit, the initialisation's share of
     the time, the loss V."""
     info = model.info
-    return {"oe_iterations": info["initialisation_iterations"]["output_error"]
-            + info["initialisation_iterations"].get("output_error_projected", 0),
+    return {"oe_iterations": oe_iterations(info),
             "arma_iterations": info["initialisation_iterations"]["arma"], "iterations": info["iterations"],
             "initialisation_share": info["initialisation_time_s"] / info["wall_time_s"], "loss_V": info["loss_V"],
             "converged": info["converged"], "stop_reason": info["stop_reason"]}

@@ -25,7 +25,7 @@ import sys
 import time
 from pathlib import Path
 
-from versions import worker_results
+from versions import oe_iterations, worker_results
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -98,9 +98,7 @@ def worker(paths, repeat: int, perturb: float):
                                  for k in ((1, -1) if perturb else ())]
         print(json.dumps({"problem": Path(path).stem, "V": info["loss_V"], "cpu_s": cpu,
                           "V_spread": max(vs) / min(vs) - 1,
-                          # the OE start's LM and variable projection iterations (a version may have no projection)
-                          "oe_iterations": sum(info["initialisation_iterations"].get(k, 0)
-                                               for k in ("output_error", "output_error_projected")),
+                          "oe_iterations": oe_iterations(info),
                           "iterations": info["iterations"], "stop_reason": info["stop_reason"]}), flush=True)
 
 
