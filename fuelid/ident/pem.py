@@ -92,6 +92,7 @@ import functools
 import operator
 import time
 import warnings
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -388,10 +389,10 @@ def _damped_step(scale: np.ndarray, Q: np.ndarray, ell: np.ndarray, g: np.ndarra
     return Q @ (g / (ell + mu * ell[-1])) / scale
 
 
-def _descent(mu: float, V: float, trial):
-    """(μ, trial(μ)) of the lowest V among the damping factors `_damping_trials(mu)` tried in turn, up to the first
-    from mu on that lowers V below V; None when none does. trial(μ) is the search's candidate at the step δ(μ), with
-    its loss as the field V."""
+def _descent(mu: float, V: float, trial: Callable[[float], NamedTuple]) -> tuple[float, NamedTuple] | None:
+    """One LM step search from the loss V: trial(μ), the search's candidate at the step δ(μ) with its loss as the
+    field V, for the damping factors `_damping_trials(mu)` in turn, up to the first from mu on that lowers the loss;
+    (μ, trial(μ)) of the lowest loss, or None when no damping lowers it."""
     best = None
     for damping in _damping_trials(mu):
         candidate = trial(damping)
