@@ -92,7 +92,7 @@ class Additive:
         X, Xy = self.refit_columns(c, model, ds, run)
         c.X = X  # for the refits on top of it
         X = np.ascontiguousarray(X)  # the refit's products' last bits depend on the layout: one for every entry kind
-        v, beta, change = verify(run, X, model, ds, base)
+        v, beta, change = verify(base, X, ds)
         # does the fuel rise or fall with the effect? The covariance of the change adding it makes to the held-out
         # fuel (its own part and the model's re-fitted gains and offset together) with its direction regressor
         x0 = self.direction_regressor(c, run)

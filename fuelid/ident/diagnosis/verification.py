@@ -320,13 +320,13 @@ def baseline(model: PolyModel, run: Run, ds) -> Baseline:
     return Baseline(model, run, trip_groups(ds, run), ysim, held_out_scores({"y": run.y, "ysim": ysim}, ds))
 
 
-def verify(run: Run, X: np.ndarray, model: PolyModel, ds, base: Baseline) -> tuple[dict, np.ndarray, np.ndarray]:
-    """The held-out scores with the candidate columns X (w domain) against the model as it is (`base`, its
-    Baseline): (`without_with`: RMS simulation error [output unit] and cycle fuel error [%] without and with, the
-    drop [%]; β the candidate's coefficients fitted on all the data; the change of the held-out simulated fuel
-    [output unit] that adding it makes, stacked like run.r)."""
-    after = held_out_scores(cv := held_out(model, run, X), ds)
-    return without_with(base.scores, after), cv["beta"], (cv["ysim"] - base.ysim)[run.index]
+def verify(base: Baseline, X: np.ndarray, ds) -> tuple[dict, np.ndarray, np.ndarray]:
+    """The held-out scores with the candidate columns X (w domain, stacked like base.run.r) against the model as it
+    is (`base`, its Baseline on its run): (`without_with`: RMS simulation error [output unit] and cycle fuel error [%]
+    without and with, the drop [%]; β the candidate's coefficients fitted on all the data; the change of the held-out
+    simulated fuel [output unit] that adding it makes, stacked like run.r)."""
+    after = held_out_scores(cv := held_out(base.model, base.run, X), ds)
+    return without_with(base.scores, after), cv["beta"], (cv["ysim"] - base.ysim)[base.run.index]
 
 
 def without_with(before: dict, after: dict) -> dict:
