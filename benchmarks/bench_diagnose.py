@@ -6,6 +6,7 @@ acceptance run on more seeds than the test suite.
     python benchmarks/bench_diagnose.py --acceptance --first-seed 4000 --first-null-seed 300 --null-seeds 30  # fresh seeds
     python benchmarks/bench_diagnose.py --acceptance --seeds 1 --null-seeds 0 --null-pairs 0 --effects inertia --pairs cold_engine+dpf_regeneration  # a subset
     python benchmarks/bench_diagnose.py --truth map                     # the same on the VECTO 325 kW map engine
+    python benchmarks/bench_diagnose.py --truth map --spread            # 90-min trips, a hidden effect each
     python benchmarks/bench_diagnose.py --acceptance --truth map --with-effect power_nonlinearity  # second round
     python benchmarks/bench_diagnose.py --acceptance --truth map --engine benchmarks/engines/325kW_steady.veng  # another engine set
     python benchmarks/bench_diagnose.py --acceptance --truth map --seeds 1 --perturb 1e-13  # the fuel's last bits changed
@@ -33,6 +34,7 @@ from fuelid.ident import diagnosis as dg  # noqa: E402  (fuelid before numpy: it
 from fuelid.ident import effects as fx  # noqa: E402
 from fuelid.ident.identify import FitMemo, identify_model  # noqa: E402
 from fuelid.ident.validation import evaluate  # noqa: E402
+from fuelid.sim.catalog import ALL_EFFECT_TRIPS  # noqa: E402
 from fuelid.sim.effects import GENERIC_EFFECTS  # noqa: E402
 from tests.ident import hidden  # noqa: E402
 
@@ -101,6 +103,27 @@ def timing(truth: str, engine: str = ""):
     for name, c in (("generic signals additive only (level, rate, state)", additive), ("every form", all_candidates)):
         t = best_of(lambda: dg.diagnose(model, ds, candidates=c))
         print(f" 90 min, {name}: {len(c)} candidates, {t:.2f} s")
+
+
+def spread(truth: str, engine: str, first_seed: int):
+    """Wall time, with a worker (best of 2), of the diagnosis of one 90-min trip per hidden effect whose trip is
+    one route driven on one day (EFFECTS, on seed first_seed + k for the k-th) and of a trip with nothing hidden:
+    how the timing's one 90-min trip (a DPF regeneration, seed 7) stands among trips that hide other effects and
+    make forward selection accept other numbers of them; their median and largest."""
+    cases = [None] + [e for e in EFFECTS if len(ALL_EFFECT_TRIPS[e]) == 1 and days_of(e) == 1]
+    times = {}
+    for k, effect in enumerate(cases):
+        ds, _, _ = simulated(effect, first_seed + k, 5400.0, truth=truth, engine=engine)
+        model = hidden.identify(ds)
+        out = dg.diagnose(model, ds, workers=1)
+        times[effect] = best_of(lambda: dg.diagnose(model, ds, workers=1), 2)
+        print(f" {effect or 'nothing hidden':20s} seed {first_seed + k:5d}  {len(ds.t):6d} samples  "
+              f"{times[effect]:6.2f} s  accepted {sum(1 for c in out.candidates if c.role)}, recommended "
+              f"{', '.join(c.effect for c in out.candidates if c.recommended) or '-'}", flush=True)
+    t = np.array(list(times.values()))
+    worst = max(times, key=times.get)
+    print(f"90-min trips with a worker: median {np.median(t):.2f} s, largest {t.max():.2f} s "
+          f"({worst or 'nothing hidden'}), of {len(t)}")
 
 
 def same_either_way(model, ds) -> dict:
@@ -319,6 +342,8 @@ def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, fi
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--acceptance", action="store_true", help="run the acceptance table instead of the timing")
+    ap.add_argument("--spread", action="store_true",
+                    help="time one 90-min trip per hidden effect (from --first-seed) instead of the timing")
     ap.add_argument("--seeds", type=int, default=3, help="seeds per hidden effect (default 3)")
     ap.add_argument("--null-seeds", type=int, default=20, help="trips with nothing hidden (default 20)")
     ap.add_argument("--null-pairs", type=int, default=10,
@@ -352,5 +377,7 @@ if __name__ == "__main__":
         acceptance(args.seeds, args.null_seeds, args.null_pairs, args.first_seed, args.first_null_seed,
                    args.truth, tuple(args.with_effect), args.pair_seeds, [e for e in args.effects.split(",") if e],
                    [tuple(p.split("+")) for p in args.pairs.split(",") if p], args.engine)
+    elif args.spread:
+        spread(args.truth, args.engine, args.first_seed)
     else:
         timing(args.truth, args.engine)
