@@ -30,10 +30,11 @@ def test_the_front_door_names_the_map_and_the_regeneration_and_the_error_falls_o
     assert result["engine_map"] == "engine_map" and result["missing_effects"][0] == "dpf_regeneration"
     assert result["verdict"].startswith("Engine map: ")
     recommended = [c["effect"] for c in result["candidates"] if c.get("recommended")]
-    # one trip: no bus signal added (EEC3's desired speed, the cab temperature and EEC1's demand torque are named, not
-    # recommended), nor an effect found given one (gear shifts were, before the map term held the transient fuelling)
-    assert recommended[:2] == ["engine_map", "dpf_regeneration"], result["verdict"]
-    assert set(recommended[2:]) <= {"gear_shift"}, result["verdict"]
+    # one trip: no bus signal added (EEC3's desired speed is named, not recommended: speed and torque determine it),
+    # nor an effect found given one (gear shifts were, before the map term held the transient fuelling)
+    assert recommended == ["engine_map", "dpf_regeneration"], result["verdict"]
+    desired = next(c for c in result["candidates"] if c["effect"] == "scales:EEC3.EngDesiredOperatingSpeed")
+    assert desired["role"] == "missing effect" and "engine speed and torque determine" in desired["explanation"]
     run_json(capsys, "identify", trip, "--effects-from", diagnosis, "-o", after)
     on_trip = run_json(capsys, "compare", before, after, trip)
     on_valid = run_json(capsys, "compare", before, after, valid)
