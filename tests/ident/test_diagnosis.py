@@ -13,7 +13,7 @@ from threadpoolctl import threadpool_limits
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis import ranking
+from fuelid.ident.diagnosis import builds, ranking
 from fuelid.ident.diagnosis import statistics as st
 from fuelid.ident.diagnosis.entries import ENTRIES
 from fuelid.ident.diagnosis.verification import block_cv, trip_cv, trip_folds
@@ -228,20 +228,20 @@ def test_an_effect_nobody_listed_is_found_and_named_by_its_bus_signal():
 
 def _built_with_the_regeneration_simulates(ratio: float, monkeypatch) -> None:
     """Make the model identify builds with the DPF regeneration simulate the data with `ratio` times the RMS error
-    of the one built without it (ranking._Built)."""
-    rmse = ranking._Built._rmse
+    of the one built without it (builds.BuiltCheck)."""
+    rmse = builds.BuiltCheck._rmse
 
     def scaled_with_the_regeneration(built, specs):
         without = rmse(built, [s for s in specs if s != "dpf_regeneration"])
         return ratio * without if "dpf_regeneration" in specs else without
 
-    monkeypatch.setattr(ranking._Built, "_rmse", scaled_with_the_regeneration)
+    monkeypatch.setattr(builds.BuiltCheck, "_rmse", scaled_with_the_regeneration)
 
 
 def test_an_effect_the_built_model_simulates_worse_with_is_named_not_recommended(monkeypatch):
     """The last check before an effect is recommended is on the model `fuelid identify --effects-from` builds
-    (ranking._Built): when that model simulates the data worse with it — made so here: 10 % worse than without it —
-    the effect is named, not recommended, and the explanation says why and by how much."""
+    (builds.BuiltCheck): when that model simulates the data worse with it — made so here: 10 % worse than without
+    it — the effect is named, not recommended, and the explanation says why and by how much."""
     _built_with_the_regeneration_simulates(1.1, monkeypatch)
     ds = hidden.make("dpf_regeneration", seed=1)
     out = dg.diagnose(fitted(ds), ds)

@@ -104,7 +104,7 @@ def test_a_model_built_with_an_effect_simulates_worse_unless_it_gains_what_is_as
 def test_the_worker_builds_the_model_without_an_effect_that_simulates_worse_instead(ds):
     """Asked for the model with the regeneration, a fuel delay these data do not have, and the inertia: once its own
     builds show the delay simulates the data worse, the worker builds the one without it — what the diagnosis will
-    ask for (ranking._Built.add) — and a model it skipped is built here, the same."""
+    ask for (`BuiltCheck.add`) — and a model it skipped is built here, the same."""
     spurious = "fuel_delay=0.4"
     with ModelBuilds(ds, hidden.STRUCTURE, workers=1) as builds:
         for effects in (["dpf_regeneration"], ["dpf_regeneration", spurious],

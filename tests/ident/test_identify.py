@@ -20,8 +20,9 @@ def test_a_model_without_an_input_is_the_same_model_with_its_coefficients_at_zer
 
 
 def test_a_model_built_through_a_memo_of_the_fits_before_it_is_the_same_to_the_bit():
-    """The diagnosis builds the model with effects E, then with E and one more (ranking._Built): the second build's
-    effects added in turn are the first's fits again, and a FitMemo serves them instead of fitting them anew."""
+    """The diagnosis builds the model with effects E, then with E and one more (ident.diagnosis.builds.BuiltCheck):
+    the second build's effects added in turn are the first's fits again, and a FitMemo serves them instead of fitting
+    them anew."""
     ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
     memo = FitMemo()
     identify_model(ds, hidden.PAPER, ["dpf_regeneration"], memo=memo)

@@ -12,7 +12,8 @@ The package follows the loop, each module using only those before it:
     candidate     Candidate, a candidate effect as a typed record, and what its tests found
     entries       how an effect enters the model (additive, scales the fuel, a torque, a shift): its columns,
                   tests and verification, one class per kind
-    builds        the models `fuelid identify` would build on the data, built once each (ahead, in a worker)
+    builds        the models `fuelid identify` would build on the data, built once each (ahead, in a worker),
+                  and the check of what is recommended on them
     ranking       the candidates' tests, Holm, verification, forward selection: `diagnose` → Diagnosis
 """
 from fuelid.ident.diagnosis.candidate import Candidate, confirmed_effects

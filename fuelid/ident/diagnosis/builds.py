@@ -1,5 +1,6 @@
 """The models `fuelid identify --effects-from` would build on the diagnosed data (ident.identify.identify_model),
-each built once — ahead, in a worker process beside the diagnosis, when it has one.
+each built once — ahead, in a worker process beside the diagnosis, when it has one — and the check of what the
+diagnosis recommends on them (`BuiltCheck`).
 
 The diagnosis checks what it recommends on the model identify builds with it (ranking, 5), and on a real engine
 those builds are most of its time (PEM from two starts, 70–80 parameters). It can tell early which it may need — the
@@ -9,7 +10,7 @@ warm-started refits, which the builds continue: ident.identify.FitMemo); the wor
 goes on testing and verifying, and `ModelBuilds.model` takes it when the diagnosis needs it. A model never asked for
 is built in the worker too when the worker built one with its leading effects (whose fits it is built through), else
 here, beside whatever the worker is doing. The worker skips an effect its own builds show will not be added (the
-model built with it failed, or simulates the data worse than the one without: the test the diagnosis's `_Built.add`
+model built with it failed, or simulates the data worse than the one without: the test the diagnosis's `BuiltCheck.add`
 makes) and builds the model without it instead, which the diagnosis then asks for; if the diagnosis asks for the one
 skipped after all, it is built here. identify_model is deterministic and the worker runs the same code on the same
 kernels on one BLAS thread (fuelid.blas), so a model built there is the one built here, to the bit: the diagnosis is
@@ -31,6 +32,7 @@ import numpy as np
 
 from fuelid.blas import one_blas_thread
 from fuelid.errors import FuelidError
+from fuelid.ident.diagnosis.candidate import Candidate
 from fuelid.ident.identify import FitMemo, identify_model
 from fuelid.ident.polymodel import PolyModel, Structure
 
@@ -165,12 +167,12 @@ class _Worker:
 def simulates_worse(rmse_with: float, rmse_without: float, min_gain_percent: float = 0.0) -> bool:
     """Whether the model built with an effect simulates the data worse than the one without it (RMS simulation
     errors, [output unit] both), or better by less than min_gain_percent [%] (0: no worse is enough): the effect is
-    then not added (ranking._Built.add)."""
+    then not added (`BuiltCheck.add`)."""
     return rmse_with > (1 - min_gain_percent / 100) * rmse_without
 
 
 def likely_added(effects: tuple[str, ...], rmse: dict) -> tuple[str, ...]:
-    """effects without those that the models already built show will not be added (ranking._Built.add): one whose
+    """effects without those that the models already built show will not be added (`BuiltCheck.add`): one whose
     model (with the effects kept before it) failed to build, or `simulates_worse` than the model without it when
     both were built. rmse: {effects: RMS simulation error [output unit] of the model built, None if it failed}."""
     kept: tuple[str, ...] = ()
@@ -181,6 +183,101 @@ def likely_added(effects: tuple[str, ...], rmse: dict) -> tuple[str, ...]:
             continue
         kept = with_
     return kept
+
+
+def _own_structure(model: PolyModel) -> Structure:
+    """The orders of model's speed and torque inputs and noise model: the structure `fuelid identify` extends with
+    the effects."""
+    s = model.structure
+    return Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
+
+
+def built_record(c: Candidate) -> dict:
+    """Where c's `BuiltCheck` record goes: its refit record, or its verification for one forward selection did not
+    refit (the fuel delay)."""
+    return c.refit if c.refit is not None else c.verification
+
+
+class BuiltCheck:
+    """The model `fuelid identify --effects-from` builds on the diagnosed data from the effects recommended so far
+    (ident.identify.identify_model: PEM from its own initialisation and from the effects added in turn, not from
+    the model diagnosed), kept with its RMS simulation error [output unit] on those data: the diagnosis's
+    built-model check (ranking, 5)."""
+
+    def __init__(self, model: PolyModel, ds, effects=(), workers: int = 0):
+        self.specs, self.rmse = list(model.effects), None
+        # its second start (identify_model) is the model diagnosed, when that is one; the model with E + [c] is built
+        # through the fits of E's: fitted once
+        self.builds = ModelBuilds(ds, _own_structure(model), effects, model if not model.effects else None, workers)
+        self.memo = self.builds.memo
+        self._expected: list[str] = []  # the effects expected to be added, in the order `add` will take them
+
+    @property
+    def ahead(self) -> bool:
+        """Whether builds asked for ahead run in a worker process beside the diagnosis."""
+        return self.builds.ahead
+
+    def close(self) -> None:
+        """Stop the builds' worker (`ModelBuilds.close`)."""
+        self.builds.close()
+
+    def expect(self, c: Candidate) -> None:
+        """c is expected to be added after those expected before it: ask ahead for the model `add` will build with
+        them (`_ask`)."""
+        self._expected.append(c.spec)
+        self._ask(self.specs + self._expected)
+
+    def guess(self, c: Candidate) -> None:
+        """Ask ahead for the model built with c after those expected, c not expected yet (a likely next one)."""
+        self._ask(self.specs + self._expected + [c.spec])
+
+    def _ask(self, specs: list[str]) -> None:
+        """Ask ahead for the model with specs (`ModelBuilds.ask`), then (once) for the one without any effect
+        added, which `add` compares the first added with: taken only at the end, it is built while the worker waits
+        for forward selection to tell it the next (the diagnosis would otherwise build it then, itself)."""
+        self.builds.ask(specs)
+        self.builds.ask(self.specs)
+
+    def _model(self, specs: list[str]) -> PolyModel:
+        return self.builds.model(specs)
+
+    def _rmse(self, specs: list[str]) -> float:
+        return self._model(specs).validation["rmse"]["simulation"]
+
+    def model_with(self, c: Candidate) -> PolyModel:
+        """The model built with c added to the effects so far."""
+        return self._model(self.specs + [c.spec])
+
+    def rmse_with(self, c: Candidate) -> float:
+        """RMS simulation error [output unit] of the model built with c added to the effects so far."""
+        return self._rmse(self.specs + [c.spec])
+
+    def add(self, c: Candidate, min_gain_percent: float = 0.0) -> bool:
+        """Whether the model built with c added to the effects so far simulates the data no worse than the one
+        without it — better by at least min_gain_percent [%] when that is given (`simulates_worse`);
+        recorded as "built" (or its error) in c.refit, or in c.verification for one forward selection did not
+        refit (the fuel delay), c added when so."""
+        record = built_record(c)
+        try:
+            if self.rmse is None:
+                self.rmse = self._rmse(self.specs)
+            with_ = self.rmse_with(c)
+        except (FuelidError, np.linalg.LinAlgError) as exc:
+            record["built"] = {"effects": list(self.specs), "error": str(exc)}
+            return False
+        record["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_,
+                           "min_gain_percent": min_gain_percent}
+        if simulates_worse(with_, self.rmse, min_gain_percent):
+            return False
+        self.specs.append(c.spec)
+        self.rmse = with_
+        return True
+
+    def given(self, c: Candidate) -> None:
+        """Add c without checking it (the fuel delay where no engine term is added: its verification on the model
+        as it is stands for the model identify builds)."""
+        self.specs.append(c.spec)
+        self.rmse = None
 
 
 def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | None) -> None:

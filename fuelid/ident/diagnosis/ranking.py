@@ -14,7 +14,7 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    terms add less than min_drop_percent held out) and the model identify builds with the full map simulates the data
    no better by min_drop_percent than the one built with the product (`_map_beats_product`: the linearised refit
    steps once from the model as it is, while PEM reaches what the map's FIR taps hold, e.g. a fuel delay) — and the
-   hidden-effect search (5) starts from the model with it: the one identify builds with it (`_Built`), unless
+   hidden-effect search (5) starts from the model with it: the one identify builds with it (`BuiltCheck`), unless
    forward selection's warm-started refit simulates the data better (`_searched_on`). Started from the linear model
    and capped at REFIT_MAX_ITER iterations, that refit can stop far short of it (README), and the hidden effects,
    tested on what it leaves, would be tested against the map's curvature too. The full map is never a hidden effect;
@@ -49,7 +49,7 @@ candidate, Holm, verification of the likeliest, and forward selection of every e
    builds: that one is identified by PEM from its own initialisation and from the effects added in turn
    (ident.identify.identify_model), and the two can end in minima far apart (a warm start keeps the dynamics of the
    model without the effects). So what is to be recommended is checked once more, in the order found, on the model
-   identify builds (`_Built`, `refit.built`): built from the effects recommended before it plus the candidate, it
+   identify builds (`BuiltCheck`, `refit.built`): built from the effects recommended before it plus the candidate, it
    must simulate the data no worse than built without it; otherwise the candidate is named, not recommended, and
    those found given it are not recommended either (`_given_not_added`). The fuel delay, verified on its reference
    model and on the model as it is (delay.py), is checked so too when the engine's term is added
@@ -102,7 +102,7 @@ import numpy as np
 from fuelid.blas import in_one_blas_thread
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.builds import ModelBuilds, simulates_worse
+from fuelid.ident.diagnosis.builds import BuiltCheck, built_record
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP, MISSING_EFFECT, Candidate
 from fuelid.ident.diagnosis.carryover import WAYS, left_out_trips
 from fuelid.ident.diagnosis.entries import ENTRIES
@@ -115,7 +115,7 @@ from fuelid.ident.filters import lfilter
 from fuelid.ident.identify import FitMemo, refit_with_effects
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.modelrun import ModelRun, run_model
-from fuelid.ident.polymodel import PolyModel, Structure
+from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import metrics
 
 GENERIC_WEIGHT = 0.8  # a generic bus signal must explain 25 % more than a named effect to be accepted first
@@ -229,7 +229,7 @@ def _only_the_warm_refit_worse(c: Candidate) -> bool:
     """Whether a catalogued or engineer-defined c, verified on held-out data, was held back only because forward
     selection's warm-started refit simulated the data worse (module docstring, 5): that refit keeps the dynamics
     of the model without c and can end far from the minimum `fuelid identify` reaches from its own
-    initialisation, so the model identify builds with c decides instead (`_Built`). A generic bus signal keeps
+    initialisation, so the model identify builds with c decides instead (`BuiltCheck`). A generic bus signal keeps
     its trip checks, which only a verified refit runs."""
     r = c.refit
     return r is not None and not r["verified"] and "error" not in r and not _generic(c) \
@@ -237,7 +237,7 @@ def _only_the_warm_refit_worse(c: Candidate) -> bool:
 
 
 def _why_built_worse(b: dict) -> str:
-    """What the explanation of a candidate the model identify builds does not take adds (b: its `_Built` record)."""
+    """What the explanation of a candidate the model identify builds does not take adds (b: its `BuiltCheck` record)."""
     after = f", after {', '.join(b['effects'])}" if b["effects"] else ""
     if "error" in b:
         return f" — but `fuelid identify` cannot build the model with it{after} ({b['error']}): not recommended"
@@ -373,14 +373,14 @@ def _simulation_rmse(run: Run | ModelRun, index: np.ndarray) -> float:
 
 
 def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects, min_drop_percent: float,
-           built: _Built | None = None, memo: FitMemo | None = None) -> tuple[PolyModel, Run] | None:
+           built: BuiltCheck | None = None, memo: FitMemo | None = None) -> tuple[PolyModel, Run] | None:
     """The model re-identified with c added (module docstring, 5) and its run, with c.refit its record (RMS
     simulation error and loss V without and with, over the samples both runs test; verified: not worse, and for a
     generic bus signal on several trips, carried over: the trips left out min_drop_percent better both ways,
     diagnosis.carryover); None when the refit fails or is not verified. built (given for the engine's term): the
     model it builds with c replaces the warm-started refit when it simulates the data better (`_searched_on`).
     The gradients (run_gradients) are taken of the model kept only: the others are judged by their simulation.
-    memo: the fits `_Built` makes (its FitMemo), where this refit is the start of the one it makes from the same
+    memo: the fits `BuiltCheck` makes (its FitMemo), where this refit is the start of the one it makes from the same
     model with c added in turn, and where the leave-one-trip-out refits without c are every candidate's."""
     try:
         refit = refit_with_effects(model, ds, [c.effect], defined=effects, max_iter=REFIT_MAX_ITER, memo=memo)
@@ -411,10 +411,10 @@ def _refit(c: Candidate, model: PolyModel, run: Run, ds, effects, min_drop_perce
         return None
 
 
-def _searched_on(c: Candidate, built: _Built, ds,
+def _searched_on(c: Candidate, built: BuiltCheck, ds,
                  refitted: tuple[PolyModel, ModelRun]) -> tuple[PolyModel, ModelRun]:
     """The model (and its run) forward selection searches on after accepting c: the one `fuelid identify` builds
-    with c (`_Built`) when it simulates the data better than the warm-started refit `refitted`, else that refit;
+    with c (`BuiltCheck`) when it simulates the data better than the warm-started refit `refitted`, else that refit;
     recorded in c.refit["searched_on"]. The refit's iterations are capped (REFIT_MAX_ITER), and from the model
     without the engine's term they can stop far from the model the engineer gets with it (README)."""
     try:
@@ -463,7 +463,7 @@ def _retest(pool: list[Candidate], model: PolyModel, run: Run, ds, given: list[s
 
 def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, model: PolyModel, ds, alpha: float,
                    min_effect_percent: float, min_drop_percent: float, n_verify: int,
-                   effects=(), built: _Built | None = None) -> list[Candidate]:
+                   effects=(), built: BuiltCheck | None = None) -> list[Candidate]:
     """Forward selection (module docstring, 5): of `first` (the engine map term, or the missing effects confirmed
     on the model as it is, best first) the first whose refit is verified, then, as long as one is found, the next
     of `pool` (the other re-testable candidates) significant, relevant and verified on the model re-identified with
@@ -560,100 +560,6 @@ def _may_be_built(c: Candidate, refitted) -> bool:
     return not (_generic(c) and "trips" not in (c.verification or {}))
 
 
-def _own_structure(model: PolyModel) -> Structure:
-    """The orders of model's speed and torque inputs and noise model: the structure `fuelid identify` extends with
-    the effects."""
-    s = model.structure
-    return Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
-
-
-def _built_record(c: Candidate) -> dict:
-    """Where c's `_Built` record goes: its refit record, or its verification for one forward selection did not
-    refit (the fuel delay)."""
-    return c.refit if c.refit is not None else c.verification
-
-
-class _Built:
-    """The model `fuelid identify --effects-from` builds on the diagnosed data from the effects recommended so far
-    (ident.identify.identify_model: PEM from its own initialisation and from the effects added in turn, not from
-    the model diagnosed), kept with its RMS simulation error [output unit] on those data (module docstring, 5)."""
-
-    def __init__(self, model: PolyModel, ds, effects=(), workers: int = 0):
-        self.specs, self.rmse = list(model.effects), None
-        # its second start (identify_model) is the model diagnosed, when that is one; the model with E + [c] is built
-        # through the fits of E's: fitted once
-        self.builds = ModelBuilds(ds, _own_structure(model), effects, model if not model.effects else None, workers)
-        self.memo = self.builds.memo
-        self._expected: list[str] = []  # the effects expected to be added, in the order `add` will take them
-
-    @property
-    def ahead(self) -> bool:
-        """Whether builds asked for ahead run in a worker process beside the diagnosis."""
-        return self.builds.ahead
-
-    def close(self) -> None:
-        """Stop the builds' worker (builds.ModelBuilds.close)."""
-        self.builds.close()
-
-    def expect(self, c: Candidate) -> None:
-        """c is expected to be added after those expected before it: ask ahead for the model `add` will build with
-        them (`_ask`)."""
-        self._expected.append(c.spec)
-        self._ask(self.specs + self._expected)
-
-    def guess(self, c: Candidate) -> None:
-        """Ask ahead for the model built with c after those expected, c not expected yet (a likely next one)."""
-        self._ask(self.specs + self._expected + [c.spec])
-
-    def _ask(self, specs: list[str]) -> None:
-        """Ask ahead for the model with specs (builds.ModelBuilds.ask), then (once) for the one without any effect
-        added, which `add` compares the first added with: taken only at the end, it is built while the worker waits
-        for forward selection to tell it the next (the diagnosis would otherwise build it then, itself)."""
-        self.builds.ask(specs)
-        self.builds.ask(self.specs)
-
-    def _model(self, specs: list[str]) -> PolyModel:
-        return self.builds.model(specs)
-
-    def _rmse(self, specs: list[str]) -> float:
-        return self._model(specs).validation["rmse"]["simulation"]
-
-    def model_with(self, c: Candidate) -> PolyModel:
-        """The model built with c added to the effects so far."""
-        return self._model(self.specs + [c.spec])
-
-    def rmse_with(self, c: Candidate) -> float:
-        """RMS simulation error [output unit] of the model built with c added to the effects so far."""
-        return self._rmse(self.specs + [c.spec])
-
-    def add(self, c: Candidate, min_gain_percent: float = 0.0) -> bool:
-        """Whether the model built with c added to the effects so far simulates the data no worse than the one
-        without it — better by at least min_gain_percent [%] when that is given (`builds.simulates_worse`);
-        recorded as "built" (or its error) in c.refit, or in c.verification for one forward selection did not
-        refit (the fuel delay), c added when so."""
-        record = _built_record(c)
-        try:
-            if self.rmse is None:
-                self.rmse = self._rmse(self.specs)
-            with_ = self.rmse_with(c)
-        except (FuelidError, np.linalg.LinAlgError) as exc:
-            record["built"] = {"effects": list(self.specs), "error": str(exc)}
-            return False
-        record["built"] = {"effects": list(self.specs), "rmse_without": self.rmse, "rmse_with": with_,
-                           "min_gain_percent": min_gain_percent}
-        if simulates_worse(with_, self.rmse, min_gain_percent):
-            return False
-        self.specs.append(c.spec)
-        self.rmse = with_
-        return True
-
-    def given(self, c: Candidate) -> None:
-        """Add c without checking it (the fuel delay where no engine term is added: its verification on the model
-        as it is stands for the model identify builds)."""
-        self.specs.append(c.spec)
-        self.rmse = None
-
-
 def _not_recommended(c: Candidate, why: str) -> None:
     """c named but not recommended: its explanation's advice to add it replaced by `why` (a clause saying why)."""
     c.recommended = False
@@ -721,7 +627,7 @@ def _verify(c: Candidate, model: PolyModel, ds, run: Run, base: Baseline) -> Non
 
 def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, base: Baseline | None,
                     min_effect_percent: float, min_drop_percent: float, n_verify: int,
-                    built: _Built) -> Candidate | None:
+                    built: BuiltCheck) -> Candidate | None:
     """The engine map term (module docstring, 0): the `engine_map` candidate when its test (alone, at α) rejects,
     it explains min_effect_percent and (n_verify > 0) its verification confirms it; the `power_nonlinearity`
     candidate instead when that product term alone, verified too, comes within min_drop_percent of its held-out
@@ -747,7 +653,7 @@ def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, b
     return full
 
 
-def _map_beats_product(built: _Built, full: Candidate, product: Candidate, min_drop_percent: float) -> bool:
+def _map_beats_product(built: BuiltCheck, full: Candidate, product: Candidate, min_drop_percent: float) -> bool:
     """Whether the model identify builds with the full map term simulates the data better by min_drop_percent than
     the one built with the product term alone (recorded in full.verification["built"]). The linearised refit
     steps once from the model as it is; the map's FIR taps reach further by PEM (a fuel delay they absorb: README),
@@ -816,7 +722,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     (the fleet's jobs: one per core already)."""
     mrun = run_model(model, ds)
     run = run_gradients(mrun)
-    built = _Built(model, ds, effects, workers)  # what is recommended is verified on the model identify builds (5)
+    built = BuiltCheck(model, ds, effects, workers)  # what is recommended is verified on the model identify builds (5)
     try:
         return _diagnosed(model, ds, mrun, run, built, candidates, alpha, n_verify, min_effect_percent,
                           min_drop_percent, effects)
@@ -824,7 +730,7 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
         built.close()
 
 
-def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, candidates, alpha: float,
+def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: BuiltCheck, candidates, alpha: float,
                n_verify: int, min_effect_percent: float, min_drop_percent: float, effects) -> Diagnosis:
     """`diagnose` with its model run, gradients and the builds it checks on."""
     relevant = lambda c: c.test_significant and c.estimated_drop_percent >= min_effect_percent  # noqa: E731
@@ -922,7 +828,7 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: _Built, ca
             # show the relevance the refit could not: a smaller gain is a tie within the fits' reproducibility
             if c.refit is not None:
                 c.refit["verified"] = False
-            _not_recommended(c, _why_built_worse(_built_record(c)["built"]))
+            _not_recommended(c, _why_built_worse(built_record(c)["built"]))
         elif c.recommended and warm_only:
             c.refit["verified"] = True
             b = c.refit["built"]
