@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 EFFECTS = ["dpf_regeneration", "inertia", "power_nonlinearity", "overrun_cutoff", "cold_engine", "engine_fan",
            "gear_shift", "ambient", "fuel_delay", "hot_intake_air", "auxiliary_load"]
 GENERIC_DAYS = 3  # a bus signal fuelid knows no physics for is recommended only when it carries over to other trips
-#   (ident.diagnosis.ranking: one trip, ONE_TRIP_ONLY), so a case with a generic effect is diagnosed, as that advice
+#   (ident.diagnosis.recommendation: one trip, ONE_TRIP_ONLY), so a case with a generic effect is diagnosed, as that advice
 #   says, on its route driven on three days, and validated on three other days
 
 

@@ -5,6 +5,7 @@
 - the logger (fuelid.logger) imports nothing from the identification package (fuelid.ident);
 - nothing below the command line imports the command line (fuelid.cli, fuelid.commands.*);
 - no two modules import each other, directly or through a longer cycle (function-level imports included);
+- the diagnosis package's modules import only those its docstring lists before them (it follows the loop);
 - an import inside a function names one of the optional or heavy dependencies in LAZY_IMPORTS (never to dodge
   a cycle: those imports count in the cycle check too);
 - no `except` catches ValueError next to the FuelidError family (fuelid/errors.py: one error policy).
@@ -22,6 +23,7 @@ from pathlib import Path
 import pytest
 
 import fuelid
+import fuelid.ident.diagnosis
 
 PACKAGE = Path(fuelid.__file__).resolve().parent  # the source tree, or site-packages after `pip install .`
 ROOT = PACKAGE.parent
@@ -174,6 +176,23 @@ def test_layers_point_one_way():
            if layer(m) and layer(t) and layer(t) != layer(m) and layer(t) not in LAYERS[layer(m)]]
     assert not bad, ("an import reaches up or across the layers (foundation → dbc → logger → ident → fleet; sim "
                      "beside): pass the upper part in instead:\n" + "\n".join(bad))
+
+
+DIAGNOSIS = "fuelid.ident.diagnosis"
+
+
+def diagnosis_order() -> list[str]:
+    """The diagnosis package's modules in the order its docstring lists them (a name, then two spaces or more)."""
+    listing = fuelid.ident.diagnosis.__doc__.split("before it:", 1)[1]
+    return [f"{DIAGNOSIS}.{line.split()[0]}" for line in listing.splitlines()
+            if line.startswith("    ") and not line.startswith("     ") and "  " in line.strip()]
+
+
+def test_the_diagnosis_modules_follow_the_loop():
+    order = diagnosis_order()
+    assert set(order) == {m for m in GRAPH if m.startswith(DIAGNOSIS + ".")}, "list every module in the docstring"
+    bad = [where(m, t, line) for m, t, line in edges() if m in order and t in order and order.index(t) >= order.index(m)]
+    assert not bad, f"a diagnosis module imports one listed after it ({DIAGNOSIS} docstring):\n" + "\n".join(bad)
 
 
 def test_nothing_below_the_cli_imports_the_cli():

@@ -9,7 +9,7 @@ their SPNs) and the way it enters the Box-Jenkins model
                    deficit, retarder torque);
 - ``nonlinearity`` a static function of the model's own inputs fed as extra inputs (speed × torque power; the
                    engine's own fuel map `engine_map`, which the diagnosis tests first as a property of the
-                   engine, ident.diagnosis.ranking);
+                   engine, ident.diagnosis.verdict);
 - ``regime``       an on/off state I(t) ∈ {0, 1} that changes the fuelling: extra inputs I, I·ñ, I·T̃ (an
                    offset and a change of both gains while the state is on; ñ, T̃ deviations of engine speed
                    [rpm] and torque [Nm] from the operating point), e.g. DPF active regeneration or overrun

@@ -341,7 +341,7 @@ def effects_table(candidates: list[dict], top: int = 12) -> str:
 
 
 def engine_map_paragraph(candidates: list[dict]) -> str:
-    """The engine map term (ident.diagnosis.ranking, 0), said apart from the missing effects: a property of the
+    """The engine map term (ident.diagnosis.verdict, 0), said apart from the missing effects: a property of the
     engine; empty when the diagnosis named none."""
     term = next((c for c in candidates if c.get("role") == ENGINE_MAP), None)
     if term is None:

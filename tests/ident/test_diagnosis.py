@@ -13,7 +13,7 @@ from threadpoolctl import threadpool_limits
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis import builds, ranking
+from fuelid.ident.diagnosis import builds, recommendation, selection
 from fuelid.ident.diagnosis import statistics as st
 from fuelid.ident.diagnosis.entries import ENTRIES
 from fuelid.ident.diagnosis.verification import block_cv, trip_cv, trip_folds
@@ -255,8 +255,8 @@ def test_an_effect_the_built_model_simulates_worse_with_is_named_not_recommended
 
 
 def _warm_refit_worse_with_the_regeneration(monkeypatch) -> None:
-    """Make forward selection's warm-started refit with the DPF regeneration simulate 10 % worse (ranking._refit)."""
-    refit = ranking._refit
+    """Make forward selection's warm-started refit with the DPF regeneration simulate 10 % worse (selection._refit)."""
+    refit = selection._refit
 
     def warm_refit_worse(c, *args):
         out = refit(c, *args)
@@ -265,7 +265,7 @@ def _warm_refit_worse_with_the_regeneration(monkeypatch) -> None:
         c.refit.update(rmse_with=1.1 * c.refit["rmse_without"], verified=False)
         return None
 
-    monkeypatch.setattr(ranking, "_refit", warm_refit_worse)
+    monkeypatch.setattr(selection, "_refit", warm_refit_worse)
 
 
 def test_an_effect_only_the_warm_started_refit_simulates_worse_with_is_decided_by_the_built_model(monkeypatch):
@@ -284,7 +284,7 @@ def test_an_effect_only_the_warm_started_refit_simulates_worse_with_is_decided_b
            f"{top.refit['rmse_with']:.3f}" in top.explanation and "add effect dpf_regeneration" in top.explanation
     generic = SimpleNamespace(effect="level:XX.Unknown", refit={**top.refit, "verified": False},
                               verification=top.verification)
-    assert not ranking._only_the_warm_refit_worse(generic)
+    assert not recommendation.only_the_warm_refit_worse(generic)
 
 
 def test_an_effect_only_the_warm_started_refit_simulates_worse_with_needs_a_relevant_gain_when_built(monkeypatch):
@@ -459,18 +459,18 @@ def test_an_effect_accepted_given_a_signal_not_added_is_recommended_only_if_veri
     signals = ["scales:EEC3.EngDesiredOperatingSpeed", "level:EEC1.EngDemandPercentTorque"]
     c.conditional = {"given": ["engine_map", "dpf_regeneration", *signals],
                      "found_given": [["engine_map"], ["engine_map", "dpf_regeneration", *signals]]}
-    assert ranking._found_given_added(c, {"engine_map", "dpf_regeneration"}) is None
-    assert ranking._given_not_added(c, {"engine_map", "dpf_regeneration"}) == signals
+    assert recommendation.found_given_added(c, {"engine_map", "dpf_regeneration"}) is None
+    assert recommendation.given_not_added(c, {"engine_map", "dpf_regeneration"}) == signals
     c.conditional["given"] = ["engine_map", *signals]
     c.conditional["found_given"] = [["engine_map"], ["engine_map", *signals]]
-    assert ranking._found_given_added(c, {"engine_map"}) == ["engine_map"]
-    assert ranking._given_not_added(c, {"engine_map"}) == []
+    assert recommendation.found_given_added(c, {"engine_map"}) == ["engine_map"]
+    assert recommendation.given_not_added(c, {"engine_map"}) == []
 
 
 def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_recommended():
-    """On one trip a bus signal fuelid knows no physics for is never added (ranking.ONE_TRIP_ONLY). Once the search
+    """On one trip a bus signal fuelid knows no physics for is never added (recommendation.ONE_TRIP_ONLY). Once the search
     is built on one, whatever a later round finds is found given it and not recommended: it stops — unless a
-    candidate that may be added was found in an earlier round given no such signal (ranking._found_given_added)."""
+    candidate that may be added was found in an earlier round given no such signal (recommendation.found_given_added)."""
     ds = hidden.make("dpf_regeneration", seed=1)
     run = dg.run_gradients(run_model(fitted(ds), ds))  # one trip
     generic = {e.id: e for e in fx.generic_effects(ds)}
@@ -483,9 +483,9 @@ def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_
     overrun = candidate("overrun_cutoff", conditional={"found_given": [["engine_map"]]})
 
     def stops(named, pool) -> bool:
-        return ranking._nothing_left_to_recommend(named, pool, ds, run)
+        return selection._nothing_left_to_recommend(named, pool, ds, run)
 
-    assert ranking._why_never_added(signal, ds) == ranking.ONE_TRIP_ONLY
+    assert recommendation.why_never_added(signal, ds) == recommendation.ONE_TRIP_ONLY
     assert not stops([], [overrun, twin])  # not built on such a signal: the next round may find one to add
     assert not stops([signal], [overrun, twin])  # found given the map term alone: may be recommended after it
     assert stops([signal], [twin])  # on one trip a generic signal is never added, whatever round found it
@@ -493,7 +493,7 @@ def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_
     assert stops([signal], [overrun, twin])  # found given the signal only
     signal.refit["verified"] = False  # its refit not verified: the search was not built on it
     assert not stops([signal], [overrun, twin])
-    said = ranking._why_left_at_the_stop(signal.effect)  # what one found beside it says: not "explained by" it
+    said = selection.why_left_at_the_stop(signal.effect)  # what one found beside it says: not "explained by" it
     assert said.startswith(" — found beside scales:ET1.EngOilTemp1, but forward selection accepted that one and "
                            "stopped")
 

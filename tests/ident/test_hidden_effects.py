@@ -51,7 +51,7 @@ def test_hidden_effect_is_named_and_adding_it_lowers_the_error(effect, seed):
     assert top["significant"], out["verdict"]
     # the paper engine is linear: no map term of its own, but a hidden speed × torque product is the first term of
     # a map, named as the engine's term — by the product alone, or as the full map when the model identify builds
-    # with the map simulates the data better by the relevance bar (ranking._map_beats_product; seed 2004: 1.65
+    # with the map simulates the data better by the relevance bar (verdict._map_beats_product; seed 2004: 1.65
     # against 1.82 L/h, and on another day's trip 1.75 against 1.98)
     if effect == "power_nonlinearity" and top["effect"] == "engine_map":
         built = top["verification"]["built"]

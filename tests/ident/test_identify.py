@@ -48,7 +48,7 @@ def test_a_memo_serves_a_copy_so_a_caller_cannot_change_the_next_fit():
 
 
 def test_a_memo_continues_a_fit_stopped_at_fewer_iterations_to_the_same_model_as_a_fit_from_scratch():
-    """The diagnosis's warm-started refit (ranking._refit, 30 iterations) and the model identify builds from the
+    """The diagnosis's warm-started refit (selection._refit, 30 iterations) and the model identify builds from the
     same model with the effect added in turn (100) start alike: the memo continues the first instead of starting
     the second again, the same to the bit."""
     ds, _, _ = hidden.simulated("dpf_regeneration", 3000)

@@ -2,7 +2,7 @@
 each built once — ahead, in a worker process beside the diagnosis, when it has one — and the check of what the
 diagnosis recommends on them (`BuiltCheck`).
 
-The diagnosis checks what it recommends on the model identify builds with it (ranking, 5), and on a real engine
+The diagnosis checks what it recommends on the model identify builds with it (selection, 5), and on a real engine
 those builds are most of its time (PEM from two starts, 70–80 parameters). It can tell early which it may need — the
 model with the engine's map term once that term's test rejects, the one with each effect forward selection accepts —
 and `ModelBuilds.ask` hands such a build to the worker, with the fits made here since (forward selection's
@@ -202,7 +202,7 @@ class BuiltCheck:
     """The model `fuelid identify --effects-from` builds on the diagnosed data from the effects recommended so far
     (ident.identify.identify_model: PEM from its own initialisation and from the effects added in turn, not from
     the model diagnosed), kept with its RMS simulation error [output unit] on those data: the diagnosis's
-    built-model check (ranking, 5)."""
+    built-model check (selection, 5)."""
 
     def __init__(self, model: PolyModel, ds, effects=(), workers: int = 0):
         self.specs, self.rmse = list(model.effects), None

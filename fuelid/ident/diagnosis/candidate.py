@@ -64,7 +64,7 @@ class Candidate:
     conditional: dict | None = None
     refit: dict | None = None  # forward selection's PEM refit with it: RMS simulation error without/with, verified
     explained_by: str | None = None
-    alternatives: list = field(default_factory=list)  # rivals these data cannot tell it from (ranking, 5)
+    alternatives: list = field(default_factory=list)  # rivals these data cannot tell it from (selection, 5)
     role: str | None = None  # what a named candidate is: ENGINE_MAP (the engine's own curvature) or MISSING_EFFECT
     definition: fx.Effect | None = field(default=None, repr=False)
     entry: object = field(default=None, repr=False)
@@ -87,5 +87,5 @@ def confirmed_effects(candidates: list[dict]) -> list[str]:
     return [c.get("spec", c["effect"]) for c in candidates if c.get("recommended") is True]
 
 
-ENGINE_MAP = "engine map"  # the role of the engine's own static curvature: a property of the engine (ranking, 0)
+ENGINE_MAP = "engine map"  # the role of the engine's own static curvature: a property of the engine (verdict, 0)
 MISSING_EFFECT = "missing effect"  # the role of a hidden effect the forward selection named

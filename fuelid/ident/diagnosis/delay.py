@@ -14,7 +14,7 @@
    itself (its linearised refit on the advanced fuel, held out) is reported beside it (`verify_shift`), and the
    candidate's `spec` (fuel_delay=τ̂) is what `fuelid identify --effect` takes. Being a property of the signal
    path, it is not re-tested conditionally on fuelling effects (5), nor does it compete with them for the
-   verification budget (ranking: it is verified whenever its tests find it). Not confirmed (entries.Shift.
+   verification budget (verdict: it is verified whenever its tests find it). Not confirmed (entries.Shift.
    why_not_admitted): a delay shorter than one sample period — to first order y(t − τ) = (1 − τ/Ts) y(t) + (τ/Ts)
    y(t − Ts), a two-tap filter that the model's own input taps hold (an ECU's averaging of the rate over its
    100 ms update is such a delay; added, it made the model worse on another day: README) — and a shift that

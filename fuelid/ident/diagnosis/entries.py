@@ -33,7 +33,7 @@ class Additive:
     verified by its linearised refit (ident.diagnosis.verification); a regressor in the model's torque unit is
     verified with its image through the torque path beside it."""
 
-    retested = True  # re-tested given the effects accepted before it (ident.diagnosis.ranking, 5)
+    retested = True  # re-tested given the effects accepted before it (ident.diagnosis.selection, 5)
     drop_in_verdict = True  # the verdict quotes the model's held-out RMS error drop
     also_through_torque = True
 
