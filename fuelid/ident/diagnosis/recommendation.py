@@ -219,9 +219,10 @@ def given_not_added(c: Candidate, recommended: set[str]) -> list[str]:
 
 
 def found_given_added(c: Candidate, recommended: set[str]) -> list[str] | None:
-    """The effects given which a round of forward selection found c (significant, relevant, confirmed: `_retest`),
-    the first such round whose effects are those recommended before c (`recommended`), no more and no fewer — so c
-    was verified on the model `fuelid identify --effects-from` builds with them, though accepted in a later round
-    given a bus signal that is not added (a one-trip signal with a larger drop accepted before it); None when no round
-    was. (A round given only some of them verified c on a model without the others, which may explain it away.)"""
+    """The effects given which a round of forward selection found c (significant, relevant, confirmed:
+    `selection._retest`), the first such round whose effects are those recommended before c (`recommended`), no more and
+    no fewer — so c was verified on the model `fuelid identify --effects-from` builds with them, though accepted in a
+    later round given a bus signal that is not added (a one-trip signal with a larger drop accepted before it); None
+    when no round was. (A round given only some of them verified c on a model without the others, which may explain it
+    away.)"""
     return next((g for g in rounds_found(c) if set(g) == recommended), None)

@@ -209,9 +209,10 @@ def _verification_when_named(c: Candidate) -> dict | None:
 
 def _nothing_left_to_recommend(named: list[Candidate], pool: list[Candidate], ds, run: Run) -> bool:
     """Whether no later round of forward selection can find an effect that will be recommended
-    (ident.diagnosis.recommendation): the search is built on a signal that is never added (`why_never_added`), so whatever a later round finds
-    is found given it (`given_not_added`), and no candidate left that may be added itself (on one trip, no generic
-    bus signal) was found in an earlier round given none such (`found_given_added`). run: the model's, on ds."""
+    (ident.diagnosis.recommendation): the search is built on a signal that is never added (`why_never_added`), so
+    whatever a later round finds is found given it (`given_not_added`), and no candidate left that may be added itself
+    (on one trip, no generic bus signal) was found in an earlier round given none such (`found_given_added`). run: the
+    model's, on ds."""
     never = {c.effect for c in named if c.refit is not None and c.refit["verified"] and why_never_added(c, ds)}
     if not never:
         return False
