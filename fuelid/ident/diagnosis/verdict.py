@@ -77,24 +77,6 @@ class Diagnosis:
                 "candidates": [c.to_json() for c in self.candidates], "verdict": self.verdict}
 
 
-def _said_with_drop(c: Candidate) -> str:
-    """c's explanation as the verdict says it: with the held-out RMS error drop adding it makes (`_added_drop`,
-    where its entry kind says it), before the clause saying why it is not recommended, if one begins
-    NOT_RECOMMENDED."""
-    drop = _added_drop(c)
-    if drop is None or not c.entry.drop_in_verdict:
-        return c.explanation
-    said, clause, why = c.explanation.partition(NOT_RECOMMENDED)
-    return f"{said} (held-out RMS error {-drop:+.0f} % when added){clause}{why}"
-
-
-def _added_drop(c: Candidate) -> float | None:
-    """The held-out RMS error drop [%] adding c makes: on top of the effects accepted before it when it was
-    selected given them, else on the model as it is."""
-    cond = c.conditional or {}
-    return cond["rmse_drop_percent"] if cond.get("rmse_drop_percent") is not None else c.rmse_drop_percent
-
-
 def engine_map_term(testable: list[Candidate], model: PolyModel, ds, run: Run, base: Baseline | None,
                     min_effect_percent: float, min_drop_percent: float, n_verify: int,
                     built: BuiltCheck) -> Candidate | None:
@@ -265,14 +247,53 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: BuiltCheck
                 else:  # what its last re-test was given (forward selection may stop before a round given them all)
                     c.explained_by = ", ".join(cond.get("given") or [a.effect for a in found])
     if term is not None:
-        term.significant, term.role = True, ENGINE_MAP
-        term.recommended = term.verification is not None and "error" not in term.verification \
-            and refit_verified(term)
-        term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
-                                                 for e in (MAP_TERM, PRODUCT_TERM)))
-        if term.recommended and term.refit is not None and not built.add(term):
-            term.refit["verified"] = False
-            not_recommended(term, why_refit_not_verified(term))
+        _name_the_term(term, testable, built)
+    _recommend(accepted, term, built, ds, n_verify, min_drop_percent)
+    _say_why_not(rows, unconfirmed, min_effect_percent, min_drop_percent)
+    order = {id(c): k for k, c in enumerate(([term] if term is not None else []) + accepted)}
+    rows.sort(key=lambda c: (not c.significant, order.get(id(c), 0), c.log10_p))
+    verdict = _verdict(term, accepted, len([c for c in hidden if c.testable]), alpha, min_effect_percent,
+                       min_drop_percent)
+    return Diagnosis(
+        model={"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
+        data=ds.summary() if hasattr(ds, "summary") else {},
+        compare={**metrics(mrun, ds), "unit": ds.output_unit},
+        held_out=None if base is None else base.scores,
+        where_it_fails=where_it_fails(model, ds, run),
+        test={"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "
+                        "the simulation errors; Newey-West robust, chi2(k); Bonferroni over the two, Holm "
+                        "step-down over all candidates; relevance; a linearised refit scored leaving out one 60-s "
+                        "block (and, with several trips, one trip) at a time; forward selection re-testing the rest "
+                        "on the model refitted with the effects accepted",
+              "alpha": alpha, "min_effect_percent": min_effect_percent, "min_drop_percent": min_drop_percent,
+              "candidates_tested": len(testable),
+              "samples": int(run.e.size)},
+        candidates=rows,
+        verdict=verdict,
+        run=mrun,
+        engine_map=term,
+    )
+
+
+def _name_the_term(term: Candidate, testable: list[Candidate], built: BuiltCheck) -> None:
+    """The engine map term named (module docstring, 0): its sentence, and recommended when its verification stands, its
+    refit is verified and the model identify builds with it simulates the data no worse (`built.add`)."""
+    term.significant, term.role = True, ENGINE_MAP
+    term.recommended = term.verification is not None and "error" not in term.verification \
+        and refit_verified(term)
+    term.explanation = _map_sentence(term, *(next((c for c in testable if c.effect == e), None)
+                                             for e in (MAP_TERM, PRODUCT_TERM)))
+    if term.recommended and term.refit is not None and not built.add(term):
+        term.refit["verified"] = False
+        not_recommended(term, why_refit_not_verified(term))
+
+
+def _recommend(accepted: list[Candidate], term: Candidate | None, built: BuiltCheck, ds, n_verify: int,
+               min_drop_percent: float) -> None:
+    """Each missing effect accepted named, and recommended (what `fuelid identify --effects-from` adds) when the rules
+    of ident.diagnosis.recommendation hold and the model identify builds with it, after those recommended before it
+    (the engine map term `term` first, when it is), simulates the data no worse (`built.add`); otherwise its
+    explanation says why not."""
     term_added = term is not None and term.recommended
     recommended = {term.effect} if term_added else set()
     for c in accepted:  # in the order accepted, so that what each was found given is decided before it
@@ -312,6 +333,12 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: BuiltCheck
                              f"given {', '.join(found_given_added(c, recommended))} alone)"
         if c.recommended:
             recommended.add(c.effect)
+
+
+def _say_why_not(rows: list[Candidate], unconfirmed: list[Candidate], min_effect_percent: float,
+                 min_drop_percent: float) -> None:
+    """What the explanation of each candidate not named adds: why its verification did not confirm it, what explained
+    it away, or that it explains too little; then it is read as evidence, not advice (`as_evidence`)."""
     for c in unconfirmed:
         if not c.significant:
             c.explanation += why_not_confirmed(c, min_drop_percent)
@@ -325,41 +352,42 @@ def _diagnosed(model: PolyModel, ds, mrun: ModelRun, run: Run, built: BuiltCheck
     for c in rows:
         if c.testable and not c.significant:
             c.explanation = as_evidence(c)
-    order = {id(c): k for k, c in enumerate(([term] if term is not None else []) + accepted)}
-    rows.sort(key=lambda c: (not c.significant, order.get(id(c), 0), c.log10_p))
-    n_hidden = len([c for c in hidden if c.testable])
+
+
+def _verdict(term: Candidate | None, accepted: list[Candidate], n_hidden: int, alpha: float, min_effect_percent: float,
+             min_drop_percent: float) -> str:
+    """The diagnosis's verdict: the engine map term (None: not named) and the missing effects accepted, or that none
+    of the n_hidden hidden-effect candidates tested explains the residual."""
     said = [_said_with_drop(c) for c in accepted]
     engine = "" if term is None else f"Engine map: {term.explanation}. "
     if said:
-        verdict = engine + (f"Missing effect: {said[0]}." if len(said) == 1 else
-                            f"Missing effects ({len(said)}): " + "; ".join(f"({k}) {t}" for k, t in enumerate(said, 1))
-                            + ".")
-    elif term is None:
-        verdict = f"No significant candidate: none of the {n_hidden} candidate effects explains the residual " \
-                  f"(Holm-corrected, family-wise α = {alpha:g}, at least {min_effect_percent:g} % of the " \
-                  f"simulation error, and a held-out RMS error drop of at least {min_drop_percent:g} %); the model " \
-                  "is not missing any effect the bus reveals."
-    else:
-        verdict = engine + f"No missing effect: given the engine map term, none of the {n_hidden} other candidate " \
-                  f"effects explains the residual (Holm-corrected, family-wise α = {alpha:g}, at least " \
-                  f"{min_effect_percent:g} % of the simulation error, and a held-out RMS error drop of at least " \
-                  f"{min_drop_percent:g} %); beyond its map, the model is not missing any effect the bus reveals."
-    return Diagnosis(
-        model={"effects": list(model.effects), "inputs": list(model.input_names), "Ts": model.Ts},
-        data=ds.summary() if hasattr(ds, "summary") else {},
-        compare={**metrics(mrun, ds), "unit": ds.output_unit},
-        held_out=None if base is None else base.scores,
-        where_it_fails=where_it_fails(model, ds, run),
-        test={"method": "score (LM) tests on the prediction errors and, GLS-whitened under the alternative, on "
-                        "the simulation errors; Newey-West robust, chi2(k); Bonferroni over the two, Holm "
-                        "step-down over all candidates; relevance; a linearised refit scored leaving out one 60-s "
-                        "block (and, with several trips, one trip) at a time; forward selection re-testing the rest "
-                        "on the model refitted with the effects accepted",
-              "alpha": alpha, "min_effect_percent": min_effect_percent, "min_drop_percent": min_drop_percent,
-              "candidates_tested": len(testable),
-              "samples": int(run.e.size)},
-        candidates=rows,
-        verdict=verdict,
-        run=mrun,
-        engine_map=term,
-    )
+        return engine + (f"Missing effect: {said[0]}." if len(said) == 1 else
+                         f"Missing effects ({len(said)}): " + "; ".join(f"({k}) {t}" for k, t in enumerate(said, 1))
+                         + ".")
+    if term is None:
+        return f"No significant candidate: none of the {n_hidden} candidate effects explains the residual " \
+               f"(Holm-corrected, family-wise α = {alpha:g}, at least {min_effect_percent:g} % of the " \
+               f"simulation error, and a held-out RMS error drop of at least {min_drop_percent:g} %); the model " \
+               "is not missing any effect the bus reveals."
+    return engine + f"No missing effect: given the engine map term, none of the {n_hidden} other candidate " \
+                    f"effects explains the residual (Holm-corrected, family-wise α = {alpha:g}, at least " \
+                    f"{min_effect_percent:g} % of the simulation error, and a held-out RMS error drop of at least " \
+                    f"{min_drop_percent:g} %); beyond its map, the model is not missing any effect the bus reveals."
+
+
+def _said_with_drop(c: Candidate) -> str:
+    """c's explanation as the verdict says it: with the held-out RMS error drop adding it makes (`_added_drop`,
+    where its entry kind says it), before the clause saying why it is not recommended, if one begins
+    NOT_RECOMMENDED."""
+    drop = _added_drop(c)
+    if drop is None or not c.entry.drop_in_verdict:
+        return c.explanation
+    said, clause, why = c.explanation.partition(NOT_RECOMMENDED)
+    return f"{said} (held-out RMS error {-drop:+.0f} % when added){clause}{why}"
+
+
+def _added_drop(c: Candidate) -> float | None:
+    """The held-out RMS error drop [%] adding c makes: on top of the effects accepted before it when it was
+    selected given them, else on the model as it is."""
+    cond = c.conditional or {}
+    return cond["rmse_drop_percent"] if cond.get("rmse_drop_percent") is not None else c.rmse_drop_percent
