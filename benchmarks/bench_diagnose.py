@@ -226,7 +226,7 @@ def validation(case, seed: int, routes_of, truth: str, ds, model, recommended: l
 def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, first_null_seed: int,
                truth: str = "diesel_p320", base_effects: tuple = (), pair_seeds: int | None = None,
                effects=EFFECTS, pairs=PAIRS, engine: str = ""):
-    """Issue 7's criteria per trip (tests/ident/test_hidden_effects.py checks the same on fewer seeds): found —
+    """Issue 7's criteria per trip (tests/ident/diagnosis/test_hidden_effects.py checks the same on fewer seeds): found —
     the top candidate is significant and names the hidden effect (its id or an SPN the simulator shows it on);
     verified — besides, the held-out RMS error falls by ≥ 25 % or to within 5 % of the noise floor; all — besides,
     the cycle fuel error falls (RMS over the cycles, 0.1 percentage point tolerance). Then two effects hidden at

@@ -11,7 +11,7 @@ from fuelid.ident.effectfile import read_effects_file
 from fuelid.ident.validation import evaluate
 from tests.ident import hidden
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "effects-example.toml"
+EXAMPLE = Path(__file__).resolve().parents[3] / "docs" / "effects-example.toml"
 
 
 @pytest.mark.parametrize("effect, file_id, signal, spn", [
