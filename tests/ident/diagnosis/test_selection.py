@@ -7,9 +7,10 @@ from tests.ident import hidden
 
 
 def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_recommended():
-    """On one trip a bus signal fuelid knows no physics for is never added (recommendation.ONE_TRIP_ONLY). Once the search
-    is built on one, whatever a later round finds is found given it and not recommended: it stops — unless a
-    candidate that may be added was found in an earlier round given no such signal (recommendation.found_given_added)."""
+    """On one trip a bus signal fuelid knows no physics for is never added (recommendation.ONE_TRIP_ONLY). Once the
+    search is built on one, whatever a later round finds is found given it and not recommended: it stops — unless a
+    candidate that may be added was found in an earlier round given no such signal
+    (recommendation.found_given_added)."""
     ds = hidden.make("dpf_regeneration", seed=1)
     run = dg.run_gradients(run_model(hidden.fitted(ds), ds))  # one trip
     generic = {e.id: e for e in fx.generic_effects(ds)}
