@@ -43,8 +43,8 @@ import numpy as np  # noqa: E402
 EFFECTS = ["dpf_regeneration", "inertia", "power_nonlinearity", "overrun_cutoff", "cold_engine", "engine_fan",
            "gear_shift", "ambient", "fuel_delay", "hot_intake_air", "auxiliary_load"]
 GENERIC_DAYS = 3  # a bus signal fuelid knows no physics for is recommended only when it carries over to other trips
-#   (ident.diagnosis.recommendation: one trip, ONE_TRIP_ONLY), so a case with a generic effect is diagnosed, as that advice
-#   says, on its route driven on three days, and validated on three other days
+#   (ident.diagnosis.recommendation: one trip, ONE_TRIP_ONLY), so a case with a generic effect is diagnosed, as that
+#   advice says, on its route driven on three days, and validated on three other days
 
 
 PERTURB = 0.0  # --perturb: every trip's fuel samples multiplied by 1 + PERTURB
@@ -226,8 +226,8 @@ def validation(case, seed: int, routes_of, truth: str, ds, model, recommended: l
 def acceptance(seeds: int, null_seeds: int, null_pairs: int, first_seed: int, first_null_seed: int,
                truth: str = "diesel_p320", base_effects: tuple = (), pair_seeds: int | None = None,
                effects=EFFECTS, pairs=PAIRS, engine: str = ""):
-    """Issue 7's criteria per trip (tests/ident/diagnosis/test_hidden_effects.py checks the same on fewer seeds): found —
-    the top candidate is significant and names the hidden effect (its id or an SPN the simulator shows it on);
+    """Issue 7's criteria per trip (tests/ident/diagnosis/test_hidden_effects.py checks the same on fewer seeds):
+    found — the top candidate is significant and names the hidden effect (its id or an SPN the simulator shows it on);
     verified — besides, the held-out RMS error falls by ≥ 25 % or to within 5 % of the noise floor; all — besides,
     the cycle fuel error falls (RMS over the cycles, 0.1 percentage point tolerance). Then two effects hidden at
     once (PAIRS, issue 16): both named, and the validation error with what was recommended. Then the false-alarm

@@ -6,8 +6,8 @@ two versions of fuelid side by side in one run (e.g. main's checkout against thi
 
 Problems (cached in benchmarks/.cache/pem/trips/, built with this checkout's dataset code): every
 replay_logs/{diesel,map,effect,map_effect}_*.log.gz converted and built into the dataset `fuelid identify` fits
-(its segments, operating point; the paper's orders), and the simulated cases of tests/ident/diagnosis/test_hidden_effects.py
-whose start is hard for the OE initialisation: the ambient effect's three trips identified together (seeds 2004
+(its segments, operating point; the paper's orders), and the simulated cases of
+tests/ident/diagnosis/test_hidden_effects.py whose start is hard for the OE initialisation: the ambient effect's three trips identified together (seeds 2004
 and 3004) and one trip with nothing hidden (seed 11), identified as tests.ident.hidden.identify does. Each version
 fits every problem in its own subprocess on CPU 0 (one BLAS thread); CPU seconds of `pem` are reported
 (time.process_time, the least of --repeat fits), and V after / V before − 1, the goal being ≤ 0.1 % on every problem.
