@@ -163,6 +163,12 @@ def _why_inputs_determine(c: Candidate, ds) -> str | None:
            "operating point — the engine's term and the model's gains hold that — not a hidden effect"
 
 
+def inputs_determine(c: Candidate, ds) -> bool:
+    """Whether c is a generic bus-signal candidate whose signal engine speed and torque determine
+    (`_why_inputs_determine`): never added, on any data."""
+    return is_generic(c) and _why_inputs_determine(c, ds) is not None
+
+
 def why_never_added(c: Candidate, ds, v: dict | None = None) -> str | None:
     """Why c, a generic bus-signal candidate, is never recommended whatever else is (module docstring): speed and
     torque determine its signal (`_why_inputs_determine`), it was verified on one trip (ONE_TRIP_ONLY), or no trip

@@ -18,7 +18,9 @@ confirmed on the model as it is.
    alone (1–3, at α) on the model re-identified with the accepted one and, when it is not significant and relevant
    there, the other way round: the accepted one on the model re-identified with the rival instead. When neither is, the
    data cannot tell the two apart: the rival is listed in the accepted one's `alternatives` and its explanation says so
-   (data where they differ, another day, can). An accepted candidate whose re-identified model simulates the data worse
+   (data where they differ, another day, can). Not when engine speed and torque determine both signals (two forms of
+   EEC1's demand torque): neither is ever added, on any data, and both stand for the engine's own fuelling, so which one
+   it is does not matter (`inputs_determine`). An accepted candidate whose re-identified model simulates the data worse
    than the model without it (RMS simulation error over the tested samples: the refit cannot be verified) is not built
    on: the search goes on from the model without it, with the next candidate found; it is named, and recommended only
    when it brings its physics (catalogued or engineer-defined) and the model identify builds (below) simulates the data
@@ -44,8 +46,8 @@ from fuelid.ident.diagnosis.builds import BuiltCheck
 from fuelid.ident.diagnosis.candidate import Candidate
 from fuelid.ident.diagnosis.carryover import left_out_trips
 from fuelid.ident.diagnosis.ranking import MAP_TERM, PRODUCT_TERM, rank_candidates, verify
-from fuelid.ident.diagnosis.recommendation import is_confirmed, is_generic, only_the_warm_refit_worse, priority, \
-    rounds_found, why_never_added
+from fuelid.ident.diagnosis.recommendation import inputs_determine, is_confirmed, is_generic, \
+    only_the_warm_refit_worse, priority, rounds_found, why_never_added
 from fuelid.ident.diagnosis.run import Run, run_gradients
 from fuelid.ident.diagnosis.verification import baseline, trips
 from fuelid.ident.identify import FitMemo, refit_with_effects
@@ -180,8 +182,8 @@ def select_forward(first: list[Candidate], pool: list[Candidate], run: Run, mode
             if built is not None and c.effect not in (MAP_TERM, PRODUCT_TERM) and _may_be_built(c, refitted):
                 built.expect(c)
             if refitted is not None:
-                rivals = [r for r in found[k + 1:] if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
-                c.alternatives = _indistinguishable(c, rivals, model, refitted, ds, alpha, min_effect_percent, effects)
+                c.alternatives = _indistinguishable(c, _rivals(c, found[k + 1:], ds), model, refitted, ds, alpha,
+                                                    min_effect_percent, effects)
                 model, run = refitted
                 break
         else:  # no refit verified: nothing to re-test the rest on
@@ -248,6 +250,13 @@ def _may_be_built(c: Candidate, refitted) -> bool:
 def _round_drop(c: Candidate) -> float | None:
     """c's held-out drop [%] on the model of the round it was found in: its re-test's, else the model as it is."""
     return (c.conditional or {}).get("rmse_drop_percent", c.rmse_drop_percent)
+
+
+def _rivals(c: Candidate, beside: list[Candidate], ds) -> list[Candidate]:
+    """Those found beside c, accepted, that might explain it away (module docstring): a held-out drop in their round
+    at least RIVAL_SHARE of c's, and not both signals engine speed and torque determine (`inputs_determine`)."""
+    rivals = [r for r in beside if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
+    return [r for r in rivals if not inputs_determine(r, ds)] if inputs_determine(c, ds) else rivals
 
 
 def _relevant_given(c: Candidate, model: PolyModel, run: Run, ds, alpha: float, min_effect_percent: float) -> bool:

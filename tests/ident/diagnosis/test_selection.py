@@ -1,4 +1,4 @@
-"""ident.diagnosis.selection: where forward selection stops."""
+"""ident.diagnosis.selection: where forward selection stops, and which rivals it checks the data tell apart."""
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis import recommendation, selection
@@ -36,3 +36,25 @@ def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_
     said = selection.why_left_at_the_stop(signal.effect)  # what one found beside it says: not "explained by" it
     assert said.startswith(" — found beside scales:ET1.EngOilTemp1, but forward selection accepted that one and "
                            "stopped")
+
+
+def test_two_signals_speed_and_torque_determine_are_not_told_apart():
+    """Forms of a signal engine speed and torque determine (here EEC1's demand torque, a curved function of them) are
+    never added, on any data: forward selection does not refit one to see whether the data tell it from the other
+    (`_indistinguishable`, the "— or …" of the explanation). A rival that might be added is still checked beside
+    such a signal, every rival of any other signal is, and a rival explaining less than half as much never is."""
+    ds = hidden.make(None, n=4000)
+    speed, torque = ds.u[:, 0], ds.u[:, 1]
+    ds.extra["EEC1.EngDemandPercentTorque"] = 100.0 * (torque / 2000.0) ** 2 + 1e-3 * speed
+    effects = {e.id: e for e in fx.generic_effects(ds)} | fx.EFFECTS
+
+    def found(effect: str, drop: float) -> dg.Candidate:  # found in a round of forward selection, drop [%]
+        return dg.Candidate(effect, effect, "…", [], [], "…", "…", definition=effects[effect],
+                            conditional={"rmse_drop_percent": drop})
+
+    level, scales = found("level:EEC1.EngDemandPercentTorque", 4.0), found("scales:EEC1.EngDemandPercentTorque", 3.0)
+    oil, fan, weak = found("scales:ET1.EngOilTemp1", 3.0), found("engine_fan", 2.5), found("friction", 1.5)
+    assert recommendation.inputs_determine(level, ds) and not recommendation.inputs_determine(oil, ds)
+    assert not recommendation.inputs_determine(fan, ds)  # known physics: not a generic signal
+    assert selection._rivals(level, [scales, oil, fan, weak], ds) == [oil, fan]
+    assert selection._rivals(oil, [level, scales, fan], ds) == [level, scales, fan]
