@@ -253,8 +253,9 @@ def _round_drop(c: Candidate) -> float | None:
 
 
 def _rivals(c: Candidate, beside: list[Candidate], ds) -> list[Candidate]:
-    """Those found beside c, accepted, that might explain it away (module docstring): a held-out drop in their round
-    at least RIVAL_SHARE of c's, and not both signals engine speed and torque determine (`inputs_determine`)."""
+    """Of the candidates found beside c, the one accepted, those that might explain it away (module docstring): a
+    held-out drop in their round at least RIVAL_SHARE of c's, and not both signals that engine speed and torque
+    determine (`inputs_determine`)."""
     rivals = [r for r in beside if (_round_drop(r) or 0.0) >= RIVAL_SHARE * (_round_drop(c) or 0.0)]
     return [r for r in rivals if not inputs_determine(r, ds)] if inputs_determine(c, ds) else rivals
 
