@@ -6,6 +6,11 @@ from fuelid.ident.modelrun import run_model
 from tests.ident import hidden
 
 
+def candidate(effect: str, definitions: dict, **records) -> dg.Candidate:
+    """A candidate with its effect's definition (None when `definitions` has none) and the given records."""
+    return dg.Candidate(effect, effect, "…", [], [], "…", "…", definition=definitions.get(effect), **records)
+
+
 def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_recommended():
     """On one trip a bus signal fuelid knows no physics for is never added (recommendation.ONE_TRIP_ONLY). Once the
     search is built on one, whatever a later round finds is found given it and not recommended: it stops — unless a
@@ -14,13 +19,10 @@ def test_forward_selection_stops_once_nothing_a_later_round_could_accept_can_be_
     ds = hidden.make("dpf_regeneration", seed=1)
     run = dg.run_gradients(run_model(hidden.fitted(ds), ds))  # one trip
     generic = {e.id: e for e in fx.generic_effects(ds)}
-
-    def candidate(effect: str, **records) -> dg.Candidate:
-        return dg.Candidate(effect, effect, "…", [], [], "…", "…", definition=generic.get(effect), **records)
-
-    signal = candidate("scales:ET1.EngOilTemp1", refit={"verified": True}, verification={"rmse_drop_percent": 5.0})
-    twin = candidate("level:ET1.EngOilTemp1", conditional={"found_given": [["engine_map"]]})
-    overrun = candidate("overrun_cutoff", conditional={"found_given": [["engine_map"]]})
+    signal = candidate("scales:ET1.EngOilTemp1", generic, refit={"verified": True},
+                       verification={"rmse_drop_percent": 5.0})
+    twin = candidate("level:ET1.EngOilTemp1", generic, conditional={"found_given": [["engine_map"]]})
+    overrun = candidate("overrun_cutoff", generic, conditional={"found_given": [["engine_map"]]})
 
     def stops(named, pool) -> bool:
         return selection._nothing_left_to_recommend(named, pool, ds, run)
@@ -49,8 +51,7 @@ def test_two_signals_speed_and_torque_determine_are_not_told_apart():
     effects = {e.id: e for e in fx.generic_effects(ds)} | fx.EFFECTS
 
     def found(effect: str, drop: float) -> dg.Candidate:  # found in a round of forward selection, drop [%]
-        return dg.Candidate(effect, effect, "…", [], [], "…", "…", definition=effects[effect],
-                            conditional={"rmse_drop_percent": drop})
+        return candidate(effect, effects, conditional={"rmse_drop_percent": drop})
 
     level, scales = found("level:EEC1.EngDemandPercentTorque", 4.0), found("scales:EEC1.EngDemandPercentTorque", 3.0)
     oil, fan, weak = found("scales:ET1.EngOilTemp1", 3.0), found("engine_fan", 2.5), found("friction", 1.5)
