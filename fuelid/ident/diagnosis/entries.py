@@ -12,6 +12,8 @@ class here and its name in ENTRIES.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from fuelid.blas import one_blas_thread
@@ -26,6 +28,19 @@ from fuelid.ident.diagnosis.verification import (MIN_IDENTIFIABILITY, Baseline, 
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
+
+
+@dataclass
+class TestColumns:
+    """An effect's columns in the model's two tests (ident.diagnosis.statistics, 1–2), stacked over the run's
+    segments after their first run.warm samples: psi its prewhitened lagged image ψ_x = D/C x (test 1), w = A x
+    (test 2, in the domain of w), raw the lagged columns x in the fuel domain; reg its regressors on the dataset
+    grid."""
+
+    reg: fx.Regressors
+    psi: np.ndarray
+    w: np.ndarray
+    raw: np.ndarray
 
 
 class Additive:
@@ -45,10 +60,8 @@ class Additive:
         """The lagged columns x of one segment in the fuel domain."""
         return x
 
-    def columns(self, model: PolyModel, ds, run: Run, effect: fx.Effect):
-        """(Regressors on the dataset grid, their prewhitened lagged image ψ_x stacked over the run's segments
-        after their first run.warm samples, the lagged columns in the fuel domain likewise); None when the
-        effect's signals are not logged."""
+    def columns(self, model: PolyModel, ds, run: Run, effect: fx.Effect) -> TestColumns | None:
+        """The effect's columns in both tests (TestColumns); None when its signals are not logged."""
         reg = effect.build(ds)
         if reg is None:
             return None
@@ -58,18 +71,19 @@ class Additive:
             x = self.path(model, lagged(np.nan_to_num(reg.x[seg]), effect.lags))
             psi.append(lfilter(model.D, model.C, x, axis=0)[run.warm:])
             raw.append(x[run.warm:])
-        return reg, np.vstack(psi), np.vstack(raw)
+        raw = np.vstack(raw)
+        return TestColumns(reg, np.vstack(psi), lfilter(model.A, [1.0], raw, axis=0), raw)
 
-    def test(self, model: PolyModel, ds, run: Run, effect: fx.Effect) -> Evidence | None:
-        """Both tests on the model itself; None when the effect's signals are not logged."""
-        cols = self.columns(model, ds, run, effect)
+    def test(self, model: PolyModel, ds, run: Run, effect: fx.Effect, cols: TestColumns | None,
+             projected: tuple[np.ndarray, np.ndarray] | None) -> Evidence | None:
+        """Both tests on the model itself of the effect's columns `cols` (`columns`), `projected` their nuisance-free
+        parts (`projected_columns`); None when its signals are not logged."""
         if cols is None:
             return None
-        reg, psi, raw = cols
         with one_blas_thread():
-            pred = score_test(run.e, psi, run.Q, eps_projected=run.e_projected)
-            level, left = level_test(run.r, lfilter(model.A, [1.0], raw, axis=0), run.lens, run.QG)  # w has A x
-        return Evidence(reg, raw, {"prediction_error": pred, "simulation_error": level}, left, pred.coef)
+            pred = score_test(run.e, cols.psi, run.Q, eps_projected=run.e_projected, X_projected=projected[0])
+            level, left = level_test(run.r, cols.w, run.lens, run.QG, X_projected=projected[1])
+        return Evidence(cols.reg, cols.raw, {"prediction_error": pred, "simulation_error": level}, left, pred.coef)
 
     def direction_regressor(self, c: Candidate, run: Run) -> np.ndarray:
         """The regressor the refit's change of the fuel must covary with in the effect's direction (Effect.sign):
@@ -205,7 +219,10 @@ class Shift(Additive):
     retested = False
     drop_in_verdict = False  # the explanation says what the delay does to the model itself
 
-    def test(self, model, ds, run, effect):
+    def columns(self, model, ds, run, effect):
+        return None  # tested on its own reference model
+
+    def test(self, model, ds, run, effect, cols, projected):
         ref = reference_fit(ds, run)
         test, left, x = shift_test(ds, run, ref)
         grid = np.full(len(ds.t), np.nan)
@@ -254,6 +271,21 @@ class Shift(Additive):
 
 
 ENTRIES = {"additive": Additive(), "scales_fuel": ScalesFuel(), "torque": Torque(), "shift": Shift()}
+
+
+def projected_columns(run: Run, columns: list[TestColumns | None]) -> list[tuple[np.ndarray, np.ndarray] | None]:
+    """Each candidate's test columns (`Additive.columns`; None: none) with the nuisance columns projected out:
+    (M_Z ψ_x by run.Q, M_G w by run.QG). All of them in one product with each basis, which reads the basis
+    (N × 50–80) once instead of once per candidate."""
+    have = [c for c in columns if c is not None]
+    if not have:
+        return [None] * len(columns)
+    with one_blas_thread():
+        parts = [np.split(basis.project_out(np.column_stack([getattr(c, name) for c in have])),
+                          np.cumsum([getattr(c, name).shape[1] for c in have])[:-1], axis=1)
+                 for basis, name in ((run.Q, "psi"), (run.QG, "w"))]
+    projected = iter(zip(*parts))
+    return [None if c is None else next(projected) for c in columns]
 
 
 def torque_path_columns(model: PolyModel, run: Run, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

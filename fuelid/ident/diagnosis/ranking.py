@@ -10,8 +10,8 @@ import math
 import numpy as np
 
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.candidate import Candidate
-from fuelid.ident.diagnosis.entries import ENTRIES
+from fuelid.ident.diagnosis.candidate import Candidate, Evidence
+from fuelid.ident.diagnosis.entries import ENTRIES, projected_columns
 from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import holm
@@ -21,6 +21,8 @@ from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
 
 MAP_TERM, PRODUCT_TERM = "engine_map", "power_nonlinearity"  # the engine curvature: map, product term (verdict)
+TESTED_TOGETHER = 16  # candidates whose columns are projected in one product (entries.projected_columns): about 40
+#   columns, past which a wider product gains nothing while its memory grows with it
 
 
 def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: float = 0.05,
@@ -34,28 +36,17 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
     included = {fx.parse_effect(e)[0] for e in model.effects}
     dsm = at_operating_point(ds, model)
     rows, untested = [], []
-    for effect in candidates:
-        if effect.id in included:
-            continue
-        entry = ENTRIES[effect.enters]
-        found = entry.test(model, dsm, run, effect)
-        if found is None:
-            untested.append(Candidate(effect.id, effect.name, effect.form, list(effect.signals), list(effect.spns),
-                                      effect.physics, "not testable: its bus signals are not in the data"))
-            continue
-        tests = found.tests
-        log_p = min(0.0, math.log(len(tests)) + min(t.log_p for t in tests.values()))  # Bonferroni over its tests
-        df = max(t.df for t in tests.values())
-        gains = found.coef.reshape(len(effect.lags), -1).sum(axis=0)
-        text, size = explain(entry, effect, found.reg, contribution_on_grid(effect.form, found.x, found.coef, run),
-                             gains, [model], dsm, run)
-        rows.append(Candidate(
-            effect.id, effect.name, effect.form, list(effect.signals), list(effect.spns), effect.physics, text,
-            spec=effect.id, statistic=max(t.statistic for t in tests.values()), df=df, p_value=math.exp(log_p),
-            log10_p=log_p / math.log(10), testable=df > 0,
-            tests={name: {"statistic": t.statistic, "df": t.df, "p_value": t.p_value} for name, t in tests.items()},
-            estimated_drop_percent=100.0 * (1.0 - found.left), size=size, definition=effect, entry=entry,
-            reg=found.reg, x=found.x, w=lfilter(model.A, [1.0], found.x, axis=0), ref=found.ref))
+    for group in _groups([e for e in candidates if e.id not in included], TESTED_TOGETHER):
+        columns = [ENTRIES[effect.enters].columns(model, dsm, run, effect) for effect in group]
+        for effect, cols, projected in zip(group, columns, projected_columns(run, columns)):
+            entry = ENTRIES[effect.enters]
+            found = entry.test(model, dsm, run, effect, cols, projected)
+            if found is None:
+                untested.append(Candidate(effect.id, effect.name, effect.form, list(effect.signals),
+                                          list(effect.spns), effect.physics,
+                                          "not testable: its bus signals are not in the data"))
+            else:
+                rows.append(_tested(effect, entry, found, model, dsm, run))
     family = [c for c in rows if c.effect != MAP_TERM]  # the map term is tested first, alone, at alpha (verdict, 0)
     adj, sig = holm([c.p_value for c in family], alpha) if family else (np.zeros(0), np.zeros(0, bool))
     for c, a, s in zip(family, adj, sig):
@@ -68,6 +59,29 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
             c.test_significant = bool(c.testable and c.log10_p < math.log10(alpha))
     rows.sort(key=lambda c: (c.log10_p, -c.statistic))
     return rows + untested
+
+
+def _groups(items: list, size: int) -> list[list]:
+    """items in consecutive groups of `size` (the last shorter)."""
+    return [items[k:k + size] for k in range(0, len(items), size)]
+
+
+def _tested(effect: fx.Effect, entry, found: Evidence, model: PolyModel, dsm, run: Run) -> Candidate:
+    """The candidate of `effect` whose tests (`entry`'s, on `model` and its run on dsm, the data at its operating
+    point) found `found`, explained."""
+    tests = found.tests
+    log_p = min(0.0, math.log(len(tests)) + min(t.log_p for t in tests.values()))  # Bonferroni over its tests
+    df = max(t.df for t in tests.values())
+    gains = found.coef.reshape(len(effect.lags), -1).sum(axis=0)
+    text, size = explain(entry, effect, found.reg, contribution_on_grid(effect.form, found.x, found.coef, run),
+                         gains, [model], dsm, run)
+    return Candidate(
+        effect.id, effect.name, effect.form, list(effect.signals), list(effect.spns), effect.physics, text,
+        spec=effect.id, statistic=max(t.statistic for t in tests.values()), df=df, p_value=math.exp(log_p),
+        log10_p=log_p / math.log(10), testable=df > 0,
+        tests={name: {"statistic": t.statistic, "df": t.df, "p_value": t.p_value} for name, t in tests.items()},
+        estimated_drop_percent=100.0 * (1.0 - found.left), size=size, definition=effect, entry=entry,
+        reg=found.reg, x=found.x, w=lfilter(model.A, [1.0], found.x, axis=0), ref=found.ref)
 
 
 def verify(c: Candidate, model: PolyModel, ds, run: Run, base: Baseline) -> None:

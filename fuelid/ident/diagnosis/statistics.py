@@ -148,16 +148,17 @@ def nuisance_basis(Z: np.ndarray, segment_columns=()) -> NuisanceBasis:
 
 
 def score_test(eps, X, Q=None, hac_lags: int | None = None, rank_tol: float = 1e-4,
-               eps_projected: np.ndarray | None = None) -> ScoreTest:
+               eps_projected: np.ndarray | None = None, X_projected: np.ndarray | None = None) -> ScoreTest:
     """Score (LM) test that ε (N) does not depend on the columns of X (N × k) beyond the nuisance columns with
     basis Q (`nuisance_basis`; None: only a mean): LM = sᵀ Ω̂⁻¹ s ~ χ²(k_eff), module
     docstring. Columns of X whose part orthogonal to Q has less than rank_tol of their norm are not testable
-    (k_eff counts the rest); k_eff = 0 gives LM = 0, p = 1. eps_projected: Q.project_out(eps), when the caller
-    tests many candidates on the same ε."""
+    (k_eff counts the rest); k_eff = 0 gives LM = 0, p = 1. eps_projected, X_projected: Q.project_out(eps) and
+    Q.project_out(X), when the caller tests many candidates on the same ε (and projects all their columns at once)."""
     eps = np.asarray(eps, float)
     X = np.asarray(X, float).reshape(eps.size, -1)
     if Q is not None:
-        Xt, et = Q.project_out(X), Q.project_out(eps) if eps_projected is None else eps_projected
+        Xt = Q.project_out(X) if X_projected is None else X_projected
+        et = Q.project_out(eps) if eps_projected is None else eps_projected
     else:
         Xt, et = X - X.mean(axis=0), eps - eps.mean()
     coef = np.linalg.lstsq(Xt, et, rcond=None)[0] if Xt.size else np.zeros(0)
@@ -192,17 +193,18 @@ def ar_whitener(v: np.ndarray, order: int) -> np.ndarray:
 
 
 def level_test(r: np.ndarray, X: np.ndarray, lens, QG: NuisanceBasis, order: int = AR_ORDER,
-               rank_tol: float = 1e-4) -> tuple[ScoreTest, float]:
+               rank_tol: float = 1e-4, X_projected: np.ndarray | None = None) -> tuple[ScoreTest, float]:
     """The simulation-error test (module docstring, 2): r (N) the simulation errors with the basis QG of the
     simulation gradient already projected out, X (N × k) the candidate's columns, lens the lengths of the
-    segments r is stacked from (each filtered from rest, its first `order` samples dropped). Returns the test
-    and the fraction ‖v‖/‖r‖ of the simulation error left after the candidate's least-squares fit.
+    segments r is stacked from (each filtered from rest, its first `order` samples dropped); X_projected:
+    QG.project_out(X), when the caller has it. Returns the test and the fraction ‖v‖/‖r‖ of the simulation error
+    left after the candidate's least-squares fit.
 
     In the whitened domain the statistic is the Wald form W = ‖P_X a r‖² / σ̂², σ̂² the variance of a(q) v
     (the whitened noise under the alternative): a level shift whitens to a spike, and the score form's robust
     variance, built from errors that still contain the effect, would let that one sample cancel its own
     evidence."""
-    Xt = QG.project_out(X)
+    Xt = QG.project_out(X) if X_projected is None else X_projected
     beta = np.linalg.lstsq(Xt, r, rcond=None)[0]
     v = r - Xt @ beta
     a = ar_whitener(v, order)

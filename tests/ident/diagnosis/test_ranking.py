@@ -1,7 +1,9 @@
 """ident.diagnosis.ranking: calibrated tests with nothing hidden, and what a candidate that cannot be tested lists."""
+import pytest
 from scipy.stats import kstest
 
 from fuelid.ident import diagnosis as dg
+from fuelid.ident.diagnosis import ranking
 from fuelid.ident.modelrun import run_model
 from tests.ident import hidden
 
@@ -29,3 +31,20 @@ def test_an_untested_candidate_lists_only_what_was_found():
     assert list(c.to_json()) == ["effect", "name", "form", "signals", "spns", "testable", "statistic", "df",
                                  "p_value", "significant", "test_significant", "estimated_drop_percent",
                                  "explanation", "rmse_drop_percent", "verification", "conditional", "explained_by"]
+
+
+def test_a_candidate_tested_among_many_is_tested_as_alone():
+    """rank_candidates projects the nuisance columns out of many candidates' columns at once
+    (entries.projected_columns): each candidate's tests are those it has tested alone, to the rounding of a wider
+    product."""
+    ds = hidden.make("dpf_regeneration", n=4000, seed=7)
+    m = hidden.fitted(ds)
+    run = dg.run_gradients(run_model(m, ds))
+    together = {r.effect: r for r in dg.rank_candidates(m, ds, run) if r.testable}
+    assert len(together) > ranking.TESTED_TOGETHER  # more than one product
+    for effect in ("dpf_regeneration", "scales:ET1.EngOilTemp1", "engine_fan"):
+        alone = dg.rank_candidates(m, ds, run, [r.definition for r in together.values() if r.effect == effect])[0]
+        for name, test in alone.tests.items():
+            assert test["df"] == together[effect].tests[name]["df"]
+            assert test["statistic"] == pytest.approx(together[effect].tests[name]["statistic"], rel=1e-9)
+        assert alone.estimated_drop_percent == pytest.approx(together[effect].estimated_drop_percent, rel=1e-9)
