@@ -276,7 +276,7 @@ ENTRIES = {"additive": Additive(), "scales_fuel": ScalesFuel(), "torque": Torque
 def projected_columns(run: Run, columns: list[TestColumns | None]) -> list[tuple[np.ndarray, np.ndarray] | None]:
     """Each candidate's test columns (`Additive.columns`; None: none) with the nuisance columns projected out:
     (M_Z ψ_x by run.Q, M_G w by run.QG). All of them in one product with each basis, which reads the basis
-    (N × 50–80) once instead of once per candidate."""
+    (N × 60–95) once instead of once per candidate."""
     have = [c for c in columns if c is not None]
     if not have:
         return [None] * len(columns)

@@ -21,8 +21,8 @@ from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
 
 MAP_TERM, PRODUCT_TERM = "engine_map", "power_nonlinearity"  # the engine curvature: map, product term (verdict)
-TESTED_TOGETHER = 16  # candidates whose columns are projected in one product (entries.projected_columns): about 40
-#   columns, past which a wider product gains nothing while its memory grows with it
+PROJECTED_TOGETHER = 2 ** 22  # numbers (samples × columns) of the candidates' columns projected in one product
+#   (entries.projected_columns): 32 MB a basis however long the data, every candidate of a 90-min trip at once
 
 
 def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: float = 0.05,
@@ -36,17 +36,12 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
     included = {fx.parse_effect(e)[0] for e in model.effects}
     dsm = at_operating_point(ds, model)
     rows, untested = [], []
-    for group in _groups([e for e in candidates if e.id not in included], TESTED_TOGETHER):
-        columns = [ENTRIES[effect.enters].columns(model, dsm, run, effect) for effect in group]
-        for effect, cols, projected in zip(group, columns, projected_columns(run, columns)):
-            entry = ENTRIES[effect.enters]
-            found = entry.test(model, dsm, run, effect, cols, projected)
-            if found is None:
-                untested.append(Candidate(effect.id, effect.name, effect.form, list(effect.signals),
-                                          list(effect.spns), effect.physics,
-                                          "not testable: its bus signals are not in the data"))
-            else:
-                rows.append(_tested(effect, entry, found, model, dsm, run))
+    for effect, found in _tests(model, dsm, run, [e for e in candidates if e.id not in included]):
+        if found is None:
+            untested.append(Candidate(effect.id, effect.name, effect.form, list(effect.signals), list(effect.spns),
+                                      effect.physics, "not testable: its bus signals are not in the data"))
+        else:
+            rows.append(_tested(effect, ENTRIES[effect.enters], found, model, dsm, run))
     family = [c for c in rows if c.effect != MAP_TERM]  # the map term is tested first, alone, at alpha (verdict, 0)
     adj, sig = holm([c.p_value for c in family], alpha) if family else (np.zeros(0), np.zeros(0, bool))
     for c, a, s in zip(family, adj, sig):
@@ -61,9 +56,19 @@ def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: floa
     return rows + untested
 
 
-def _groups(items: list, size: int) -> list[list]:
-    """items in consecutive groups of `size` (the last shorter)."""
-    return [items[k:k + size] for k in range(0, len(items), size)]
+def _tests(model: PolyModel, dsm, run: Run, effects: list[fx.Effect]):
+    """(effect, what its entry kind's tests found: Evidence, None when its signals are not logged) for each of
+    `effects`, in order, on `model` and its run on dsm (the data at its operating point); the columns of consecutive
+    candidates projected in one product per basis (entries.projected_columns), up to PROJECTED_TOGETHER numbers."""
+    group, size = [], 0
+    for k, effect in enumerate(effects):
+        cols = ENTRIES[effect.enters].columns(model, dsm, run, effect)
+        group.append((effect, cols))
+        size += 0 if cols is None else cols.psi.size
+        if size >= PROJECTED_TOGETHER or k == len(effects) - 1:
+            for (e, c), projected in zip(group, projected_columns(run, [c for _, c in group])):
+                yield e, ENTRIES[e.enters].test(model, dsm, run, e, c, projected)
+            group, size = [], 0
 
 
 def _tested(effect: fx.Effect, entry, found: Evidence, model: PolyModel, dsm, run: Run) -> Candidate:

@@ -125,13 +125,11 @@ def _deletion_solve(M: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 class BlockFolds(NamedTuple):
     """What every candidate's held-out-block refit on one run shares (`block_cv_beside`; made by `block_folds`): the
-    model's own columns G (orthonormal, N rows, padded with zero rows to whole chunks and blocks), the samples N,
-    the block, the chunk of rows the windows are made of (gcd(block, buffer)), each window's bounds in chunks
-    (K × 2: the rows left out of the fit, block a and `buffer` either side) and I − G_SᵀG_S of each window S
-    (K × q × q). Its memory: N q numbers, and q² per window."""
+    model's own columns G (N × q, orthonormal), the block, the chunk of rows the windows are made of (gcd(block,
+    buffer)), each window's bounds in chunks (K × 2: the rows left out of the fit, a block and `buffer` either side)
+    and I − G_SᵀG_S of each window S (K × q × q). Beyond G, which the run holds, q² numbers per window."""
 
     G: np.ndarray
-    n: int
     block: int
     chunk: int
     bounds: np.ndarray
@@ -144,22 +142,24 @@ def block_folds(G: np.ndarray, block: int, buffer: int = 0) -> BlockFolds:
     n, block = G.shape[0], max(block, 1)
     chunk = math.gcd(block, buffer)
     starts = np.arange(0, n, block)
-    rows = max(-(-n // chunk) * chunk, starts.size * block)
-    G = _padded(G, rows)
     bounds = np.column_stack([np.maximum(starts - buffer, 0) // chunk,
                               -(-np.minimum(starts + block + buffer, n) // chunk)])
-    folds = BlockFolds(G, n, block, chunk, bounds, np.zeros((starts.size, 0, 0)))
+    folds = BlockFolds(G, block, chunk, bounds, np.zeros((starts.size, 0, 0)))
     return folds._replace(outside=np.eye(G.shape[1]) - _window_sums(folds, G, G))
 
 
 def _window_sums(folds: BlockFolds, A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A_SᵀB_S for each window S of folds (K × a × b; A, B: N × a, N × b, or padded like folds.G): the products
-    of each chunk of rows, summed over the window's chunks."""
-    chunks = -(-folds.n // folds.chunk)
-    A, B = (_padded(M, chunks * folds.chunk).reshape(chunks, folds.chunk, -1) for M in (A, B))
-    per = A.transpose(0, 2, 1) @ B
-    total = np.concatenate([np.zeros((1,) + per.shape[1:]), np.cumsum(per, axis=0)])
-    return total[folds.bounds[:, 1]] - total[folds.bounds[:, 0]]
+    """A_SᵀB_S for each window S of folds (K × a × b; A: N × a, B: N × b): the products over each chunk of rows,
+    summed over the window's chunks."""
+    c = folds.chunk
+    whole = A.shape[0] // c
+    sums = np.empty((-(-A.shape[0] // c), A.shape[1], B.shape[1]))
+    sums[:whole] = A[:whole * c].reshape(whole, c, -1).transpose(0, 2, 1) @ B[:whole * c].reshape(whole, c, -1)
+    if whole < sums.shape[0]:  # the last rows, fewer than a chunk
+        sums[whole] = A[whole * c:].T @ B[whole * c:]
+    np.cumsum(sums, axis=0, out=sums)  # sums[j]: over the chunks up to j
+    lo, hi = folds.bounds.T
+    return sums[hi - 1] - np.where((lo > 0)[:, None, None], sums[lo - 1], 0.0)
 
 
 def block_cv_beside(r: np.ndarray, folds: BlockFolds, U: np.ndarray) -> np.ndarray:
@@ -168,21 +168,19 @@ def block_cv_beside(r: np.ndarray, folds: BlockFolds, U: np.ndarray) -> np.ndarr
         I − Q_SᵀQ_S = [[M_G, −G_SᵀU_S], [−U_SᵀG_S, I − U_SᵀU_S]],
     each product over the window a sum of products over its chunks of rows: every window at once, in N (q + k)(k + 1)
     multiplications beyond the folds' instead of N (q + k)² over the windows' rows."""
-    e = r - folds.G[:folds.n] @ (folds.G[:folds.n].T @ r) - U @ (U.T @ r)
-    GU, UU = _window_sums(folds, folds.G, U), _window_sums(folds, U, U)
+    G, block = folds.G, folds.block
+    e = r - G @ (G.T @ r) - U @ (U.T @ r)
+    GU, UU = _window_sums(folds, G, U), _window_sums(folds, U, U)
     M = np.block([[folds.outside, -GU], [-GU.transpose(0, 2, 1), np.eye(U.shape[1]) - UU]])
-    b = np.concatenate([_window_sums(folds, folds.G, e[:, None]), _window_sums(folds, U, e[:, None])], axis=1)
-    x = _deletion_solves(M, b)
-    K, q = folds.outside.shape[:2]
-    rows = K * folds.block  # the blocks, the K windows' middles, cover the N samples
-    change = folds.G[:rows].reshape(K, folds.block, q) @ x[:, :q] \
-        + _padded(U, rows).reshape(K, folds.block, -1) @ x[:, q:]
-    return e + change.ravel()[:folds.n]
-
-
-def _padded(A: np.ndarray, rows: int) -> np.ndarray:
-    """A (n × m) with zero rows appended up to `rows`, or its first `rows`."""
-    return np.vstack([A, np.zeros((rows - A.shape[0], A.shape[1]))]) if rows > A.shape[0] else A[:rows]
+    b = np.concatenate([_window_sums(folds, G, e[:, None]), _window_sums(folds, U, e[:, None])], axis=1)
+    x = _deletion_solves(M, b)[..., 0]  # K × (q + k): window j's coefficients, for its block j
+    q, whole = G.shape[1], r.size // block
+    change = np.empty(r.size)
+    change[:whole * block] = (G[:whole * block].reshape(whole, block, q) @ x[:whole, :q, None]
+                              + U[:whole * block].reshape(whole, block, -1) @ x[:whole, q:, None]).ravel()
+    if whole < x.shape[0]:  # the last block, shorter
+        change[whole * block:] = G[whole * block:] @ x[whole, :q] + U[whole * block:] @ x[whole, q:]
+    return e + change
 
 
 def _deletion_solves(M: np.ndarray, b: np.ndarray) -> np.ndarray:
