@@ -21,8 +21,9 @@ from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
 
 MAP_TERM, PRODUCT_TERM = "engine_map", "power_nonlinearity"  # the engine curvature: map, product term (verdict)
-PROJECTED_TOGETHER = 2 ** 22  # numbers (samples × columns) of the candidates' columns projected in one product
-#   (entries.projected_columns): 32 MB a basis however long the data, every candidate of a 90-min trip at once
+PROJECTED_TOGETHER = 2 ** 20  # numbers (samples × columns) of the candidates' columns projected in one product
+#   (entries.projected_columns): 8 MB a basis however long the data; 58 columns on a 90-min trip, where a wider
+#   product gains nothing
 
 
 def rank_candidates(model: PolyModel, ds, run: Run, candidates=None, alpha: float = 0.05,

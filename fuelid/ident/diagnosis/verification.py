@@ -144,8 +144,9 @@ def block_folds(G: np.ndarray, block: int, buffer: int = 0) -> BlockFolds:
     starts = np.arange(0, n, block)
     bounds = np.column_stack([np.maximum(starts - buffer, 0) // chunk,
                               -(-np.minimum(starts + block + buffer, n) // chunk)])
-    folds = BlockFolds(G, block, chunk, bounds, np.zeros((starts.size, 0, 0)))
-    return folds._replace(outside=np.eye(G.shape[1]) - _window_sums(folds, G, G))
+    # window by window, not `_window_sums`: its products of every chunk would take as much memory as G itself
+    outside = np.stack([np.eye(G.shape[1]) - G[lo:hi].T @ G[lo:hi] for lo, hi in np.minimum(bounds * chunk, n)])
+    return BlockFolds(G, block, chunk, bounds, outside)
 
 
 def _window_sums(folds: BlockFolds, A: np.ndarray, B: np.ndarray) -> np.ndarray:
