@@ -203,10 +203,10 @@ def _deletion_solves(M: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def held_out(model: PolyModel, run: Run, X: np.ndarray, folds: BlockFolds | None = None) -> dict:
     """The linearised refit of `model` with the extra columns X (w domain, stacked like run.r; none: N × 0),
-    scored block by block on data it was not fitted on (block_cv, blocks of BLOCK_S [s] with BUFFER_S [s] either
-    side also left out; folds: `run_block_folds` of run, when the caller keeps them): ysim (N on the dataset grid,
-    the held-out simulation, NaN outside the run), y (the fuel it is scored against) and beta (X's coefficients
-    fitted on all the data, for the size of the effect)."""
+    scored block by block on data it was not fitted on (block_cv_beside, blocks of BLOCK_S [s] with BUFFER_S [s]
+    either side also left out; folds: `run_block_folds` of run, when the caller keeps them): ysim (N on the dataset
+    grid, the held-out simulation, NaN outside the run), y (the fuel it is scored against) and beta (X's
+    coefficients fitted on all the data, for the size of the effect)."""
     with one_blas_thread():
         folds = run_block_folds(model, run) if folds is None else folds
         Xt = run.QG.project_out(X)
@@ -380,7 +380,7 @@ class Baseline:
     """The model as it is, scored on data it was not fitted on: what every verification on its run measures a
     candidate against (`verify`; made by `baseline`). ysim: its held-out simulation block by block (`held_out`
     without extra columns; N on the dataset grid), scores: held_out_scores of it; groups: the run's positions of
-    each trip (trip_groups)."""
+    each trip (trip_groups); blocks: what every candidate's held_out on this run shares (`run_block_folds`)."""
 
     model: PolyModel
     run: Run
