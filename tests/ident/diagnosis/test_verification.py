@@ -45,26 +45,27 @@ def test_block_cv_keeps_the_full_data_coefficient_of_a_direction_only_the_left_o
         assert np.allclose(undetermined, 0.0, atol=1e-8) == (a != 120)
 
 
-
 def test_block_cv_beside_the_models_own_columns_is_block_cv():
     """What every candidate's held-out refit on one run shares — the model's own columns G and, per left-out
-    window, I − G_SᵀG_S — kept once (block_folds): block_cv_beside on [G U] is block_cv on [G U], for candidates'
-    columns U that vary everywhere, that are non-zero inside one window only (the pseudo-inverse's case), or none;
-    the samples not a whole number of blocks."""
+    window, I − G_SᵀG_S — kept once (block_folds): block_cv_beside on [G U] is block_cv on [G U], for no candidate
+    columns, a column non-zero inside one window only (I − Q_SᵀQ_S singular there: the pseudo-inverse's case), and
+    beside it columns that vary everywhere; the samples not a whole number of blocks."""
     rng = np.random.default_rng(6)
     n = 1030
+    Z = rng.normal(size=(n, 5))
+    Z[130:150] = 0.0  # so that the column on there alone stays there once orthogonal to G
     local = np.zeros((n, 1))
     local[130:150] = 1.0
-    Q = np.linalg.qr(np.column_stack([rng.normal(size=(n, 5)), rng.normal(size=(n, 2)), local]))[0]
+    Q = np.linalg.qr(np.column_stack([Z, local, rng.normal(size=(n, 2))]))[0]
+    assert np.allclose(Q[:130, 5], 0.0) and np.allclose(Q[150:, 5], 0.0)
     G = Q[:, :5]
     r = rng.normal(size=n)
     r -= G @ (G.T @ r)
     for block, buffer in ((60, 20), (60, 0)):
         folds = block_folds(G, block, buffer)
-        for k in (0, 2, 3):
+        for k in (0, 1, 3):
             expected = block_cv(r, st.NuisanceBasis(Q[:, :5 + k]), block, buffer)
             assert np.allclose(block_cv_beside(r, folds, Q[:, 5:5 + k]), expected, atol=1e-12)
-
 
 def test_trip_cv_fits_what_the_other_trips_determine_and_leaves_the_rest_at_zero():
     """Three trips; the model's own column g (a gain: the fuel itself) and a candidate x. Where x varies within every
