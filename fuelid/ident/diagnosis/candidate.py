@@ -20,12 +20,14 @@ UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "sta
 @dataclass
 class Evidence:
     """What an entry kind's test of an effect found (ident.diagnosis.entries): reg its regressors on the dataset
-    grid, x their lagged columns in the fuel domain stacked like Run.r, tests {name: ScoreTest}, left the fraction
-    of the simulation error left after fitting them, coef the coefficients the explanation starts from, ref the
-    reference model of a fuel-signal delay (ident.diagnosis.delay.Reference) or None."""
+    grid, x their lagged columns in the fuel domain stacked like Run.r, w = A x (x in the domain of w), tests
+    {name: ScoreTest}, left the fraction of the simulation error left after fitting them, coef the coefficients
+    the explanation starts from, ref the reference model of a fuel-signal delay (ident.diagnosis.delay.Reference)
+    or None."""
 
     reg: fx.Regressors
     x: np.ndarray
+    w: np.ndarray
     tests: dict
     left: float
     coef: np.ndarray

@@ -83,7 +83,8 @@ class Additive:
         with one_blas_thread():
             pred = score_test(run.e, cols.psi, run.Q, eps_projected=run.e_projected, X_projected=projected[0])
             level, left = level_test(run.r, cols.w, run.lens, run.QG, X_projected=projected[1])
-        return Evidence(cols.reg, cols.raw, {"prediction_error": pred, "simulation_error": level}, left, pred.coef)
+        return Evidence(cols.reg, cols.raw, cols.w, {"prediction_error": pred, "simulation_error": level}, left,
+                        pred.coef)
 
     def direction_regressor(self, c: Candidate, run: Run) -> np.ndarray:
         """The regressor the refit's change of the fuel must covary with in the effect's direction (Effect.sign):
@@ -228,7 +229,8 @@ class Shift(Additive):
         grid = np.full(len(ds.t), np.nan)
         grid[run.index] = x[:, 0]
         reg = fx.Regressors(grid[:, None], ("d/dt reference model's fuel",), (f"{ds.output_unit}/s",))
-        return Evidence(reg, x, {"reference_model_shift": test}, left, test.coef, ref)
+        return Evidence(reg, x, lfilter(model.A, [1.0], x, axis=0), {"reference_model_shift": test}, left, test.coef,
+                        ref)
 
     def verify(self, c, model, ds, run, base):
         v = verify_shift(c.ref, model, ds, run, base.scores)

@@ -16,7 +16,6 @@ from fuelid.ident.diagnosis.explanation import contribution_on_grid, explain
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import holm
 from fuelid.ident.diagnosis.verification import Baseline
-from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import at_operating_point
 from fuelid.ident.polymodel import PolyModel
 
@@ -87,7 +86,7 @@ def _tested(effect: fx.Effect, entry, found: Evidence, model: PolyModel, dsm, ru
         log10_p=log_p / math.log(10), testable=df > 0,
         tests={name: {"statistic": t.statistic, "df": t.df, "p_value": t.p_value} for name, t in tests.items()},
         estimated_drop_percent=100.0 * (1.0 - found.left), size=size, definition=effect, entry=entry,
-        reg=found.reg, x=found.x, w=lfilter(model.A, [1.0], found.x, axis=0), ref=found.ref)
+        reg=found.reg, x=found.x, w=found.w, ref=found.ref)
 
 
 def verify(c: Candidate, model: PolyModel, ds, run: Run, base: Baseline) -> None:
