@@ -50,12 +50,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.fft import irfft, next_fast_len, rfft
-from scipy.linalg import qr, solve_toeplitz, svd
+from scipy.linalg import blas, lapack, qr, solve_toeplitz, svd
 from scipy.stats import chi2
 
 from fuelid.ident.filters import lfilter
 
 RANK_TOL = 1e-10  # a nuisance column independent of the others by less than this share of its norm adds nothing
+WELL_INDEPENDENT = 10.0  # σ_min of the scaled nuisance columns, in RANK_TOL, from which no column is dependent:
+#   a margin over the rounding of a pivoted QR's |R_jj| (about 1e-15 of these unit columns)
+CHOLESKY_QR_ORTHOGONALITY = 0.5  # ‖Q₁ᵀQ₁ − I‖_F up to which a second Cholesky QR makes Q₁ orthonormal to rounding
 AR_ORDER = 100  # samples of the AR whitener of the simulation-error test (30 s at 0.3 s)
 
 
@@ -128,12 +131,41 @@ class NuisanceBasis:
 
 def _orthonormal_columns(X: np.ndarray, norms: np.ndarray, rank_tol: float) -> np.ndarray:
     """An orthonormal basis of the columns of X (N × k) whose independent part is at least rank_tol of norms (each
-    column's own size): QR with column pivoting, cut where |R_jj| falls below it."""
+    column's own size). A QR with column pivoting, cut where |R_jj| falls below rank_tol, decides which; but when the
+    scaled columns' smallest singular value is WELL_INDEPENDENT times rank_tol or more, no |R_jj| can fall below it
+    (|R_jj| ≥ σ_min for every triangular factor), so every column is kept and Cholesky QR twice (`_cholesky_qr2`)
+    makes the basis: a few matrix products, where a pivoted QR works column by column."""
     if not X.shape[1]:
         return X
     scaled = X / np.where(norms > 0, norms, 1.0)
+    twice = _cholesky_qr2(scaled)
+    if twice is not None and svd(twice[1], compute_uv=False, check_finite=False)[-1] >= WELL_INDEPENDENT * rank_tol:
+        return twice[0]
     Q, R, _ = qr(scaled, mode="economic", pivoting=True, check_finite=False)
     return Q[:, np.abs(np.diag(R)) > rank_tol]
+
+
+def _cholesky_qr2(X: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(Q, R), X = Q R with Q (N × k) orthonormal and R upper triangular, by Cholesky QR — R₁ the Cholesky factor of
+    XᵀX, Q₁ = X R₁⁻¹ — and Cholesky QR of Q₁ again, which the first pass leaves orthonormal only to about u κ(X)²
+    (CholeskyQR2: Yamamoto, Nakatsukasa, Yanagisawa & Fukaya 2015); None when XᵀX is not numerically positive
+    definite or ‖Q₁ᵀQ₁ − I‖_F > CHOLESKY_QR_ORTHOGONALITY (X too ill-conditioned for the second pass to finish)."""
+    Xt = X.T  # k × N in column order, as the triangular solves take it, without a copy
+    R1 = _upper_cholesky(Xt @ Xt.T)
+    if R1 is None:
+        return None
+    Q1t = blas.dtrsm(1.0, R1, Xt, side=0, lower=0, trans_a=1)  # Q₁ᵀ = R₁⁻ᵀ Xᵀ
+    gram = Q1t @ Q1t.T
+    if not np.linalg.norm(gram - np.eye(len(gram))) <= CHOLESKY_QR_ORTHOGONALITY:  # NaN fails too
+        return None
+    R2 = _upper_cholesky(gram)
+    return blas.dtrsm(1.0, R2, Q1t, side=0, lower=0, trans_a=1, overwrite_b=1).T, R2 @ R1
+
+
+def _upper_cholesky(gram: np.ndarray) -> np.ndarray | None:
+    """The upper Cholesky factor R (RᵀR = gram) of a symmetric matrix; None when it is not positive definite."""
+    R, info = lapack.dpotrf(gram, lower=0, clean=1)
+    return None if info else R
 
 
 def nuisance_basis(Z: np.ndarray, segment_columns=()) -> NuisanceBasis:

@@ -2,7 +2,7 @@
 bases."""
 import numpy as np
 import pytest
-from scipy.linalg import block_diag, solve_toeplitz
+from scipy.linalg import block_diag, qr, solve_toeplitz
 from scipy.signal import lfilter
 from scipy.stats import chi2
 
@@ -67,6 +67,24 @@ def test_a_nuisance_column_already_in_the_span_adds_nothing():
     basis = st.nuisance_basis(np.column_stack([levels, np.ones(400)]))
     assert basis.dense.shape[1] == 2
     assert basis.extended(levels @ [2.0, -1.0]) is basis
+
+
+def test_well_independent_columns_get_the_pivoted_qrs_span_by_cholesky_qr_twice():
+    """Columns as ill-conditioned as a model's gradient (two of them apart by 1e-7 of their norm) are independent far
+    beyond RANK_TOL: Cholesky QR twice gives an orthonormal basis of the span a pivoted QR gives, to rounding. Two
+    columns apart by less than WELL_INDEPENDENT · RANK_TOL are left to the pivoted QR's rank decision: kept 5e-10
+    apart, one dropped 1e-12 apart."""
+    rng = np.random.default_rng(6)
+    X, Y = rng.normal(size=(5000, 12)), rng.normal(size=(5000, 3))
+    for gap, kept in ((1e-7, 12), (5e-10, 12), (1e-12, 11)):
+        X[:, 5] = X[:, 4] + gap * np.linalg.norm(X[:, 4]) * rng.normal(size=5000) / np.sqrt(5000)
+        norms = np.linalg.norm(X, axis=0)
+        Q = st._orthonormal_columns(X, norms, st.RANK_TOL)
+        pivoted, R, _ = qr(X / norms, mode="economic", pivoting=True)
+        pivoted = pivoted[:, np.abs(np.diag(R)) > st.RANK_TOL]
+        assert Q.shape[1] == pivoted.shape[1] == kept and np.allclose(Q.T @ Q, np.eye(kept), atol=1e-14)
+        assert np.allclose(Q @ (Q.T @ Y), pivoted @ (pivoted.T @ Y), atol=1e-8)
+        assert (st._cholesky_qr2(X / norms) is not None) == (gap == 1e-7)
 
 
 def test_free_responses_span_any_initial_state():
