@@ -9,8 +9,8 @@ prediction-error gradient's and the simulation gradient's, each beside its segme
 dense columns through every segment (N × k), the time to make their part of the basis each way (best of 5, one BLAS
 thread, as the diagnosis makes them; both include projecting the initial states' blocks out), the peak memory each
 allocates (tracemalloc, which sees numpy's and LAPACK's work arrays), the smallest singular value of the unit-scaled
-columns (fuelid takes Cholesky QR twice from 10 × RANK_TOL on) and the largest difference of the two projections of
-random unit columns.
+columns (fuelid takes Cholesky QR twice from 10 × RANK_TOL on, when its first pass comes near enough to orthonormal)
+and the largest difference of the two projections of random unit columns.
 """
 import argparse
 import sys
