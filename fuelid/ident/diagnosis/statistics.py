@@ -141,7 +141,13 @@ def _orthonormal_columns(X: np.ndarray, norms: np.ndarray, rank_tol: float) -> n
     twice = _cholesky_qr2(scaled)
     if twice is not None and svd(twice[1], compute_uv=False, check_finite=False)[-1] >= WELL_INDEPENDENT * rank_tol:
         return twice[0]
-    Q, R, _ = qr(scaled, mode="economic", pivoting=True, check_finite=False)
+    return pivoted_qr_columns(scaled, rank_tol)
+
+
+def pivoted_qr_columns(X: np.ndarray, rank_tol: float) -> np.ndarray:
+    """An orthonormal basis of the columns of X (N × k, scaled to unit norm) by QR with column pivoting, cut where
+    |R_jj| falls below rank_tol: a column independent of the others by less adds nothing."""
+    Q, R, _ = qr(X, mode="economic", pivoting=True, check_finite=False)
     return Q[:, np.abs(np.diag(R)) > rank_tol]
 
 

@@ -67,6 +67,7 @@ def test_block_cv_beside_the_models_own_columns_is_block_cv():
             expected = block_cv(r, st.NuisanceBasis(Q[:, :5 + k]), block, buffer)
             assert np.allclose(block_cv_beside(r, folds, Q[:, 5:5 + k]), expected, atol=1e-12)
 
+
 def test_trip_cv_fits_what_the_other_trips_determine_and_leaves_the_rest_at_zero():
     """Three trips; the model's own column g (a gain: the fuel itself) and a candidate x. Where x varies within every
     trip, each trip left out is predicted by the plain least-squares fit on the other two. Where x is one constant
