@@ -64,6 +64,29 @@ def test_a_memo_continues_a_fit_stopped_at_fewer_iterations_to_the_same_model_as
     assert served.info["starts"]["loss_V"]["effects added in turn"] <= warm.info["loss_V"]  # continued from it
 
 
+def test_a_memo_serves_a_fit_that_stopped_short_of_its_limit_for_any_limit_above_its_iterations():
+    """Levenberg–Marquardt's iterates do not depend on the limit: a fit that converged serves a longer one, and a fit
+    kept on its way at a checkpoint is the shorter one — each the same to the bit as a fit made alone."""
+    ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
+    base = identify_model(ds, hidden.PAPER)
+    memo = FitMemo()
+    converged = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=100, memo=memo)
+    assert converged.info["stop_reason"] != "max_iterations"
+    limit = converged.info["iterations"] + 1
+    served = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=limit, memo=memo)
+    alone = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=limit)
+    assert memo.made == 1 and np.array_equal(served.theta, alone.theta)
+    assert served.info["stopping"] == alone.info["stopping"]
+    assert served.info["loss_history"] == alone.info["loss_history"]
+
+    on_its_way = FitMemo(checkpoints=(3,))
+    whole = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=100, memo=on_its_way)
+    short = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=3, memo=on_its_way)
+    assert on_its_way.made == 2  # to the checkpoint, then on from it
+    assert np.array_equal(whole.theta, converged.theta) and whole.info["loss_history"] == converged.info["loss_history"]
+    assert np.array_equal(short.theta, refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=3).theta)
+
+
 # The initialisation's OE start as it is, and by LM alone (OE_LM_ITERATIONS = INIT_MAX_ITER: no variable projection),
 # which on the inertia's trips below falls into a poor local minimum: the second start is what keeps it out.
 OE_STARTS = pytest.mark.parametrize("lm_only", [False, True], ids=["oe_start", "oe_start_lm_only"])

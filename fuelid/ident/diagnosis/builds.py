@@ -5,11 +5,14 @@ diagnosis recommends on them (`BuiltCheck`).
 The diagnosis checks what it recommends on the model identify builds with it (selection, 5), and on a real engine
 those builds are most of its time (PEM from two starts, 70–80 parameters). It can tell early which it may need — the
 model with the engine's map term once that term's test rejects, the one with each effect forward selection accepts —
-and `ModelBuilds.ask` hands such a build to the worker, with the fits made here since (forward selection's
-warm-started refits, which the builds continue: ident.identify.FitMemo); the worker builds it while the diagnosis
-goes on testing and verifying, and `ModelBuilds.model` takes it when the diagnosis needs it. A model never asked for
-is built in the worker too when the worker built one with its leading effects (whose fits it is built through), else
-here, beside whatever the worker is doing. The worker skips an effect its own builds show will not be added (the
+and `ModelBuilds.ask` hands such a build to the worker; the worker builds it while the diagnosis goes on testing
+and verifying, and `ModelBuilds.model` takes it when the diagnosis needs it. The two processes share their PEM fits
+(ident.identify.FitMemo): each sends every fit it makes to the other, and each takes the other's before it makes one.
+So a fit is made once where the two need the same — forward selection's warm-started refit is the start of the build
+with its effect (the build continues it), and the build's own fit from that start, kept on its way at the refit's
+iteration limit (`checkpoints`), is that refit when the worker gets there first. A model never asked for is built in
+the worker too when the worker built one with its leading effects (whose fits it is built through), else here,
+beside whatever the worker is doing. The worker skips an effect its own builds show will not be added (the
 model built with it failed, or simulates the data worse than the one without: the test the diagnosis's `BuiltCheck.add`
 makes) and builds the model without it instead, which the diagnosis then asks for; if the diagnosis asks for the one
 skipped after all, it is built here. identify_model is deterministic and the worker runs the same code on the same
@@ -17,12 +20,14 @@ kernels on one BLAS thread (fuelid.blas), so a model built there is the one buil
 the same with a worker or without (`workers=0`, the fleet's jobs, which run one per core already). A build asked for
 in vain costs the worker's time only; the worker is stopped, whatever it is doing, on `close`.
 
-The worker is forked (multiprocessing's "fork") when the first build is asked for: it starts with the data as this
-process's pages, nothing pickled, and this process copies only the pages it writes afterwards. (Python 3.12 and
+The worker is forked (multiprocessing's "fork") when the first build is asked for: it starts with the data and the
+fits made so far as this process's pages, nothing pickled, and this process copies only the pages it writes
+afterwards; the fits made after go through the queues (a model and its search: tens of kilobytes). (Python 3.12 and
 later warn when a process with threads forks, OpenBLAS's among them; the worker takes no lock those threads hold.)
 """
 from __future__ import annotations
 
+import collections
 import multiprocessing
 import pickle
 import queue
@@ -51,17 +56,18 @@ class Skipped(RuntimeError):
 class ModelBuilds:
     """The models identify_model builds on dataset ds from `structure` (speed and torque inputs; the effects add
     theirs) plus given effects ("ID" or "ID=VALUE"; defined: the engineer's, ident.effectfile), with base the model of
-    `structure` without them (its second start), fits shared through one FitMemo (`memo`). workers: 1 to build those
-    asked for ahead in a worker process, 0 to build each here when taken. Use as a context manager, or `close`."""
+    `structure` without them (its second start), fits shared through one FitMemo (`memo`, with the worker's when there
+    is one; checkpoints: its `FitMemo.checkpoints`, and the worker's). workers: 1 to build those asked for ahead in a
+    worker process, 0 to build each here when taken. Use as a context manager, or `close`."""
 
-    def __init__(self, ds, structure: Structure, defined=(), base: PolyModel | None = None, workers: int = 0):
+    def __init__(self, ds, structure: Structure, defined=(), base: PolyModel | None = None, workers: int = 0,
+                 checkpoints=()):
         if workers not in (0, 1):
             raise ValueError(f"workers must be 0 or 1, got {workers}")
         self.ds, self.structure, self.defined, self.base = ds, structure, tuple(defined), base
-        self.memo = FitMemo()
+        self.memo = FitMemo(checkpoints, incoming=self._incoming, outgoing=self._outgoing)
         self._done: dict[tuple[str, ...], PolyModel | Exception] = {}
         self._asked: set[tuple[str, ...]] = set()  # what the worker has built or is building
-        self._sent: set = set()  # the fits of `memo` the worker has too
         self.ahead = bool(workers)  # whether builds asked for are built ahead in a worker process
         self._worker: _Worker | None = None  # started when first asked for a build: none where none is asked for
 
@@ -69,12 +75,20 @@ class ModelBuilds:
         """Start building the model with `effects` in the worker, if there is one and it was not asked for yet."""
         key = tuple(effects)
         if self.ahead and key not in self._done and key not in self._asked:
-            if self._worker is None:
-                self._worker = _Worker(self.ds, self.structure, self.defined, self.base)
-            fits = [(k, fit) for k, fit in self.memo.items() if k not in self._sent]  # e.g. the warm-started refits,
-            self._sent.update(k for k, _ in fits)  # which the builds continue (ident.identify.FitMemo)
-            self._worker.submit(key, fits)
+            if self._worker is None:  # it starts with the fits made here so far; those made later are sent
+                self._worker = _Worker(self.ds, self.structure, self.defined, self.base, self.memo.items(),
+                                       self.memo.checkpoints)
+            self._worker.submit(key)
             self._asked.add(key)
+
+    def _incoming(self) -> list:
+        """The fits the worker made since this was last called (`FitMemo.incoming`)."""
+        return self._worker.fits() if self._worker is not None else []
+
+    def _outgoing(self, fits) -> None:
+        """Send the fits made here to the worker, if there is one (`FitMemo.outgoing`)."""
+        if self._worker is not None:
+            self._worker.share(fits)
 
     def model(self, effects) -> PolyModel:
         """The model with `effects`: the worker's when asked for, or when the worker built a model with its leading
@@ -104,10 +118,8 @@ class ModelBuilds:
             return self.build(key)
 
     def build(self, effects) -> PolyModel:
-        """identify_model's model with `effects`, built here (on one BLAS thread, as in the diagnosis)."""
-        with one_blas_thread():
-            return identify_model(self.ds, self.structure, list(effects), defined=self.defined, base=self.base,
-                                  memo=self.memo)
+        """identify_model's model with `effects`, built here (`_built`)."""
+        return _built(self.ds, self.structure, effects, self.defined, self.base, self.memo)
 
     def close(self) -> None:
         """Stop the worker, whatever it is building; builds asked for after are built here."""
@@ -123,31 +135,58 @@ class ModelBuilds:
         self.close()
 
 
-class _Worker:
-    """One forked process building models in the order asked (`_serve`): tasks go through a queue whose feeder
-    thread never blocks this process, results come back in order."""
+def _built(ds, structure: Structure, effects, defined, base: PolyModel | None, memo: FitMemo) -> PolyModel:
+    """identify_model's model with `effects` on ds, on one BLAS thread (as in the diagnosis), fits through memo."""
+    with one_blas_thread():
+        return identify_model(ds, structure, list(effects), defined=defined, base=base, memo=memo)
 
-    def __init__(self, ds, structure: Structure, defined, base: PolyModel | None):
+
+class _Worker:
+    """One forked process building models in the order asked (`_serve`), started with the fits `fits` (FitMemo
+    items). Messages go both ways through queues whose feeder threads never block the sender: ("build", key) and
+    ("fits", items) to the worker, ("built", (key, outcome)) and ("fits", items) back; outcomes come back in order."""
+
+    def __init__(self, ds, structure: Structure, defined, base: PolyModel | None, fits, checkpoints):
         self._tasks, self._results = _CONTEXT.Queue(), _CONTEXT.Queue()
-        self.process = _CONTEXT.Process(target=_serve, args=(self._tasks, self._results, ds, structure, defined, base),
-                                        daemon=True)
+        self.process = _CONTEXT.Process(target=_serve, args=(self._tasks, self._results, ds, structure, defined, base,
+                                                             fits, checkpoints), daemon=True)
         self.process.start()
         self._outcomes: dict[tuple[str, ...], tuple[bool, object]] = {}
+        self._fits: list = []  # received, not yet taken (`fits`)
 
-    def submit(self, key: tuple[str, ...], fits) -> None:
-        self._tasks.put((key, fits))
+    def submit(self, key: tuple[str, ...]) -> None:
+        self._tasks.put(("build", key))
+
+    def share(self, fits) -> None:
+        self._tasks.put(("fits", fits))
+
+    def _take(self, message) -> None:
+        kind, payload = message
+        if kind == "fits":
+            self._fits.extend(payload)
+        else:
+            done, outcome = payload
+            self._outcomes[done] = outcome
+
+    def fits(self) -> list:
+        """The fits the worker sent since the last call (those already here: this never waits)."""
+        while True:
+            try:
+                self._take(self._results.get_nowait())
+            except queue.Empty:
+                break
+        fits, self._fits = self._fits, []
+        return fits
 
     def result(self, key: tuple[str, ...]) -> PolyModel:
         """The model built for key (asked for by `submit`, or built instead of one asked for), or what its build
         raised; Skipped when the worker built another instead, WorkerLost if the process ended first."""
         while key not in self._outcomes:
             try:
-                done, outcome = self._results.get(timeout=POLL_S)
+                self._take(self._results.get(timeout=POLL_S))
             except queue.Empty:
                 if not self.process.is_alive():
                     raise WorkerLost(f"the worker process ended (exit code {self.process.exitcode})") from None
-                continue
-            self._outcomes[done] = outcome
         ok, value = self._outcomes.pop(key)
         if ok is None:
             raise Skipped(f"built {list(value)} instead of {list(key)}")
@@ -204,11 +243,12 @@ class BuiltCheck:
     the model diagnosed), kept with its RMS simulation error [output unit] on those data: the diagnosis's
     built-model check (selection, 5)."""
 
-    def __init__(self, model: PolyModel, ds, effects=(), workers: int = 0):
+    def __init__(self, model: PolyModel, ds, effects=(), workers: int = 0, checkpoints=()):
         self.specs, self.rmse = list(model.effects), None
         # its second start (identify_model) is the model diagnosed, when that is one; the model with E + [c] is built
         # through the fits of E's: fitted once
-        self.builds = ModelBuilds(ds, _own_structure(model), effects, model if not model.effects else None, workers)
+        self.builds = ModelBuilds(ds, _own_structure(model), effects, model if not model.effects else None, workers,
+                                  checkpoints)
         self.memo = self.builds.memo
         self._expected: list[str] = []  # the effects expected to be added, in the order `add` will take them
 
@@ -280,30 +320,53 @@ class BuiltCheck:
         self.rmse = None
 
 
-def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | None) -> None:
+def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | None, fits, checkpoints) -> None:
     """The worker: build each model asked for, in order, once — or, for one with an effect its builds show will not
-    be added (`likely_added`), the model without it — and send it (or what its build raised) back."""
+    be added (`likely_added`), the model without it — and send it (or what its build raised) back; its fits go back as
+    it makes them, and it takes the diagnosis's before it makes one (`_Worker`'s messages)."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # not the forking process's handler: a SIGTERM ends the worker
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the diagnosis's to handle; it stops the worker
-    builds = ModelBuilds(ds, structure, defined, base)
+    asked: collections.deque[tuple[str, ...]] = collections.deque()  # builds received, not yet made
+
+    def take(message) -> list:
+        """The fits of a message; a build asked for joins `asked`."""
+        kind, payload = message
+        if kind == "build":
+            asked.append(payload)
+            return []
+        return payload
+
+    def incoming() -> list:
+        received = []
+        while True:
+            try:
+                received += take(tasks.get_nowait())
+            except queue.Empty:
+                return received
+
+    memo = FitMemo(checkpoints, incoming=incoming, outgoing=lambda made: results.put(("fits", made)))
+    memo.update(fits)
     rmse: dict[tuple[str, ...], float | None] = {}  # of each model built here [output unit]; None: its build failed
     while True:
-        key, fits = tasks.get()
-        builds.memo.update(fits)
+        if not asked:
+            memo.update(take(tasks.get()))
+            continue
+        key = asked.popleft()
         if key in rmse:  # built instead of another, and sent then
             continue
         likely = likely_added(key, rmse)
         if likely != key:
-            results.put((key, (None, likely)))
+            results.put(("built", (key, (None, likely))))
             if likely in rmse:
                 continue
         try:
-            model = builds.build(likely)
+            model = _built(ds, structure, likely, defined, base, memo)
             rmse[likely] = model.validation["rmse"]["simulation"]
-            results.put((likely, (True, model)))
+            outcome = (True, model)
         except Exception as exc:  # noqa: BLE001 — raised in the diagnosis, where it is handled or is a bug
             rmse[likely] = None
-            results.put((likely, (False, exc if _picklable(exc) else RuntimeError(f"in the worker process: {exc!r}"))))
+            outcome = (False, exc if _picklable(exc) else RuntimeError(f"in the worker process: {exc!r}"))
+        results.put(("built", (likely, outcome)))
 
 
 def _picklable(exc: Exception) -> bool:

@@ -39,7 +39,7 @@ from fuelid.ident.diagnosis.recommendation import NOT_RECOMMENDED, accepted_give
     found_given_added, given_not_added, not_recommended, only_the_warm_refit_worse, priority, refit_verified, \
     why_built_worse, why_never_added, why_not_confirmed, why_refit_not_verified
 from fuelid.ident.diagnosis.run import Run, run_gradients
-from fuelid.ident.diagnosis.selection import select_forward, why_left_at_the_stop
+from fuelid.ident.diagnosis.selection import REFIT_MAX_ITER, select_forward, why_left_at_the_stop
 from fuelid.ident.diagnosis.verification import Baseline, baseline
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.polymodel import PolyModel
@@ -175,7 +175,8 @@ def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_
     mrun = run_model(model, ds)
     run = run_gradients(mrun)
     # what is recommended is verified on the model identify builds (selection, 5)
-    built = BuiltCheck(model, ds, effects, workers)
+    # its fits are kept at the warm-started refits' limit on their way: that refit, where forward selection needs it
+    built = BuiltCheck(model, ds, effects, workers, checkpoints=(REFIT_MAX_ITER,))
     try:
         return _diagnosed(model, ds, mrun, run, built, candidates, alpha, n_verify, min_effect_percent,
                           min_drop_percent, effects)

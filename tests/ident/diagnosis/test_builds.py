@@ -9,7 +9,7 @@ import pytest
 
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis.builds import ModelBuilds, likely_added, simulates_worse
-from fuelid.ident.identify import identify_model
+from fuelid.ident.identify import identify_model, refit_with_effects
 from tests.ident import hidden
 
 
@@ -22,16 +22,39 @@ def test_a_model_built_in_the_worker_is_the_one_identify_builds(ds):
     with ModelBuilds(ds, hidden.STRUCTURE, workers=1) as builds:
         builds.ask(["dpf_regeneration"])
         ahead = builds.model(["dpf_regeneration"])
-        assert builds.model(["dpf_regeneration"]) is ahead and len(builds.memo) == 0  # built once, in the worker
+        assert builds.model(["dpf_regeneration"]) is ahead and builds.memo.made == 0  # built once, in the worker
         # never asked for, but built through the fits of the one with the regeneration: in the worker too
         after = builds.model(["dpf_regeneration", "inertia"])
-        assert len(builds.memo) == 0
-        here = builds.model([])  # never asked for, and nothing to build it through: built here
-        assert len(builds.memo) == 1
+        assert builds.memo.made == 0
+        # never asked for, and nothing to build it through: built here, of the fit the worker made as the others'
+        # start (the model without effects), which it sent
+        here = builds.model([])
+        assert builds.memo.made == 0 and len(builds.memo) > 0
     for built, effects in ((ahead, ["dpf_regeneration"]), (after, ["dpf_regeneration", "inertia"]), (here, [])):
         expected = identify_model(ds, hidden.STRUCTURE, effects)
         assert np.array_equal(built.theta, expected.theta)
         assert built.validation == expected.validation and built.effects == expected.effects
+
+
+def test_the_diagnosis_and_its_worker_make_each_fit_once(ds):
+    """Forward selection's warm-started refit (here 3 iterations) is the start of the worker's build with its effect,
+    which continues it; and the worker's own fit from that start, kept on its way at the refit's limit
+    (checkpoints), is the refit asked for here after it. The same models, to the bit, as made apart."""
+    base = identify_model(ds, hidden.STRUCTURE)
+    with ModelBuilds(ds, hidden.STRUCTURE, base=base, workers=1, checkpoints=(3,)) as builds:
+        warm = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=3, memo=builds.memo)
+        assert builds.memo.made == 1
+        builds.ask(["dpf_regeneration"])  # the worker continues the refit
+        built = builds.model(["dpf_regeneration"])
+        builds.ask(["inertia"])
+        builds.model(["inertia"])
+        # the worker's fit from this refit's start, kept at 3 iterations or stopped before
+        again = refit_with_effects(base, ds, ["inertia"], max_iter=3, memo=builds.memo)
+        assert builds.memo.made == 1
+    assert warm.info["stop_reason"] == "max_iterations"  # so the worker's build went on from it
+    expected = identify_model(ds, hidden.STRUCTURE, ["dpf_regeneration"], base=base)
+    assert np.array_equal(built.theta, expected.theta) and built.info["starts"] == expected.info["starts"]
+    assert np.array_equal(again.theta, refit_with_effects(base, ds, ["inertia"], max_iter=3).theta)
 
 
 def test_without_a_worker_each_model_is_built_when_taken(ds):
