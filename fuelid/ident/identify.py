@@ -124,8 +124,8 @@ class FitMemo:
         return made
 
     def _stopped_before(self, key: bytes, limit: int) -> tuple[PolyModel, LMResult] | None:
-        """The fit (model, search) to `limit` iterations that a kept fit of key which stopped before its own limit,
-        after fewer iterations than `limit`, is (recorded with that limit); None when none is kept."""
+        """A kept fit (model, search) of key that stopped before its own limit, after fewer iterations than `limit`,
+        as the fit to `limit` (the same search, its model's info["stopping"] saying `limit`); None when none is."""
         for (k, _), (model, search) in self._fits.items():
             if k == key and search.reason != "max_iterations" and search.iterations < limit:
                 info = {**model.info, "stopping": {**model.info["stopping"], "max_iter": limit}}
