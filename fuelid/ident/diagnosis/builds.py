@@ -170,11 +170,8 @@ class _Worker:
 
     def fits(self) -> list:
         """The fits the worker sent since the last call (those already here: this never waits)."""
-        while True:
-            try:
-                self._take(self._results.get_nowait())
-            except queue.Empty:
-                break
+        for message in _waiting(self._results):
+            self._take(message)
         fits, self._fits = self._fits, []
         return fits
 
@@ -337,12 +334,7 @@ def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | 
         return payload
 
     def incoming() -> list:
-        received = []
-        while True:
-            try:
-                received += take(tasks.get_nowait())
-            except queue.Empty:
-                return received
+        return [fit for message in _waiting(tasks) for fit in take(message)]
 
     memo = FitMemo(checkpoints, incoming=incoming, outgoing=lambda made: results.put(("fits", made)))
     memo.update(fits)
@@ -367,6 +359,16 @@ def _serve(tasks, results, ds, structure: Structure, defined, base: PolyModel | 
             rmse[likely] = None
             outcome = (False, exc if _picklable(exc) else RuntimeError(f"in the worker process: {exc!r}"))
         results.put(("built", (likely, outcome)))
+
+
+def _waiting(q) -> list:
+    """The messages already on queue q, in order (this never waits)."""
+    messages = []
+    while True:
+        try:
+            messages.append(q.get_nowait())
+        except queue.Empty:
+            return messages
 
 
 def _picklable(exc: Exception) -> bool:
