@@ -16,7 +16,7 @@ speed-up goal with 2 workers on a 2-core machine is ≥ 1.7×. Also printed: the
 seconds / (workers × refit wall time): below 100 % the workers waited for a core other work held), the
 control speed-up (as many tasks of fixed pure-Python work as trucks, run right after each refit on the same
 workers: the parallelism the machine itself gave at that moment), CPU seconds per hour of data, peak worker
-memory, MCAP bytes per hour — the inputs of docs/fleet-scaling.md — and the load average before and after
+memory, MCAP bytes per hour — the inputs of docs/install/fleet-scaling.md — and the load average before and after
 (other work on the machine makes the figures noisy).
 """
 import argparse

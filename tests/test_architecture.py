@@ -1,4 +1,4 @@
-"""The layers of docs/architecture.md, checked on the source: every module under fuelid/ is parsed with `ast`
+"""The layers of docs/dev/architecture.md, checked on the source: every module under fuelid/ is parsed with `ast`
 (imports at the top of a file and inside functions alike) and the module graph built from it must satisfy
 
 - the layers import downwards only (foundation → dbc → logger → ident → fleet; sim beside, over the logger);
@@ -151,7 +151,7 @@ def test_logger_imports_nothing_from_ident():
         + "\n".join(bad)
 
 
-# Each layer (docs/architecture.md) and the layers it may import; the command line on top may import them all.
+# Each layer (docs/dev/architecture.md) and the layers it may import; the command line on top may import them all.
 FOUNDATION = {"fuelid", "fuelid.blas", "fuelid.errors", "fuelid.output", "fuelid.paths", "fuelid.progress"}
 LAYERS = {
     "foundation": set(),

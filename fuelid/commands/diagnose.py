@@ -24,7 +24,7 @@ def add_arguments(p):
                    help="smallest share of the simulation error [%%] an effect must explain to be named "
                         "(default 1; smaller ones are detectable but not worth an input)")
     p.add_argument("--effects-file", action="append", default=[], metavar="EFFECTS.toml",
-                   help="also test the effects defined in this file (docs/formats.md; docs/effects-example.toml); "
+                   help="also test the effects defined in this file (docs/reference/formats.md; docs/effects-example.toml); "
                         "repeatable")
     p.add_argument("--top", type=int, default=8, metavar="N", help="candidates shown in the report (default 8)")
     add_workers_argument(p)

@@ -26,7 +26,7 @@ def add_arguments(p):
                    help="add a physical effect as extra input (ids as in `fuelid diagnose`; fuel_delay=SECONDS); "
                         "repeatable")
     p.add_argument("--effects-file", action="append", default=[], metavar="EFFECTS.toml",
-                   help="effects you define (docs/formats.md): --effect ID may name them; the model carries their "
+                   help="effects you define (docs/reference/formats.md): --effect ID may name them; the model carries their "
                         "definitions; repeatable")
     p.add_argument("--effects-from", metavar="DIAGNOSIS.json",
                    help="also add every effect named significant in a saved `fuelid diagnose --json` result")

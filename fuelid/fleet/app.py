@@ -1,7 +1,7 @@
 """The fleet server's HTTP API (FastAPI; OpenAPI description at /openapi.json, docs at /docs).
 
 All endpoints are under /api/v1 and take `Authorization: Bearer <token>` (fleet.auth). Missing or unknown
-token → 401; a role not allowed → 403. Upload protocol: fuelid/logger/upload.py and docs/fleet-api.md.
+token → 401; a role not allowed → 403. Upload protocol: fuelid/logger/upload.py and docs/reference/fleet-api.md.
 """
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Identification data from logged J1939/FMS records: paper 000, Section III (preprocessing).
 
-`build_dataset` turns decoded MCAP records (`/j1939/<MESSAGE>` and `/flowmeter`, see docs/formats.md) into a
+`build_dataset` turns decoded MCAP records (`/j1939/<MESSAGE>` and `/flowmeter`, see docs/reference/formats.md) into a
 `Dataset` on a regular grid of Ts seconds (paper: 0.3 s):
 
 inputs   u[:, 0] engine speed [rpm]   = EEC1.EngSpeed (SPN 190)

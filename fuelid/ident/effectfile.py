@@ -1,6 +1,6 @@
 """Effects the engineer defines: a small TOML file that describes a physical effect fuelid's catalogue
 (ident.effects) lacks, in the catalogue's own terms, so `fuelid diagnose --effects-file F` tests it beside the
-built-in ones and `fuelid identify --effects-file F --effect ID` adds it. docs/formats.md gives the format,
+built-in ones and `fuelid identify --effects-file F --effect ID` adds it. docs/reference/formats.md gives the format,
 docs/effects-example.toml an example.
 
     [[effect]]

@@ -1,7 +1,7 @@
 """J1939 message columns: what a file's decoded channels hold, in a form that reads without JSON.
 
 `fuelid convert` and the logger daemon write, beside the `/j1939/<MESSAGE>` and `/flowmeter` JSON channels,
-MCAP attachments named `fuelid.columns` (media type `application/x.fuelid.columns+npz+zstd`, docs/formats.md): each a zstd-compressed
+MCAP attachments named `fuelid.columns` (media type `application/x.fuelid.columns+npz+zstd`, docs/reference/formats.md): each a zstd-compressed
 `.npz` of one block of up to `BLOCK_ROWS` rows, every row one message written to those channels, numbered in
 write order (`seq`):
 

@@ -1,4 +1,4 @@
-"""The logger daemon's configuration: a TOML file (example in docs/raspberry-pi.md), command-line overrides."""
+"""The logger daemon's configuration: a TOML file (example in docs/install/in-cab-logger.md), command-line overrides."""
 from __future__ import annotations
 
 import os

@@ -81,7 +81,7 @@ class Decoded:
     """``"bam"`` or ``"rts"`` when the payload was reassembled by the transport protocol."""
 
     def to_record(self) -> dict[str, Any]:
-        """The ``/j1939/<name>`` JSON record of docs/formats.md."""
+        """The ``/j1939/<name>`` JSON record of docs/reference/formats.md."""
         record = {"t": self.t, "pgn": self.pgn, "sa": self.sa, "da": self.da, **self.values,
                   "invalid": self.invalid}
         if self.tp is not None:

@@ -1,7 +1,7 @@
 """The gas-flow meter: its serial line protocol, calibration, reader and capture files.
 
 A thermal mass-flow meter (2.5–125 kg/h, ±2 % of full scale, 0–10 V output) feeds an ADC data logger that
-sends one ASCII reading per line over a serial port (docs/formats.md, "Flow-meter serial line protocol"):
+sends one ASCII reading per line over a serial port (docs/reference/formats.md, "Flow-meter serial line protocol"):
 
     [<device_time_s>,]<volts>
 
@@ -75,7 +75,7 @@ class FlowReading:
     raw: str
 
     def to_record(self) -> dict:
-        """The `/flowmeter` MCAP message (docs/formats.md)."""
+        """The `/flowmeter` MCAP message (docs/reference/formats.md)."""
         return dataclasses.asdict(self)
 
 

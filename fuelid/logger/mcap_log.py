@@ -3,7 +3,7 @@
 `McapLogWriter` writes; `read_messages` and `read_metadata` read complete files chunk by chunk (found through
 their chunk index, or in converted files, which have none, by walking the data section) and truncated ones
 (power cut before `close()`) by a sequential scan that stops at the last complete chunk; `recover` rewrites a
-truncated file as a valid indexed one. Channel and record layout: docs/formats.md.
+truncated file as a valid indexed one. Channel and record layout: docs/reference/formats.md.
 """
 from __future__ import annotations
 

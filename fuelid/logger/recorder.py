@@ -1,7 +1,7 @@
 """The one decode-and-write path: CAN frames (and flow-meter readings) in, MCAP channels out.
 
 `fuelid convert` drives a Recorder from recorded files, the daemon from a live `can.Notifier`; both write the
-same channels (docs/formats.md), so a replayed log and its conversion hold identical decoded values.
+same channels (docs/reference/formats.md), so a replayed log and its conversion hold identical decoded values.
 """
 import hashlib
 from collections import Counter

@@ -1,6 +1,6 @@
 """Uploading closed MCAP files to the fleet server: the HTTP protocol client and the daemon's upload queue.
 
-Protocol (docs/fleet-api.md): files are addressed by their sha256. `GET /api/v1/uploads/{sha256}?size=N` tells
+Protocol (docs/reference/fleet-api.md): files are addressed by their sha256. `GET /api/v1/uploads/{sha256}?size=N` tells
 how many bytes of that file the server already holds (`offset`) or that it is `stored`; each
 `PUT /api/v1/uploads/{sha256}?size=N&offset=K` appends the body at byte K and answers 202 with the new offset,
 201 once the whole file arrived and passed the server's checks (hash, MCAP, truck), or 200 when the file was

@@ -1,4 +1,4 @@
-"""The gas truck's thermal mass-flow meter and its ADC data logger (docs/formats.md, flow-meter protocol).
+"""The gas truck's thermal mass-flow meter and its ADC data logger (docs/reference/formats.md, flow-meter protocol).
 
     volts = clip((f (1 + g) + b + ε) / 12.5 kg/h/V, 0, 10.2 V), quantised to the 12-bit ADC step
 

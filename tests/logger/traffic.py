@@ -66,7 +66,7 @@ def write_candump(path: Path, duration_s: float, t0: float = 1_700_000_000.0) ->
 
 
 def write_capture(path: Path, duration_s: float, t0: float = 1_700_000_000.0, period_s: float = 0.1) -> int:
-    """A flow-meter capture (docs/formats.md) at 10 readings/s, one garbage line among them; returns lines."""
+    """A flow-meter capture (docs/reference/formats.md) at 10 readings/s, one garbage line among them; returns lines."""
     lines = ["# fuelid flowmeter capture v1"]
     n = int(duration_s / period_s)
     for k in range(n):
