@@ -38,13 +38,48 @@ COMMANDS = {
 }
 
 
+# command -> the documentation page of its task (every `--help` ends with it)
+GUIDES = {
+    "convert": "docs/guide/log-and-convert.md",
+    "recover": "docs/guide/log-and-convert.md",
+    "log": "docs/guide/log-and-convert.md",
+    "status": "docs/install/in-cab-logger.md",
+    "replay": "docs/guide/log-and-convert.md",
+    "simulate": "docs/guide/simulator.md",
+    "dataset": "docs/guide/identify-and-compare.md",
+    "identify": "docs/guide/identify-and-compare.md",
+    "compare": "docs/guide/identify-and-compare.md",
+    "diagnose": "docs/guide/diagnose.md",
+    "report": "docs/guide/report.md",
+    "export": "docs/guide/matlab-and-foxglove.md",
+    "online": "docs/guide/online.md",
+    "warmup": "docs/guide/online.md",
+    "serve": "docs/install/fleet-server.md",
+    "token": "docs/install/fleet-server.md",
+    "upload": "docs/install/fleet-server.md",
+    "trucks": "docs/install/fleet-server.md",
+    "fetch": "docs/install/fleet-server.md",
+    "refit": "docs/install/fleet-server.md",
+}
+REFERENCE = "docs/reference/cli.md"
+EXIT_CODES = "exit status: 0 done, 1 error (one line on stderr), 2 wrong usage, 130 interrupted"
+
+
+def epilog(command: str | None = None) -> str:
+    """The last lines of a `--help`: where the command's guide is (paths in the fuelid source tree)."""
+    if command is None:
+        return f"Start with README.md; every command and option: {REFERENCE}. {EXIT_CODES}."
+    return f"Guide: {GUIDES[command]}; every option: {REFERENCE}."
+
+
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     """The parser for `argv`: only the named command's module is imported (none for the overview help)."""
-    parser = argparse.ArgumentParser(prog="fuelid", description="Truck CAN logger and fuel-flow model identification.")
+    parser = argparse.ArgumentParser(prog="fuelid", description="Truck CAN logger and fuel-flow model identification.",
+                                     epilog=epilog())
     parser.add_argument("--version", action="version", version=f"fuelid {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, summary in COMMANDS.items():
-        p = sub.add_parser(name, help=summary, description=summary)
+        p = sub.add_parser(name, help=summary, description=summary, epilog=epilog(name))
         if name in argv[:1]:
             module = importlib.import_module(f"fuelid.commands.{name}")
             module.add_arguments(p)

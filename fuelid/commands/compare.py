@@ -20,8 +20,9 @@ def add_arguments(p):
                    help="model files (*.json) and MCAP recordings (anything else), in any order")
     p.add_argument("--horizon", type=int, default=1, metavar="K", help="prediction horizon [samples] (default 1)")
     p.add_argument("--baselines", default="map", metavar="LIST",
-                   help="comma-separated static baselines: map (paper 000's steady-state engine map), vb, eb, "
-                        "ebstar (paper 001's locally weighted regressions in vehicle and engine coordinates and "
+                   help="comma-separated static baselines: map (the steady-state engine map of "
+                        "Madhusudhanan et al.), vb, eb, ebstar (the hub-dyno study's locally weighted regressions in "
+                        "vehicle and engine coordinates and "
                         "with the inertia term; they add its fuel-shift and J1 sweeps; ~10-60 s) (default: map)")
     p.add_argument("--map-from", nargs="+", metavar="DATA.mcap", default=[],
                    help="build the baselines from these recordings (e.g. the identification trip; default: from "

@@ -12,13 +12,13 @@ from fuelid.output import print_json
 def add_dataset_arguments(p):
     """The data-set options shared by the commands that read recordings into a Dataset."""
     p.add_argument("--ts", type=float, metavar="S",
-                   help="sampling interval [s] (default 0.3, the paper's; compare: the model's)")
+                   help="sampling interval [s] (default 0.3, as Madhusudhanan et al.; compare: the model's)")
     p.add_argument("--fuel", choices=["auto", "flowmeter", "lfe1"], default="auto",
                    help="output signal: the flow meter [kg/h], LFE1 fuel rate [L/h], or auto (meter when logged)")
     p.add_argument("--max-gap", type=float, default=1.0, metavar="S",
                    help="longest gap [s] a signal is held over; longer gaps split the data (default 1)")
     p.add_argument("--cycle", type=float, default=1800.0, metavar="S",
-                   help="drive-cycle length [s] for the cumulative fuel error (default 1800, the paper's 30 min)")
+                   help="drive-cycle length [s] for the cumulative fuel error (default 1800, the 30 min of Madhusudhanan et al.'s Table I)")
     p.add_argument("--skip-damaged", action="store_true",
                    help="leave out chunks of a recording that fail their CRC (a gap, listed in the warnings) "
                         "instead of stopping with an error")

@@ -38,8 +38,8 @@ def add_workers_argument(p):
     p.add_argument("--workers", type=int, choices=(0, 1), default=default,
                    help="1: build the models `fuelid identify --effects-from` would build (on which what is "
                         "recommended is checked) ahead, in a worker process, while the diagnosis goes on; 0: build "
-                        f"each when needed, in this process; the same diagnosis either way (default {default} on "
-                        "this machine: 1 with two cores or more)")
+                        "each when needed, in this process; the same diagnosis either way (default 1 with two cores or "
+                        "more, else 0)")
 
 
 def plural(n: int, noun: str) -> str:

@@ -15,8 +15,8 @@ from fuelid.ident.orders import search_dataset_orders
 from fuelid.ident.polymodel import Structure, parse_orders
 from fuelid.output import print_json
 
-ORDERS_HELP = ("model orders: 'paper' (Gw nb=4 nf=5 nk=3, GT nb=5 nf=5 nk=0, C and D order 11), 'auto' (order "
-               "search), or a SPEC 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11' (per-input lists for nb, nf, nk; "
+ORDERS_HELP = ("model orders: 'paper' (Madhusudhanan et al.'s: Gw nb=4 nf=5 nk=3, GT nb=5 nf=5 nk=0, C and D "
+               "order 11), 'auto' (order search), or a SPEC 'nb=4,5;nf=5,5;nk=3,0;nc=11;nd=11' (per-input lists for nb, nf, nk; "
                "nc, nd, na single numbers, 0 when left out)")
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings to identify on")
@@ -29,7 +29,8 @@ def add_arguments(p):
                    help="effects you define (docs/reference/formats.md): --effect ID may name them; the model carries their "
                         "definitions; repeatable")
     p.add_argument("--effects-from", metavar="DIAGNOSIS.json",
-                   help="also add every effect named significant in a saved `fuelid diagnose --json` result")
+                   help="also add every effect a saved `fuelid diagnose --json` result recommends (`recommended: true`; "
+                        "named but not recommended ones are left out)")
     p.add_argument("--min-segment", type=float, default=MIN_SEGMENT_S, metavar="S",
                    help=f"leave out valid stretches shorter than this [s] (default {MIN_SEGMENT_S:g})")
     add_dataset_arguments(p)

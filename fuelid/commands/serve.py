@@ -6,8 +6,9 @@ from fuelid.fleet.drift import parse_points
 
 
 def add_arguments(p):
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every "
+                        "interface, behind a TLS proxy)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port to listen on (default 8000)")
     p.add_argument("--data-dir", default="fleet-data", metavar="DIR",
                    help="stored files, job scratch and (unless --database-url) the SQLite database "
                         "(default ./fleet-data)")
@@ -36,7 +37,8 @@ def add_arguments(p):
                    help="flag a truck whose steady-state fuel moved more than PCT %% (and 2σ) since its first model "
                         "(default 5)")
     p.add_argument("--no-auto-refit", action="store_true", help="identify only when asked (refit)")
-    p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"],
+                   help="server log level (default info)")
 
 
 def run(args) -> int:

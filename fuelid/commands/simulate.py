@@ -17,21 +17,21 @@ STAGES = ("route", "drive", "engine", "fuel", "signals", "frames", "log", "truth
 
 def add_arguments(p):
     p.add_argument("--truth", default=None,
-                   help="fuel truth: diesel_p320 (default; alias paper_p320) or gas_p340, the seed paper's Box-Jenkins "
-                        "models; map, a VECTO engine's fuel map at the instantaneous speed and torque (--engine)")
+                   help="fuel truth: diesel_p320 (default; alias paper_p320) or gas_p340, the Box-Jenkins "
+                        "models of Madhusudhanan et al.'s appendix; map, a VECTO engine's fuel map at the instantaneous speed and torque (--engine)")
     p.add_argument("--engine", default="", metavar="ENGINE.veng|NAME",
                    help="engine set for --truth map: a VECTO .veng file (its .vmap/.vfld beside it) or a shipped "
                         "set's name (default vecto_325kW); implies --truth map when --truth is not given")
-    p.add_argument("--cycle", default="mixed", help="urban, rural, motorway or mixed (default)")
+    p.add_argument("--cycle", default="mixed", help="route: urban, rural, motorway or mixed (default mixed)")
     p.add_argument("--duration", type=float, default=1800.0, metavar="S", help="trip length [s] (default 1800)")
-    p.add_argument("--seed", type=int, default=1, help="random seed; same seed, same bytes (default 1)")
+    p.add_argument("--seed", type=int, default=1, help="random seed; the same seed gives the same bytes (default 1)")
     p.add_argument("--mass", type=float, default=40000.0, metavar="KG", help="gross mass [kg] (default 40000)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME[=MAGNITUDE]",
                    help="switch on a physical effect, repeatable; --list shows names, units and defaults")
-    p.add_argument("--ambient", type=float, default=12.0, metavar="DEGC", help="ambient temperature at the start")
-    p.add_argument("--ambient-drift", type=float, default=0.0, metavar="K", help="ambient change over the trip")
-    p.add_argument("--altitude", type=float, default=60.0, metavar="M", help="altitude at the start [m]")
-    p.add_argument("--hilliness", type=float, default=1.0, help="scale of the road grades (default 1)")
+    p.add_argument("--ambient", type=float, default=12.0, metavar="DEGC", help="ambient temperature at the start [°C] (default 12)")
+    p.add_argument("--ambient-drift", type=float, default=0.0, metavar="K", help="ambient temperature change over the trip [K] (default 0)")
+    p.add_argument("--altitude", type=float, default=60.0, metavar="M", help="altitude at the start [m] (default 60)")
+    p.add_argument("--hilliness", type=float, default=1.0, help="scale of the road grades [-] (default 1)")
     p.add_argument("-o", "--output", metavar="OUT.log.gz", help="log to write (.log or .log.gz); the truth files "
                    "(and the gas truck's .flow capture) go next to it")
     p.add_argument("--catalog", metavar="NAME", action="append", default=[],

@@ -6,7 +6,8 @@ from fuelid.output import print_json
 
 
 def add_arguments(p):
-    p.add_argument("action", choices=["create", "list", "revoke"])
+    p.add_argument("action", choices=["create", "list", "revoke"],
+                   help="create a token (prints its secret once), list the tokens, or revoke one")
     p.add_argument("token_id", nargs="?", type=int, metavar="ID", help="token to revoke")
     p.add_argument("--role", choices=["admin", "engineer", "truck"], help="role of the new token")
     p.add_argument("--truck", metavar="ID", help="the truck a truck token uploads for")
