@@ -38,7 +38,7 @@ def test_the_cli_reference_names_every_command_and_option():
     text = (ROOT / "docs" / "reference" / "cli.md").read_text()
     for name, parser in make_cli().subcommand_parsers().items():
         section = text.split(f"\n## fuelid {name}\n")[1].split("\n## ")[0]
-        for action in parser._actions:
+        for action in parser._actions[1:]:  # after --help
             for option in action.option_strings:
                 assert f"`{option}`" in section, (name, option)
             assert action.help, f"fuelid {name}: {action.option_strings or action.dest} has no help text"
