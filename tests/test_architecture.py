@@ -45,6 +45,7 @@ LAZY_IMPORTS = {
     "fuelid.fleet.console": "FastAPI (optional extra [fleet]): `fuelid serve` only",
     "fuelid.fleet.auth": "SQLAlchemy (optional extra [fleet]): `fuelid token` offline only",
     "fuelid.fleet.db": "SQLAlchemy (optional extra [fleet]): `fuelid token` offline only",
+    "fuelid.fleet.limits": "uvicorn (optional extra [fleet]): `fuelid serve` only",
     "fuelid.fleet.jobs": "Dask and the identification stack (numba, SciPy): on the workers, not the server",
     "fuelid.ident.rpem": "numba-compiled (seconds to load in the cab): with an estimator, not with ident.live",
     "fuelid.ident.kalman": "numba-compiled (as ident.rpem)",

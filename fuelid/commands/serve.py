@@ -5,6 +5,10 @@ from fuelid.errors import FuelidError
 from fuelid.fleet.drift import parse_points
 
 
+def octal(text: str) -> int:
+    return int(text, 8)
+
+
 def add_arguments(p):
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every "
                         "interface, behind a TLS proxy)")
@@ -36,6 +40,24 @@ def add_arguments(p):
     p.add_argument("--drift-threshold", type=float, default=5.0, metavar="PCT",
                    help="flag a truck whose steady-state fuel moved more than PCT %% (and 2σ) since its first model "
                         "(default 5)")
+    p.add_argument("--header-timeout", type=float, default=10.0, metavar="S",
+                   help="close a connection whose request line and headers are not all in S seconds after it "
+                        "opened (or after the next request's first byte) (default 10)")
+    p.add_argument("--body-idle-timeout", type=float, default=30.0, metavar="S",
+                   help="answer 408 and close when a request body brings no byte for S seconds; a stalled upload "
+                        "keeps what arrived and frees the file for the resume (default 30)")
+    p.add_argument("--request-timeout", type=float, default=600.0, metavar="S",
+                   help="answer 408 and close when a request body is not complete S seconds after its headers "
+                        "(default 600: an 8 MiB upload chunk at 14 kB/s)")
+    p.add_argument("--keep-alive", type=float, default=5.0, metavar="S",
+                   help="close a kept-alive connection silent for S seconds between requests (default 5; behind "
+                        "a reverse proxy, longer than the proxy's upstream keep-alive)")
+    p.add_argument("--max-connections", type=int, metavar="N",
+                   help="open connections at most; one more closes the one waiting longest for a request "
+                        "(default: three quarters of the open-file limit, `ulimit -n`)")
+    p.add_argument("--file-mode", type=octal, default=0o600, metavar="OCTAL",
+                   help="mode of the files the server creates in --data-dir; folders get the matching x bits "
+                        "(default 600: files 0600, folders 0700, owner only; 640 lets the group read)")
     p.add_argument("--no-auto-refit", action="store_true", help="identify only when asked (refit)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"],
                    help="server log level (default info)")
@@ -43,15 +65,21 @@ def add_arguments(p):
 
 def run(args) -> int:
     # the optional [fleet] extra (uvicorn, FastAPI): imported here so the rest of the CLI works without it
-    import uvicorn
-
     from fuelid.fleet.app import MiB, Settings, create_app
     from fuelid.fleet.console import ConsoleSettings
+    from fuelid.fleet.limits import Timeouts, run_server
 
     if min(args.max_upload_mb, args.refit_window_h, args.max_partial_uploads, args.partial_expiry_h,
-           args.max_partial_mb or 1, args.drift_threshold) <= 0:
-        raise FuelidError("--max-upload-mb, --refit-window-h, the partial-upload limits and --drift-threshold must "
-                          "be positive")
+           args.max_partial_mb or 1, args.drift_threshold, args.header_timeout, args.body_idle_timeout,
+           args.request_timeout, args.keep_alive, args.max_connections or 1) <= 0:
+        raise FuelidError("--max-upload-mb, --refit-window-h, the partial-upload limits, --drift-threshold, the "
+                          "timeouts and --max-connections must be positive")
+    if not 0 <= args.file_mode <= 0o777 or not args.file_mode & 0o600 == 0o600:
+        raise FuelidError(f"--file-mode {args.file_mode:o}: give permission bits (at most 777) that let the owner "
+                          "read and write, e.g. 600 or 640")
+    timeouts = Timeouts(header_s=args.header_timeout, body_idle_s=args.body_idle_timeout,
+                        request_s=args.request_timeout, keep_alive_s=args.keep_alive,
+                        max_connections=args.max_connections)
     try:
         console = ConsoleSettings(parse_points(args.reference_points), args.drift_threshold)
     except ValueError as exc:
@@ -61,10 +89,11 @@ def run(args) -> int:
                         workers=args.workers, refit_after_s=None if args.no_auto_refit else args.refit_after,
                         refit_window_s=args.refit_window_h * 3600.0, max_partial_uploads=args.max_partial_uploads,
                         max_partial_bytes=int(args.max_partial_mb * MiB) if args.max_partial_mb else None,
-                        partial_expiry_s=args.partial_expiry_h * 3600.0, console_settings=console)
+                        partial_expiry_s=args.partial_expiry_h * 3600.0, console_settings=console,
+                        timeouts=timeouts, file_mode=args.file_mode)
     try:
         app = create_app(settings)
     except Exception as exc:  # unreachable database, bad URL, unwritable data dir
         raise FuelidError(f"cannot start: {' '.join(str(exc).split())[:300]}") from exc
-    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level)
+    run_server(app, args.host, args.port, timeouts, args.log_level)
     return 0

@@ -31,10 +31,16 @@ def run(args) -> int:
     elif args.action == "list":
         for t in result:
             state = "revoked" if t["revoked_unix_s"] else "live"
-            print(f"{t['id']:>4} {t['role']:<9} {t['truck'] or '-':<20} {state:<8} {t['name']}")
+            print(f"{t['id']:>4} {t['role']:<9} {t['truck'] or '-':<20} {state:<8} {escaped(t['name'])}")
     else:
         print(f"token {args.token_id} revoked")
     return 0
+
+
+def escaped(text: str) -> str:
+    """`text` with every character a terminal could act on (control, bidi and other format characters) shown as
+    a \\uXXXX escape, and the backslash doubled, so a name from the server prints as what it is."""
+    return "".join(c if c.isprintable() else f"\\u{ord(c):04x}" for c in text.replace("\\", "\\\\"))
 
 
 def _offline(args):

@@ -26,8 +26,9 @@ def add_arguments(p):
     p.add_argument("files", nargs="+", metavar="FILE.mcap", help="closed (complete) MCAP recordings")
     add_server_arguments(p, "a truck token (or admin) (default: $FUELID_TOKEN)")
     p.add_argument("--truck", metavar="ID", help="refuse unless the file is this truck's (the server checks)")
-    p.add_argument("--retry-s", type=float, default=30.0, metavar="S",
-                   help="keep retrying an unreachable server or a cut upload for this long [s] (default 30)")
+    p.add_argument("--retry-s", type=float, default=120.0, metavar="S",
+                   help="keep retrying an unreachable or busy server, a file another request is uploading, or a "
+                        "cut upload for this long [s], with jittered exponential backoff up to 10 s (default 120)")
     p.add_argument("--json", action="store_true", help="print one result per file as JSON")
 
 

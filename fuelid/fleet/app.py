@@ -1,7 +1,10 @@
-"""The fleet server's HTTP API (FastAPI; OpenAPI description at /openapi.json, docs at /docs).
+"""The fleet server's HTTP API (FastAPI; OpenAPI description at /openapi.json; no /docs page, which would load
+Swagger UI from another origin).
 
 All endpoints are under /api/v1 and take `Authorization: Bearer <token>` (fleet.auth). Missing or unknown
-token → 401; a role not allowed → 403. Upload protocol: fuelid/logger/upload.py and docs/reference/fleet-api.md.
+token → 401; a role not allowed → 403. Every reply under /api/ and /openapi.json carries `Cache-Control:
+no-store`. Request bodies run under fleet.limits' deadlines. Upload protocol: fuelid/logger/upload.py and
+docs/reference/fleet-api.md.
 """
 from __future__ import annotations
 
@@ -23,8 +26,9 @@ from starlette.requests import ClientDisconnect
 
 from fuelid.errors import InputError
 from fuelid.fleet import auth, console, db
+from fuelid.fleet.limits import BodyDeadline, Timeouts
 from fuelid.fleet.refits import RefitManager, dask_runner_factory
-from fuelid.fleet.storage import HEX64, BlobStore, UploadRefused, inspect_mcap
+from fuelid.fleet.storage import FILE_MODE, HEX64, BlobStore, UploadRefused, inspect_mcap, make_dir, open_owned
 from fuelid import __version__
 
 log = logging.getLogger("fuelid.fleet")
@@ -40,7 +44,9 @@ class Settings:
     truck's newest recorded time a refit uses [s]. Partial uploads are bounded per uploader (the truck a
     token uploads for, or "admin"): at most `max_partial_uploads` files and `max_partial_bytes` (their bytes
     held plus the declared size of the one growing; default twice the upload limit), and deleted
-    `partial_expiry_s` [s] after their last byte arrived."""
+    `partial_expiry_s` [s] after their last byte arrived. `timeouts`: the client deadlines (fleet.limits; the
+    app applies the body deadlines); `file_mode`: the mode of every file the server creates in `data_dir`
+    (folders, `data_dir` included, get storage.dir_mode of it)."""
 
     data_dir: Path
     database_url: str | None = None
@@ -53,6 +59,8 @@ class Settings:
     max_partial_bytes: int | None = None
     partial_expiry_s: float = 7 * 24 * 3600.0
     console_settings: console.ConsoleSettings = field(default_factory=console.ConsoleSettings)  # reference points, drift threshold
+    timeouts: Timeouts = field(default_factory=Timeouts)
+    file_mode: int = FILE_MODE
 
 
 # --- response models (the OpenAPI description, checked by the schemathesis tests) ---
@@ -65,7 +73,7 @@ class Health(BaseModel):
 class TokenIn(BaseModel):
     role: Literal["admin", "engineer", "truck"]
     truck: str | None = Field(None, pattern=auth.TRUCK_PATTERN, description="required for role truck only")
-    name: str = Field("", max_length=200, description="who or what holds the token")
+    name: str = Field("", max_length=auth.NAME_MAX, description="who or what holds the token: printable text")
 
 
 class TokenInfo(BaseModel):
@@ -162,10 +170,9 @@ Sha256 = Annotated[str, PathParam(pattern=HEX64, description="sha256 of the whol
 
 def create_app(settings: Settings, runner_factory: Callable[[], object] | None = None) -> FastAPI:
     """The ASGI app. `runner_factory` makes the job runner (default: fleet.jobs.JobRunner on Dask)."""
-    data_dir = Path(settings.data_dir)
-    data_dir.mkdir(parents=True, exist_ok=True)
-    engine = db.open_database(data_dir, settings.database_url)
-    store = BlobStore(data_dir)
+    data_dir = make_dir(Path(settings.data_dir), settings.file_mode)
+    engine = db.open_database(data_dir, settings.database_url, settings.file_mode)
+    store = BlobStore(data_dir, settings.file_mode)
     swept = store.sweep(db.registered_hashes(engine))
     expired = store.expire_partials(settings.partial_expiry_s)
     interrupted = db.fail_interrupted_jobs(engine)
@@ -176,16 +183,17 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     refits = RefitManager(engine, store, data_dir / "jobs",
                           runner_factory or dask_runner_factory(settings.scheduler, settings.workers),
                           settings.refit_after_s, settings.refit_window_s)
-    upload_locks: dict[Path, asyncio.Lock] = {}
+    upload_locks: dict[Path, asyncio.Lock] = {}  # the partial uploads a request is appending to now
 
     @asynccontextmanager
     async def lifespan(_app):
         yield
         await run_in_threadpool(refits.close)  # stops the Dask cluster with the server
 
-    app = FastAPI(title="fuelid fleet", version=__version__, lifespan=lifespan,
+    app = FastAPI(title="fuelid fleet", version=__version__, lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="Truck MCAP uploads, per-truck fuel-model registry and identification jobs.")
     app.state.engine, app.state.store, app.state.refits = engine, store, refits
+    app.add_middleware(BodyDeadline, idle_s=settings.timeouts.body_idle_s, total_s=settings.timeouts.request_s)
 
     @app.exception_handler(RequestValidationError)
     async def one_line_validation_error(_request, exc: RequestValidationError):
@@ -203,12 +211,21 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     def role(*allowed: str):
         def check(who: auth.Principal = Depends(principal)) -> auth.Principal:
             if who.role not in allowed:
-                raise HTTPException(403, f"a {who.role} token may not do this (needs {' or '.join(allowed)})")
+                article = "an" if who.role[0] in "aeiou" else "a"
+                raise HTTPException(403, f"{article} {who.role} token may not do this (needs {' or '.join(allowed)})")
             return who
         return check
 
     admin, reader, uploader = role("admin"), role("admin", "engineer"), role("admin", "truck")
     console.mount(app, engine, store, settings.console_settings, reader, ERRORS)  # the engineer's page at / and its API
+
+    @app.middleware("http")
+    async def api_headers(request, call_next):
+        response = await call_next(request)
+        if request.url.path.startswith("/api/") or request.url.path == "/openapi.json":
+            response.headers["Cache-Control"] = "no-store"  # tokens, and data that is not the cache's to keep
+            response.headers["X-Content-Type-Options"] = "nosniff"
+        return response
 
     def known_truck(truck: str) -> None:
         if not db.truck_exists(engine, truck):
@@ -314,33 +331,55 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         the file is checked (sha256, complete MCAP, its truck) and stored: 201; or refused with nothing kept."""
         truck = claimed_truck(who, truck)
         check_size(size)
-        row = await run_in_threadpool(db.get_file, engine, sha256)
-        if row is not None:
-            return JSONResponse(stored_reply(row, truck, "already stored"), status_code=200)
         part = store.partial(sha256, truck or "admin")
-        await run_in_threadpool(check_partial_quota, part, truck or "admin", size)
-        lock = upload_locks.setdefault(part, asyncio.Lock())
-        if lock.locked():  # the same upload is still arriving on another connection
-            held = part.stat().st_size if part.exists() else 0
-            return _state(409, sha256, size, held, truck, "another request is uploading this file")
+        if stored := await already_stored(part, sha256, truck, holding=False):
+            return stored
+        if part in upload_locks:  # the same upload is still arriving on another connection
+            return _state(409, sha256, size, _held(part), truck, "another request is uploading this file; retry "
+                                                                 "later")
+        lock = upload_locks[part] = asyncio.Lock()  # never waited on: a second request gets the 409 above
         async with lock:
-            held = part.stat().st_size if part.exists() else 0
-            if offset != held:
-                return _state(409, sha256, size, held, truck, f"offset {offset} but the server holds {held} B")
             try:
-                held = await _receive(request, part, size - held)
-            except ClientDisconnect:  # what arrived stays for the resume
-                return _state(202, sha256, size, part.stat().st_size, truck, "partial")
-            except UploadRefused as exc:
-                raise HTTPException(exc.status, str(exc)) from None
-            if held < size:
-                return _state(202, sha256, size, held, truck, "partial")
-            try:
-                row = await run_in_threadpool(_store_upload, engine, store, part, sha256, truck, name)
-            except UploadRefused as exc:
-                raise HTTPException(exc.status, str(exc)) from None
+                return await receive_and_store(request, part, sha256, size, offset, truck, name)
             finally:
-                upload_locks.pop(part, None)
+                del upload_locks[part]
+
+    async def already_stored(part: Path, sha256: str, truck: str | None, holding: bool) -> JSONResponse | None:
+        """The 200 reply when `sha256` is stored, else None. The uploader's partial upload of it is dropped, unless
+        another request is appending to it (`holding`: the caller holds its lock)."""
+        row = await run_in_threadpool(db.get_file, engine, sha256)
+        if row is None:
+            return None
+        if holding or part not in upload_locks:
+            part.unlink(missing_ok=True)
+        return JSONResponse(stored_reply(row, truck, "already stored"), status_code=200)
+
+    async def receive_and_store(request: Request, part: Path, sha256: str, size: int, offset: int,
+                                truck: str | None, name: str | None):
+        """The upload under its lock: append the body, and store the file when complete. Every way out is a
+        documented reply: 200 stored meanwhile, 201, 202 partial, 409 offset, or a refusal keeping nothing."""
+        await run_in_threadpool(check_partial_quota, part, truck or "admin", size)
+        held = _held(part)
+        if offset != held:
+            return _state(409, sha256, size, held, truck, f"offset {offset} but the server holds {held} B")
+        try:
+            held = await _receive(request, part, size - held, store.file_mode)
+        except ClientDisconnect:  # what arrived stays for the resume
+            return _state(202, sha256, size, _held(part), truck, "partial")
+        except UploadRefused as exc:
+            raise HTTPException(exc.status, str(exc)) from None
+        if stored := await already_stored(part, sha256, truck, holding=True):  # another uploader finished it meanwhile
+            return stored
+        if held < size:
+            return _state(202, sha256, size, held, truck, "partial")
+        try:
+            row = await run_in_threadpool(_store_upload, engine, store, part, sha256, truck, name, set(upload_locks))
+        except UploadRefused as exc:
+            if stored := await already_stored(part, sha256, truck, holding=True):
+                return stored
+            if exc.status == 409:
+                return _state(409, sha256, size, _held(part), truck, str(exc))
+            raise HTTPException(exc.status, str(exc)) from None
         refits.data_arrived(row["truck"])
         return {**row, "status": "stored", "offset": size, "stored": True}
 
@@ -413,27 +452,58 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     return app
 
 
+def _held(part: Path) -> int:
+    """Bytes of a partial upload the server holds (0: none)."""
+    try:
+        return part.stat().st_size
+    except FileNotFoundError:
+        return 0
+
+
 def _state(status: int, sha256: str, size: int, offset: int, truck: str | None, detail: str) -> JSONResponse:
     return JSONResponse({"sha256": sha256, "size_bytes": size, "offset": offset, "stored": False,
                          "status": "partial", "truck": truck, "detail": detail}, status_code=status)
 
 
-async def _receive(request: Request, part: Path, room: int) -> int:
-    """Append the request body to `part` (at most `room` bytes; more → 413); return the bytes now held."""
-    with open(part, "ab") as f:
-        written = 0
+async def _receive(request: Request, part: Path, room: int, file_mode: int) -> int:
+    """Append the request body to `part`, created (with `file_mode`) at the body's first byte; return the bytes
+    `part` holds. A body running past `room` bytes is refused (413), a write failing (disk full) refused as 503
+    (retry later), and then the request's bytes are dropped: `part` is as before, or gone when it was empty.
+    A client disconnecting (ClientDisconnect) keeps what arrived."""
+    start, written, f = _held(part), 0, None
+    try:
         async for chunk in request.stream():
             written += len(chunk)
             if written > room:
-                f.truncate(f.tell())
                 raise UploadRefused(413, f"body runs {written - room}+ B past the declared size")
-            f.write(chunk)
-        f.flush()
-        return f.tell()
+            if chunk:
+                f = f or open_owned(part, file_mode)
+                f.write(chunk)
+                f.flush()
+    except (UploadRefused, OSError) as exc:
+        if f is not None:
+            f.truncate(start)
+            f.close()
+            f = None
+            if start == 0:
+                part.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise UploadRefused(503, f"the server cannot store the upload now ({exc.strerror}); retry later") \
+                from None
+        raise
+    finally:
+        if f is not None:
+            f.close()
+    return start + written
 
 
-def _store_upload(engine, store: BlobStore, part: Path, sha256: str, truck: str | None, name: str | None) -> dict:
-    """Check the complete partial upload and store it; on any refusal the partial file is deleted."""
+def _store_upload(engine, store: BlobStore, part: Path, sha256: str, truck: str | None, name: str | None,
+                  receiving: set[Path]) -> dict:
+    """Check the complete partial upload and store it; on any refusal the partial file is deleted. Other
+    uploaders' partial uploads of the same file go too, but those in `receiving` (their request drops them when
+    it ends). A partial upload gone meanwhile (expired, or the same file stored) is a 409 refusal."""
+    if not part.exists():
+        raise UploadRefused(409, "the partial upload is gone (expired or stored meanwhile); start again at 0")
     try:
         h = hashlib.sha256()
         with open(part, "rb") as f:
@@ -450,7 +520,8 @@ def _store_upload(engine, store: BlobStore, part: Path, sha256: str, truck: str 
         size = part.stat().st_size
         store.commit(part, sha256)
         for other in store.incoming.glob(f"{sha256}-*.part"):  # the same file half-sent by another uploader
-            other.unlink(missing_ok=True)
+            if other not in receiving:
+                other.unlink(missing_ok=True)
     except BaseException:
         part.unlink(missing_ok=True)
         raise

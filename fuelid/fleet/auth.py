@@ -23,6 +23,18 @@ ROLES = ("admin", "engineer", "truck")
 PREFIX = "fuelid_"
 # Truck ids appear in URLs and the registry: VINs and fleet numbers, never anything path-like.
 TRUCK_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+NAME_MAX = 200  # characters of a token's name
+
+
+def check_name(name: str) -> str:
+    """A token's name: at most NAME_MAX printable characters (str.isprintable: no control, format (bidi
+    overrides, zero-width), separator other than the space, or unassigned characters). InputError otherwise."""
+    if len(name) > NAME_MAX:
+        raise InputError(f"a token name has at most {NAME_MAX} characters, not {len(name)}")
+    bad = next((c for c in name if not c.isprintable()), None)
+    if bad is not None:
+        raise InputError(f"a token name is printable text: U+{ord(bad):04X} is not")
+    return name
 
 
 def valid_truck(truck: str) -> bool:
@@ -50,6 +62,7 @@ def create_token(engine: sa.Engine, role: str, truck: str | None = None, name: s
         raise InputError("a truck token needs a truck id, and only a truck token has one")
     if truck is not None and not valid_truck(truck):
         raise InputError(f"truck id {truck!r} must be 1-64 letters, digits, '.', '_' or '-'")
+    check_name(name)
     token = PREFIX + secrets.token_urlsafe(32)
     with engine.begin() as conn:
         token_id = conn.execute(db.tokens.insert().values(

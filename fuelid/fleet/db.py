@@ -9,6 +9,7 @@ Times are Unix seconds (float, `*_unix_s`); message times of files are nanosecon
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from sqlalchemy import event
 from sqlalchemy.dialects import postgresql, sqlite
 
 from fuelid.errors import InputError
+from fuelid.fleet.storage import FILE_MODE, make_dir
 
 metadata = sa.MetaData()
 
@@ -143,10 +145,18 @@ def migrate(engine: sa.Engine) -> int:
         return len(MIGRATIONS)
 
 
-def open_database(data_dir: str | Path | None = None, url: str | None = None) -> sa.Engine:
-    """Connect (creating `data_dir` for SQLite) and migrate."""
+def open_database(data_dir: str | Path | None = None, url: str | None = None,
+                  file_mode: int | None = None) -> sa.Engine:
+    """Connect and migrate. For SQLite in `data_dir`, a missing data_dir and fleet.db are created with
+    storage.dir_mode(mode) and the mode (default storage.FILE_MODE; SQLite gives its -wal and -shm files the
+    database file's mode); a `file_mode` given is also set on an existing fleet.db."""
     if not url and data_dir is not None:
-        Path(data_dir).mkdir(parents=True, exist_ok=True)
+        path = Path(data_dir) / "fleet.db"
+        if not path.parent.exists():
+            make_dir(path.parent, file_mode or FILE_MODE)
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT, file_mode or FILE_MODE))
+        if file_mode is not None:
+            os.chmod(path, file_mode)
     engine = connect(database_url(data_dir, url))
     migrate(engine)
     return engine

@@ -5,6 +5,8 @@ diagnosis.json, report.html) under its own hash, so no path ever comes from a re
 partial uploads (`<sha256>-<uploader key>.part`) until their last byte arrives. A finished upload is checked,
 fsync'd and renamed into `blobs/` in one step, and only then registered in the database, so a crash at any
 moment leaves either nothing visible or a complete file; `sweep` removes blobs a crash left unregistered.
+Every folder is created with `dir_mode(file_mode)` and every file with `file_mode` (default 0o600: the owner
+only), whatever the process umask.
 """
 from __future__ import annotations
 
@@ -20,6 +22,26 @@ from fuelid.logger.durable import fsync_path
 from fuelid.logger.mcap_log import MAGIC, METADATA_NAME, chunks_located, damaged_chunks
 
 HEX64 = r"^[0-9a-f]{64}$"
+FILE_MODE = 0o600
+
+
+def dir_mode(file_mode: int) -> int:
+    """The folder mode going with a file mode: each class that may read may also enter (0o600 → 0o700)."""
+    return file_mode | (file_mode & 0o444) >> 2
+
+
+def make_dir(path: Path, file_mode: int = FILE_MODE) -> Path:
+    """Create `path` (and missing parents) with dir_mode(file_mode), and set that mode on it if it exists."""
+    path.mkdir(parents=True, exist_ok=True, mode=dir_mode(file_mode))
+    os.chmod(path, dir_mode(file_mode))
+    return path
+
+
+def open_owned(path: Path, file_mode: int = FILE_MODE, append: bool = True):
+    """`path` opened to write bytes, created with `file_mode` when missing: appending, or else emptied first."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | (os.O_APPEND if append else os.O_TRUNC), file_mode)
+    os.fchmod(fd, file_mode)
+    return os.fdopen(fd, "ab" if append else "wb")
 
 
 class UploadRefused(Exception):
@@ -31,14 +53,15 @@ class UploadRefused(Exception):
 
 
 class BlobStore:
-    """Files by sha256 under `root/blobs`, partial uploads under `root/incoming`."""
+    """Files by sha256 under `root/blobs`, partial uploads under `root/incoming`, all created with `file_mode`
+    (their folders, root included, with dir_mode(file_mode))."""
 
-    def __init__(self, root: str | Path):
-        self.root = Path(root)
+    def __init__(self, root: str | Path, file_mode: int = FILE_MODE):
+        self.root, self.file_mode = Path(root), file_mode
         self.blobs = self.root / "blobs"
         self.incoming = self.root / "incoming"
-        self.blobs.mkdir(parents=True, exist_ok=True)
-        self.incoming.mkdir(parents=True, exist_ok=True)
+        for d in (self.root, self.blobs, self.incoming):
+            make_dir(d, file_mode)
 
     def path(self, sha256: str) -> Path:
         return self.blobs / sha256[:2] / sha256
@@ -68,8 +91,9 @@ class BlobStore:
     def commit(self, src: Path, sha256: str) -> Path:
         """Move the complete file `src` (on the same file system) to its blob path, durably."""
         dst = self.path(sha256)
-        dst.parent.mkdir(exist_ok=True)
+        make_dir(dst.parent, self.file_mode)
         with open(src, "rb+") as f:
+            os.fchmod(f.fileno(), self.file_mode)
             os.fsync(f.fileno())
         os.replace(src, dst)
         fsync_path(dst.parent)
@@ -81,7 +105,8 @@ class BlobStore:
         sha256 = hashlib.sha256(data).hexdigest()
         if not self.path(sha256).exists():
             tmp = self.incoming / f"{sha256}.{os.getpid()}.tmp"
-            tmp.write_bytes(data)
+            with open_owned(tmp, self.file_mode, append=False) as f:
+                f.write(data)
             self.commit(tmp, sha256)
         return sha256
 

@@ -5,7 +5,9 @@ how many bytes of that file the server already holds (`offset`) or that it is `s
 `PUT /api/v1/uploads/{sha256}?size=N&offset=K` appends the body at byte K and answers 202 with the new offset,
 201 once the whole file arrived and passed the server's checks (hash, MCAP, truck), or 200 when the file was
 already stored. An upload cut at any byte (network gone, server killed) resumes from the server's offset, and
-repeating a request is harmless, so every failure is simply retried. The server's 200/201 reply names the
+repeating a request is harmless, so every failure is simply retried: at once after a 409 naming another offset
+(resend from there), after a jittered exponential backoff when the server is busy (5xx, 408, 429, or a 409 at
+the same offset: another request is uploading the file), never by resending a chunk in a tight loop. The server's 200/201 reply names the
 sha256 and size it stored; only a reply matching the local file counts as confirmation, and only then may the
 queue delete the local file.
 
@@ -49,7 +51,8 @@ class UploadError(FuelidError):
 
 
 class Unavailable(UploadError):
-    """Worth retrying later: no network, connection refused or cut, timeout, 5xx, 408, 429."""
+    """Worth retrying later: no network, connection refused or cut, timeout, 5xx, 408, 429, and a 409 saying
+    another request is uploading the file."""
 
 
 class Rejected(UploadError):
@@ -135,9 +138,12 @@ def upload_file(path: str | Path, server_url: str, token: str, *, truck: str | N
             try:
                 status, body, _ = request("PUT", url, token, data=data, timeout_s=timeout_s)
             except UploadError as exc:
-                if exc.status != 409:  # 409: the server holds a different offset (an earlier try went on)
+                if exc.status != 409:
                     raise
-                offset = int(exc.body.get("offset", 0))
+                held = int(exc.body.get("offset", 0))
+                if held == offset:  # another request is uploading this file: back off (the caller retries)
+                    raise Unavailable(str(exc), 409, exc.body) from None
+                offset = held  # the server holds a different offset (an earlier try went on): resend from there
                 continue
             answer = json.loads(body)
             if status == 202:
@@ -152,7 +158,7 @@ def upload_file(path: str | Path, server_url: str, token: str, *, truck: str | N
 
 class Backoff:
     """Exponential backoff: delays initial_s, 2·initial_s, ... capped at max_s [s], each ±10 % jitter so a
-    fleet that lost the network together does not come back in step."""
+    fleet that lost the network together (or trucks refused together with 429) does not come back in step."""
 
     def __init__(self, initial_s: float = 1.0, max_s: float = 300.0):
         self.initial_s, self.max_s = initial_s, max_s
@@ -169,7 +175,8 @@ class Backoff:
 
 def upload_with_retry(path: str | Path, server_url: str, token: str, *, deadline_s: float = 60.0,
                       backoff: Backoff | None = None, **kw) -> dict:
-    """upload_file, retried with backoff on Unavailable until `deadline_s` [s] have passed (`fuelid upload`)."""
+    """upload_file, retried with backoff on Unavailable (unreachable, 5xx, 408, 429, the file busy with another
+    request: 409 at the same offset) until `deadline_s` [s] have passed (`fuelid upload`)."""
     backoff = backoff or Backoff(0.5, 10.0)
     end = time.monotonic() + deadline_s
     digest = kw.pop("sha256", None) or file_sha256(path)

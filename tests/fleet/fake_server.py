@@ -8,13 +8,13 @@ fleet.jobs.JobError does for unusable data, and trucks named SLOW* take 3 s.
 """
 import argparse
 import json
+import resource
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import uvicorn
-
 from fuelid.fleet.app import MiB, Settings, create_app
+from fuelid.fleet.limits import Timeouts, run_server
 
 
 def fake_identify(truck: str, mcap_paths: list[str], out_dir: str, previous_model: str | None = None,
@@ -59,13 +59,22 @@ def main():
     p.add_argument("--max-partial-uploads", type=int, default=8)
     p.add_argument("--max-partial-mb", type=float)
     p.add_argument("--partial-expiry-h", type=float, default=168.0)
+    p.add_argument("--header-timeout", type=float, default=10.0)
+    p.add_argument("--body-idle-timeout", type=float, default=30.0)
+    p.add_argument("--request-timeout", type=float, default=600.0)
+    p.add_argument("--max-connections", type=int)
+    p.add_argument("--open-files", type=int, help="the process's open-file limit (`ulimit -n`)")
     a = p.parse_args()
+    if a.open_files:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (a.open_files, resource.getrlimit(resource.RLIMIT_NOFILE)[1]))
+    timeouts = Timeouts(header_s=a.header_timeout, body_idle_s=a.body_idle_timeout, request_s=a.request_timeout,
+                        max_connections=a.max_connections)
     settings = Settings(data_dir=Path(a.data_dir), database_url=a.database_url,
                         max_upload_bytes=int(a.max_upload_mb * MiB), refit_after_s=a.refit_after,
                         max_partial_uploads=a.max_partial_uploads,
                         max_partial_bytes=int(a.max_partial_mb * MiB) if a.max_partial_mb else None,
-                        partial_expiry_s=a.partial_expiry_h * 3600.0)
-    uvicorn.run(create_app(settings, runner_factory=FakeRunner), host="127.0.0.1", port=a.port, log_level="warning")
+                        partial_expiry_s=a.partial_expiry_h * 3600.0, timeouts=timeouts)
+    run_server(create_app(settings, runner_factory=FakeRunner), "127.0.0.1", a.port, timeouts, "warning")
 
 
 if __name__ == "__main__":
