@@ -49,9 +49,9 @@ def add_arguments(p):
     p.add_argument("--request-timeout", type=float, default=600.0, metavar="S",
                    help="answer 408 and close when a request body is not complete S seconds after its headers "
                         "(default 600: an 8 MiB upload chunk at 14 kB/s)")
-    p.add_argument("--keep-alive", type=float, default=5.0, metavar="S",
-                   help="close a kept-alive connection silent for S seconds between requests (default 5; behind "
-                        "a reverse proxy, longer than the proxy's upstream keep-alive)")
+    p.add_argument("--keep-alive", type=float, default=75.0, metavar="S",
+                   help="close a kept-alive connection silent for S seconds between requests (default 75: longer "
+                        "than a reverse proxy's upstream keep-alive, nginx's 60 s, so the proxy closes first)")
     p.add_argument("--max-connections", type=int, metavar="N",
                    help="open connections at most; one more closes the one waiting longest for a request "
                         "(default: three quarters of the open-file limit, `ulimit -n`)")

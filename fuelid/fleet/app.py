@@ -8,7 +8,6 @@ docs/reference/fleet-api.md.
 """
 from __future__ import annotations
 
-import asyncio
 import hashlib
 import logging
 from contextlib import asynccontextmanager
@@ -183,7 +182,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     refits = RefitManager(engine, store, data_dir / "jobs",
                           runner_factory or dask_runner_factory(settings.scheduler, settings.workers),
                           settings.refit_after_s, settings.refit_window_s)
-    upload_locks: dict[Path, asyncio.Lock] = {}  # the partial uploads a request is appending to now
+    receiving: set[Path] = set()  # the partial uploads a request is appending to now (one request each)
 
     @asynccontextmanager
     async def lifespan(_app):
@@ -211,8 +210,8 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     def role(*allowed: str):
         def check(who: auth.Principal = Depends(principal)) -> auth.Principal:
             if who.role not in allowed:
-                article = "an" if who.role[0] in "aeiou" else "a"
-                raise HTTPException(403, f"{article} {who.role} token may not do this (needs {' or '.join(allowed)})")
+                token = f"{'an' if who.role[0] in 'aeiou' else 'a'} {who.role} token"
+                raise HTTPException(403, f"{token} may not do this (needs {' or '.join(allowed)})")
             return who
         return check
 
@@ -283,7 +282,7 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
 
     def check_partial_quota(part: Path, uploader: str, size: int) -> None:
         """Refuse (429: retry later) a PUT that would take the uploader past its partial-upload bounds."""
-        store.expire_partials(settings.partial_expiry_s, keep=set(upload_locks))
+        store.expire_partials(settings.partial_expiry_s, keep=set(receiving))
         others = [p for p in store.partials(uploader) if p != part]
         held = sum(p.stat().st_size for p in others if p.exists())
         if not part.exists() and len(others) >= settings.max_partial_uploads:
@@ -334,30 +333,30 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
         part = store.partial(sha256, truck or "admin")
         if stored := await already_stored(part, sha256, truck, holding=False):
             return stored
-        if part in upload_locks:  # the same upload is still arriving on another connection
+        if part in receiving:  # the same upload is still arriving on another connection
             return _state(409, sha256, size, _held(part), truck, "another request is uploading this file; retry "
                                                                  "later")
-        lock = upload_locks[part] = asyncio.Lock()  # never waited on: a second request gets the 409 above
-        async with lock:
-            try:
-                return await receive_and_store(request, part, sha256, size, offset, truck, name)
-            finally:
-                del upload_locks[part]
+        receiving.add(part)
+        try:
+            return await receive_and_store(request, part, sha256, size, offset, truck, name)
+        finally:
+            receiving.discard(part)
 
     async def already_stored(part: Path, sha256: str, truck: str | None, holding: bool) -> JSONResponse | None:
         """The 200 reply when `sha256` is stored, else None. The uploader's partial upload of it is dropped, unless
-        another request is appending to it (`holding`: the caller holds its lock)."""
+        another request is appending to it (`holding`: the caller is that request)."""
         row = await run_in_threadpool(db.get_file, engine, sha256)
         if row is None:
             return None
-        if holding or part not in upload_locks:
+        if holding or part not in receiving:
             part.unlink(missing_ok=True)
         return JSONResponse(stored_reply(row, truck, "already stored"), status_code=200)
 
     async def receive_and_store(request: Request, part: Path, sha256: str, size: int, offset: int,
                                 truck: str | None, name: str | None):
-        """The upload under its lock: append the body, and store the file when complete. Every way out is a
-        documented reply: 200 stored meanwhile, 201, 202 partial, 409 offset, or a refusal keeping nothing."""
+        """The upload, its partial file reserved for this request: append the body, and store the file when
+        complete. Every way out is a documented reply: 200 stored meanwhile, 201, 202 partial, 409 offset, or a
+        refusal keeping nothing."""
         await run_in_threadpool(check_partial_quota, part, truck or "admin", size)
         held = _held(part)
         if offset != held:
@@ -368,12 +367,12 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
             return _state(202, sha256, size, _held(part), truck, "partial")
         except UploadRefused as exc:
             raise HTTPException(exc.status, str(exc)) from None
-        if stored := await already_stored(part, sha256, truck, holding=True):  # another uploader finished it meanwhile
+        if stored := await already_stored(part, sha256, truck, holding=True):  # another uploader stored it
             return stored
         if held < size:
             return _state(202, sha256, size, held, truck, "partial")
         try:
-            row = await run_in_threadpool(_store_upload, engine, store, part, sha256, truck, name, set(upload_locks))
+            row = await run_in_threadpool(_store_upload, engine, store, part, sha256, truck, name, set(receiving))
         except UploadRefused as exc:
             if stored := await already_stored(part, sha256, truck, holding=True):
                 return stored

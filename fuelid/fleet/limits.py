@@ -4,8 +4,9 @@ stalled or hostile connection from holding a worker, an upload lock or a file de
 A request passes three deadlines, each closing the connection when it runs out:
 
 - headers: a new connection (or the next request on a kept-alive one, from its first byte) must deliver its
-  request line and headers within `header_s` [s]. uvicorn has no such timeout (its keep-alive timer stops at
-  the first byte and never runs before the first request), so `guarded_protocol` adds one to uvicorn's HTTP
+  request line and headers within `header_s` [s], in at most MAX_HEADER_BYTES (more: 431). uvicorn has
+  neither bound with httptools (its keep-alive timer stops at the first byte and never runs before the first
+  request; h11's incomplete-event limit is h11's only), so `guarded_protocol` adds them to uvicorn's HTTP
   protocol; uvicorn's own `timeout_keep_alive` (`keep_alive_s`) still closes a kept-alive connection that stays
   silent between requests.
 - body: once the headers are in, each read of the body must bring bytes within `body_idle_s` [s], and the
@@ -25,6 +26,8 @@ import resource
 from collections import OrderedDict
 from dataclasses import dataclass
 
+MAX_HEADER_BYTES = 64 * 1024  # a request line and headers (nginx's default allows 1 kB + 4 × 8 kB)
+
 
 @dataclass(frozen=True)
 class Timeouts:
@@ -33,7 +36,7 @@ class Timeouts:
     header_s: float = 10.0
     body_idle_s: float = 30.0
     request_s: float = 600.0
-    keep_alive_s: float = 5.0
+    keep_alive_s: float = 75.0
     max_connections: int | None = None
 
     def connections(self) -> int:
@@ -52,6 +55,7 @@ def guarded_protocol(header_s: float, max_connections: int) -> type[asyncio.Prot
 
     class Guarded(AutoHTTPProtocol):
         _header_timer: asyncio.TimerHandle | None = None
+        _header_bytes = 0  # received since the request began, while its headers are incomplete
 
         def _between_requests(self) -> bool:
             return self.cycle is None or self.cycle.response_complete
@@ -84,8 +88,14 @@ def guarded_protocol(header_s: float, max_connections: int) -> type[asyncio.Prot
             if not self._between_requests():  # the headers are in: the body deadlines take over
                 self._disarm()
                 waiting.pop(self, None)
+                self._header_bytes = 0
             elif not self.transport.is_closing():
                 self._arm()  # the first byte of the next request on a kept-alive connection
+                self._header_bytes += len(data)
+                if self._header_bytes > MAX_HEADER_BYTES:
+                    self.transport.write(b"HTTP/1.1 431 Request Header Fields Too Large\r\nContent-Length: 0\r\n"
+                                         b"Connection: close\r\n\r\n")
+                    self.transport.close()
 
         def on_response_complete(self) -> None:
             super().on_response_complete()

@@ -7,9 +7,9 @@ how many bytes of that file the server already holds (`offset`) or that it is `s
 already stored. An upload cut at any byte (network gone, server killed) resumes from the server's offset, and
 repeating a request is harmless, so every failure is simply retried: at once after a 409 naming another offset
 (resend from there), after a jittered exponential backoff when the server is busy (5xx, 408, 429, or a 409 at
-the same offset: another request is uploading the file), never by resending a chunk in a tight loop. The server's 200/201 reply names the
-sha256 and size it stored; only a reply matching the local file counts as confirmation, and only then may the
-queue delete the local file.
+the same offset: another request is uploading the file), never by resending a chunk in a tight loop. The
+server's 200/201 reply names the sha256 and size it stored; only a reply matching the local file counts as
+confirmation, and only then may the queue delete the local file.
 
 Standard library only (urllib), so the in-cab install needs nothing more; `logger` never imports `fleet`.
 """

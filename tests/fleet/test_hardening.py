@@ -268,3 +268,19 @@ def test_a_request_body_trickling_past_the_request_deadline_gets_408(tmp_path):
                             token)["offset"] > 0
     finally:
         s.stop()
+
+
+def test_endless_headers_are_refused_with_431(quick_server):
+    c = socket.create_connection(("127.0.0.1", quick_server.port), timeout=5)
+    c.sendall(b"GET /api/v1/health HTTP/1.1\r\nHost: fleet\r\n")
+    try:
+        for k in range(200):  # 200 × 1 kB of headers, fast: the header deadline alone would allow them all
+            c.sendall(f"X-Pad-{k}: {'a' * 1000}\r\n".encode())
+    except (BrokenPipeError, ConnectionResetError):
+        pass
+    c.settimeout(5)
+    try:
+        assert c.recv(100).startswith(b"HTTP/1.1 431")
+    except ConnectionResetError:  # the reset raced the reply: the connection is closed all the same
+        pass
+    c.close()
