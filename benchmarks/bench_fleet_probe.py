@@ -13,7 +13,6 @@ and files. Exit status 1 when any probe differs from what is expected, a 500 was
 import hashlib
 import http.client
 import json
-import os
 import resource
 import signal
 import socket
@@ -21,7 +20,6 @@ import stat
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import urllib.parse
 from pathlib import Path

@@ -17,6 +17,7 @@ A request passes three deadlines, each closing the connection when it runs out:
   limit, so accepting never runs out of descriptors); a connection past it closes the one that has waited
   longest for a request's headers (a slowloris, or an idle kept-alive connection), or itself when every other
   connection is inside a request. A flood of half-sent requests thus cannot lock out `GET /api/v1/health`.
+  (uvicorn's `limit_concurrency` answers 503 only once a request's headers are in, so it does not bound these.)
 """
 from __future__ import annotations
 

@@ -38,6 +38,13 @@ def put_headers(s: Server, token: str, sha: str, size: int, offset: int = 0, len
     return conn
 
 
+def half_put(s: Server, token: str, data: bytes) -> http.client.HTTPConnection:
+    """A PUT of the first half of `data` as a whole request (Content-Length: half)."""
+    conn = put_headers(s, token, hashlib.sha256(data).hexdigest(), len(data), length=len(data) // 2)
+    conn.send(data[: len(data) // 2])
+    return conn
+
+
 def reply(conn: http.client.HTTPConnection) -> tuple[int, dict]:
     r = conn.getresponse()
     status, body = r.status, json.loads(r.read())
@@ -284,3 +291,44 @@ def test_endless_headers_are_refused_with_431(quick_server):
     except ConnectionResetError:  # the reset raced the reply: the connection is closed all the same
         pass
     c.close()
+
+
+def test_a_stalled_json_body_gets_408_after_the_idle_deadline(quick_server):
+    conn = http.client.HTTPConnection("127.0.0.1", quick_server.port, timeout=10)
+    conn.putrequest("POST", "/api/v1/tokens")
+    conn.putheader("Authorization", f"Bearer {quick_server.token('admin')}")
+    conn.putheader("Content-Type", "application/json")
+    conn.putheader("Content-Length", "100")
+    conn.endheaders()
+    conn.send(b'{"role": ')
+    t0 = time.monotonic()
+    status, body = reply(conn)
+    assert status == 408 and "no byte of the request body for 2 s" in body["detail"]
+    assert 1.9 < time.monotonic() - t0 < 3.5
+
+
+def test_the_client_backs_off_on_429_with_growing_jittered_delays(tmp_path, monkeypatch):
+    # one partial upload allowed per uploader, expiring 1.8 s after its last byte
+    s = Server(tmp_path / "data", max_partial_uploads=1, partial_expiry_h=0.0005).start()
+    try:
+        token = s.token("truck", "T1")
+        held = make_mcap(tmp_path / "held.mcap", "T1", seed=8).read_bytes()
+        status, body = reply(half_put(s, token, held))
+        assert (status, body["offset"]) == (202, len(held) // 2)
+        puts = []
+        real_request = upload_module.request
+
+        def counting(method, url, *a, **kw):
+            if method == "PUT":
+                puts.append(time.monotonic())
+            return real_request(method, url, *a, **kw)
+
+        monkeypatch.setattr(upload_module, "request", counting)
+        reply_ = upload_module.upload_with_retry(make_mcap(tmp_path / "next.mcap", "T1", seed=9), s.url, token,
+                                                 deadline_s=20)
+        assert reply_["status"] == "stored"
+        gaps = [b - a for a, b in zip(puts, puts[1:])]
+        assert 3 <= len(puts) <= 6, gaps  # 429 until the held partial expired (1.8 s), then stored
+        assert gaps[0] >= 0.45 and all(b > 1.5 * a for a, b in zip(gaps, gaps[1:])), gaps
+    finally:
+        s.stop()
