@@ -75,13 +75,15 @@ class BlobStore:
         return list(self.incoming.glob(f"*-{_uploader_key(uploader)}.part"))
 
     def expire_partials(self, max_age_s: float, keep: set[Path] = frozenset()) -> int:
-        """Delete the partial uploads not written to for `max_age_s` [s] (but those in `keep`, being received);
-        return how many went. Their age is the file's mtime, so it survives a restart of the server."""
+        """Delete the partial uploads not written to for `max_age_s` [s], and empty ones (a partial upload holds
+        at least one byte: an empty one is a leftover), but those in `keep` (being received); return how many
+        went. Their age is the file's mtime, so it survives a restart of the server."""
         expired = 0
         oldest = time.time() - max_age_s
         for p in self.incoming.glob("*.part"):
             try:
-                if p not in keep and p.stat().st_mtime < oldest:
+                st = p.stat()
+                if p not in keep and (st.st_size == 0 or st.st_mtime < oldest):
                     p.unlink()
                     expired += 1
             except FileNotFoundError:  # finished or expired by another request meanwhile

@@ -15,6 +15,7 @@ import pytest
 import fuelid.logger.upload as upload_module
 from fuelid.cli import main as fuelid
 from fuelid.fleet import auth
+from fuelid.fleet.storage import BlobStore
 from fuelid.logger.upload import Rejected, request, request_json, upload_file
 from tests.fleet.conftest import Server, make_mcap
 
@@ -330,5 +331,19 @@ def test_the_client_backs_off_on_429_with_growing_jittered_delays(tmp_path, monk
         gaps = [b - a for a, b in zip(puts, puts[1:])]
         assert 3 <= len(puts) <= 6, gaps  # 429 until the held partial expired (1.8 s), then stored
         assert gaps[0] >= 0.45 and all(b > 1.5 * a for a, b in zip(gaps, gaps[1:])), gaps
+    finally:
+        s.stop()
+
+
+def test_empty_partial_uploads_left_in_the_data_directory_go_at_start(tmp_path):
+    data = make_mcap(tmp_path / "a.mcap", "T1", seed=10).read_bytes()
+    store = BlobStore(tmp_path / "data")
+    for k in range(8):  # what eight empty PUTs of truck T1 left when they were kept: its whole partial quota
+        store.partial(f"{k:064x}", "T1").touch()
+    s = Server(tmp_path / "data", max_partial_uploads=8).start()
+    try:
+        assert leftovers(s) == []
+        assert upload_file(tmp_path / "a.mcap", s.url, s.token("truck", "T1"))["sha256"] == \
+            hashlib.sha256(data).hexdigest()
     finally:
         s.stop()
