@@ -192,7 +192,6 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
     app = FastAPI(title="fuelid fleet", version=__version__, lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="Truck MCAP uploads, per-truck fuel-model registry and identification jobs.")
     app.state.engine, app.state.store, app.state.refits = engine, store, refits
-    app.add_middleware(BodyDeadline, idle_s=settings.timeouts.body_idle_s, total_s=settings.timeouts.request_s)
 
     @app.exception_handler(RequestValidationError)
     async def one_line_validation_error(_request, exc: RequestValidationError):
@@ -448,6 +447,8 @@ def create_app(settings: Settings, runner_factory: Callable[[], object] | None =
             raise HTTPException(404, f"no job {job_id}")
         return row
 
+    # outermost (added last): the deadlines apply to uvicorn's own receive
+    app.add_middleware(BodyDeadline, idle_s=settings.timeouts.body_idle_s, total_s=settings.timeouts.request_s)
     return app
 
 
