@@ -338,7 +338,7 @@ def test_the_client_backs_off_on_429_with_growing_jittered_delays(tmp_path, monk
 def test_empty_partial_uploads_left_in_the_data_directory_go_at_start(tmp_path):
     data = make_mcap(tmp_path / "a.mcap", "T1", seed=10).read_bytes()
     store = BlobStore(tmp_path / "data")
-    for k in range(8):  # what eight empty PUTs of truck T1 left when they were kept: its whole partial quota
+    for k in range(8):  # eight empty partial uploads of truck T1: its whole partial quota
         store.partial(f"{k:064x}", "T1").touch()
     s = Server(tmp_path / "data", max_partial_uploads=8).start()
     try:
