@@ -21,7 +21,12 @@ def add_arguments(p):
                         "models of Madhusudhanan et al.'s appendix; map, a VECTO engine's fuel map at the instantaneous speed and torque (--engine)")
     p.add_argument("--engine", default="", metavar="ENGINE.veng|NAME",
                    help="engine set for --truth map: a VECTO .veng file (its .vmap/.vfld beside it) or a shipped "
-                        "set's name (default vecto_325kW); implies --truth map when --truth is not given")
+                        "set's name (default vecto_325kW); implies --truth map when --truth is not given; with "
+                        "--catalog, makes the catalog's diesel trips on this engine")
+    p.add_argument("--noise", type=float, default=None, metavar="STD",
+                   help="std of the fuel signal's noise H e [L/h, kg/h for gas] (default: the paper truths' own, "
+                        "1.8 L/h diesel and 2.4 kg/h gas; 0 for --truth map); the truth file states the resulting "
+                        "noise floor")
     p.add_argument("--cycle", default="mixed", help="route: urban, rural, motorway or mixed (default mixed)")
     p.add_argument("--duration", type=float, default=1800.0, metavar="S", help="trip length [s] (default 1800)")
     p.add_argument("--seed", type=int, default=1, help="random seed; the same seed gives the same bytes (default 1)")
@@ -54,10 +59,16 @@ def _config(args):
     truth = TRUTH_ALIASES.get(args.truth, args.truth) or (MAP_TRUTH if args.engine else DEFAULT_TRUTH)
     cfg = TripConfig(truth=truth, engine=args.engine, cycle=args.cycle, duration_s=args.duration, seed=args.seed,
                      effects=tuple(parse_effects(args.effect).items()), mass_kg=args.mass, ambient_c=args.ambient,
-                     ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness)
-    if cfg.engine:
-        read_engine(cfg.engine)  # a broken engine set fails here, in one line, before any simulation
+                     ambient_drift_c=args.ambient_drift, altitude_m=args.altitude, hilliness=args.hilliness,
+                     noise=args.noise)
+    _check_engine(cfg.engine)
     return cfg
+
+
+def _check_engine(engine: str) -> None:
+    """A broken engine set, or one whose fuel is a gas, fails here in one line, before any simulation."""
+    if engine:
+        read_engine(engine).fuel_density_kg_l
 
 
 def _run_one(cfg, output: Path, label: str) -> dict:
@@ -98,7 +109,9 @@ def run(args) -> int:
         unknown = [n for n in names if n not in catalog.CATALOG]
         if unknown:
             raise FuelidError(f"unknown catalog entry {unknown[0]!r}; see fuelid simulate --list")
-        jobs = [(catalog.CATALOG[n], Path(args.dir) / f"{n}.log.gz", n) for n in names]
+        _check_engine(args.engine)
+        jobs = [(catalog.on_engine(catalog.CATALOG[n], args.engine, args.noise), Path(args.dir) / f"{n}.log.gz", n)
+                for n in names]
     else:
         if not args.output:
             raise FuelidError("give -o OUT.log.gz, or --catalog NAME / --all")

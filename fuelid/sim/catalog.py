@@ -7,6 +7,7 @@ identification, validation and effect trips again on the map engine (VECTO's 325
 """
 from dataclasses import replace
 
+from fuelid.errors import InputError
 from fuelid.sim.effects import ALL_EFFECTS
 from fuelid.sim.trip import TripConfig
 
@@ -87,13 +88,33 @@ five days for its baseline map (about 15 MB) and the generic effects' trips are 
 DEFAULT = TripConfig()
 
 
+def on_engine(cfg: TripConfig, engine: str = "", noise: float | None = None) -> TripConfig:
+    """`cfg` on another engine (the map truth on a VECTO set: a .veng path or a shipped set's name) and/or with
+    another fuel noise std; unchanged when neither is given. The gas truck's trips have no engine set (InputError)."""
+    if engine:
+        if not cfg.diesel:
+            raise InputError("the gas truck's trips run on the paper's gas model; an engine set is a diesel map")
+        cfg = replace(cfg, truth="map", engine=engine)
+    return cfg if noise is None else replace(cfg, noise=noise)
+
+
+def validation_pair(seed: int, truth: str = "map", engine: str = "", noise: float | None = None,
+                    ident_s: float = 3600.0, valid_s: float = 1800.0) -> tuple[TripConfig, TripConfig]:
+    """An identification trip and a validation trip of another day of the same truck: mixed driving, the second
+    on day `seed + SECOND_TRIP_SEED` (another route, driver and weather stream) with 2 t more load, as the shipped
+    diesel_ident_90min / diesel_valid_40min pair."""
+    ident = TripConfig(truth=truth, engine=engine, noise=noise, cycle="mixed", duration_s=ident_s, seed=seed,
+                       mass_kg=40000.0)
+    return ident, replace(ident, duration_s=valid_s, seed=seed + SECOND_TRIP_SEED, mass_kg=42000.0)
+
+
 def command_line(name: str) -> str:
     """The explicit `fuelid simulate` command that makes catalog entry `name` (flags that differ from the
     defaults only)."""
     cfg = CATALOG[name]
     flags = {"truth": "--truth", "cycle": "--cycle", "duration_s": "--duration", "seed": "--seed",
              "mass_kg": "--mass", "ambient_c": "--ambient", "ambient_drift_c": "--ambient-drift",
-             "altitude_m": "--altitude", "hilliness": "--hilliness", "engine": "--engine"}
+             "altitude_m": "--altitude", "hilliness": "--hilliness", "engine": "--engine", "noise": "--noise"}
     parts = ["fuelid simulate"]
     for field, flag in flags.items():
         value = getattr(cfg, field)

@@ -119,20 +119,22 @@ def deterministic_fuel(truth: FuelTruth, speed_rpm: np.ndarray, torque_pct: np.n
             + signal.lfilter(m["GT"]["B"], m["GT"]["F"], t))
 
 
-def fuel_noise(truth: FuelTruth, n: int, rng: np.random.Generator) -> np.ndarray:
-    """Coloured noise v = H e at Ts [fuel unit], std `truth.noise_std`; the filter is run over a 2000-sample
-    lead-in first so that v starts stationary."""
+def fuel_noise(truth: FuelTruth, n: int, rng: np.random.Generator, std: float | None = None) -> np.ndarray:
+    """Coloured noise v = H e at Ts [fuel unit], std `std` (default `truth.noise_std`), H the truth's noise model;
+    the filter is run over a 2000-sample lead-in first so that v starts stationary."""
     c, d = noise_polynomials(truth)
-    sigma_e = truth.noise_std / noise_gain(c, d)
+    sigma_e = (truth.noise_std if std is None else std) / noise_gain(c, d)
     lead = 2000
     e = rng.normal(0.0, sigma_e, n + lead)
     return signal.lfilter(c, d, e)[lead:]
 
 
-def describe(truth: FuelTruth) -> dict:
-    """The truth-file entry of a fuel truth: coefficients as printed and as simulated, units and notes."""
+def describe(truth: FuelTruth, std: float | None = None) -> dict:
+    """The truth-file entry of a fuel truth: coefficients as printed and as simulated, units and notes; `std`: the
+    noise std simulated (default `truth.noise_std`)."""
     m = truth.model
     c, d = noise_polynomials(truth)
+    std = truth.noise_std if std is None else std
     return {
         "name": truth.name,
         "source": m["source"],
@@ -154,8 +156,8 @@ def describe(truth: FuelTruth) -> dict:
         "H_simulated": {"C": c.tolist(), "D": d.tolist(),
                         "note": "printed C and D with every root outside the unit circle reflected to "
                                 "1/conj(z) (the printed diesel D has a root pair at |z| = 1.033)"},
-        "noise_std": truth.noise_std,
-        "noise_e_std": truth.noise_std / noise_gain(c, d),
+        "noise_std": std,
+        "noise_e_std": std / noise_gain(c, d),
         "units_note": "torque in % of the reference torque, fuel in L/h (diesel) or kg/h (gas), speed with "
                       "the 600 rpm idle operating point subtracted: the only units that make the printed "
                       "gains physically plausible",

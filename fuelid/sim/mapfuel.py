@@ -7,7 +7,7 @@ engine set (sim.vecto) and the drive; nothing here comes from the identification
     FC     = map(n, T_map)                                          [g/h]; 0 at or below the motoring curve:
                                                                     the injection is cut while the engine motors
     k_tr   = 1 + c_max r / (r + r_half),  r = PT1_τ(max(0, dT_map/dt))   transient fuelling [-], r in N m/s
-    f_inj  = FC k_tr / (1000 ρ_diesel)                              injected fuel [L/h]
+    f_inj  = FC k_tr / (1000 ρ)                                     injected fuel [L/h], ρ the fuel's density
     f_LFE1 = mean of f_inj over the ECU's last update period, held until the next update      (SPN 183)
 
 Transient fuelling: in a fast load step the turbocharger lags and the engine burns more per unit of torque than
@@ -25,7 +25,6 @@ from scipy import signal
 from fuelid.sim.engine import Engine
 from fuelid.sim.vecto import VectoEngine
 
-DIESEL_DENSITY_KG_L = 0.835
 TRANSIENT_TAU_S = 1.0
 """Memory of the transient surcharge [s]: about a turbocharger's spool-up time."""
 LFE1_UPDATE_S = 0.1
@@ -54,8 +53,8 @@ def transient_factor(v: VectoEngine, torque_nm: np.ndarray, dt: float) -> np.nda
 
 
 def injected_fuel_l_h(v: VectoEngine, speed_rpm: np.ndarray, torque_nm: np.ndarray, dt: float) -> np.ndarray:
-    """f_inj = map(n, T) k_tr / (1000 ρ) [L/h] on the fine grid."""
-    return v.fuel_g_h(speed_rpm, torque_nm) * transient_factor(v, torque_nm, dt) / (1000.0 * DIESEL_DENSITY_KG_L)
+    """f_inj = map(n, T) k_tr / (1000 ρ) [L/h] on the fine grid, ρ the engine's (primary) fuel density [kg/L]."""
+    return v.fuel_g_h(speed_rpm, torque_nm) * transient_factor(v, torque_nm, dt) / (1000.0 * v.fuel_density_kg_l)
 
 
 def ecu_reported(values: np.ndarray, dt: float, period_s: float = LFE1_UPDATE_S) -> np.ndarray:

@@ -13,10 +13,23 @@ Fuel pipeline (sim.effects explains each step):
     T_bus%   = T_true% - T_fan% (fan effect) - J dω/dt (inertia effect)  EEC1 SPN 513, J the effect's magnitude;
                                                                          the drive keeps the engine's own inertia
 
-With the map truth (`truth="map"`, a VECTO engine set, sim.mapfuel) the second line is instead the engine's
-fuel map at the instantaneous (fine-grid) speed and flywheel torque T_true - T_fric, with transient fuelling, in
-L/h; the effects act on it as above, then the ECU's LFE1 update (mean over each 0.1 s, held), then the delay. The
-drive, the bus torque (% of the engine's largest full-load torque, EC1 SPN 544) and idle use that engine.
+With the map truth (`truth="map"`, a VECTO engine set, sim.mapfuel) the second line is instead
+
+    y = map(n, T_true - T_fric) k_tr / ρ + [f_inj > 0] H e              on the fine grid [L/h]
+
+the engine's fuel map at the instantaneous speed and flywheel torque, with transient fuelling, plus the fuel
+noise H e (held over each Ts bin; none while the injection is cut, when the ECU reports exactly 0) of std
+`TripConfig.noise` (default 0) with the spectrum of the paper's diesel noise model; the effects act on it as above,
+then the ECU's LFE1 update (mean over each 0.1 s, held), then the delay. The drive, the bus torque (% of the
+engine's largest full-load torque, EC1 SPN 544) and idle use that engine.
+
+Noise floor (truth file, "noise_floor"): the same pipeline run once more without H e gives the noise-free fuel f0;
+
+    floor = sqrt(mean_k (mean over bin k of (f_bus - f0))^2)              over every Ts bin of the trip [fuel unit]
+
+is the part of the fuel signal, as the dataset's bin means see it, that no model of the bus signals can
+explain: a model's RMS simulation error on the trip is at least about the floor. The per-bin differences are the
+truth.npz array `fuel_noise_bin`, so that the floor can be taken over any subset of the bins (e.g. the valid ones).
 
 Why bin means, held: the logger's dataset averages speed, torque and fuel over the same bins (ident.dataset), so
 the truth is exactly a Box-Jenkins model of what the bus shows. A truth on point samples of the inputs, linearly
@@ -47,6 +60,9 @@ DIESEL_LHV_KJ_L, GAS_LHV_KJ_KG = 35800.0, 50000.0
 RETARDER_REFERENCE_NM = 5000.0
 """Retarder reference torque at the propeller shaft (100 % in ERC1) [Nm]."""
 MAP_TRUTH = "map"
+MAP_NOISE_SPECTRUM = "diesel_p320"
+"""The paper truth whose noise model H shapes the map truth's fuel noise (the residual paper 000 identified on a
+real diesel truck)."""
 """The map-based engine truth (sim.mapfuel) on a VECTO engine set; the other truths are sim.fuel's paper models."""
 TRUTH_NAMES = (*fuel.TRUTHS, MAP_TRUTH)
 DEFAULT_MAP_ENGINE = "vecto_325kW"
@@ -69,6 +85,7 @@ class TripConfig:
     start_unix_s: float | None = None  # None: 2024-06-01 10:00 UTC plus `seed` days, so trips never overlap
     vin: str = ""                  # empty: derived from the seed
     engine: str = ""               # map truth: a VECTO .veng path or a shipped set's name (default vecto_325kW)
+    noise: float | None = None     # std of the fuel noise H e [fuel unit]; None: the truth's own (map truth: 0)
 
     def __post_init__(self):
         if self.start_unix_s is None:  # frozen dataclass: set the derived default through object.__setattr__
@@ -87,6 +104,8 @@ class TripConfig:
             raise InputError("mass must be between 30,000 and 44,000 kg")
         if self.truth == "gas_p340" and "dpf_regeneration" in dict(self.effects):
             raise InputError("the gas truck has no diesel particulate filter")
+        if self.noise is not None and not 0.0 <= self.noise <= 10.0:
+            raise InputError(f"fuel noise std must be between 0 and 10 (L/h or kg/h), got {self.noise:g}")
         if abs(fuel.TS_S / self.dt_s - round(fuel.TS_S / self.dt_s)) > 1e-9:
             raise InputError("the simulation step must divide Ts = 0.3 s")
 
@@ -178,10 +197,12 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
     rpm_bin, true_pct_bin = bin_means(rpm, k), bin_means(true_pct, k)
     if vecto_engine:  # flywheel torque from combustion: indicated minus friction (the motoring torque at zero)
         f_injected = mapfuel.injected_fuel_l_h(vecto_engine, rpm, t_true - engine.friction_torque_nm(rpm), dt)
-        y_model, noise = bin_means(f_injected, k), np.zeros(len(k))
+        y_model = bin_means(f_injected, k)
+        noise = (fuel.fuel_noise(fuel.TRUTHS[MAP_NOISE_SPECTRUM], len(k), rng["noise"], cfg.noise) if cfg.noise
+                 else np.zeros(len(k)))
     else:
         y_model = fuel.deterministic_fuel(truth, rpm_bin, true_pct_bin)
-        noise = fuel.fuel_noise(truth, len(k), rng["noise"])
+        noise = fuel.fuel_noise(truth, len(k), rng["noise"], cfg.noise)
     lhv_kw = (DIESEL_LHV_KJ_L if cfg.diesel else GAS_LHV_KJ_KG) / 3600.0
     coolant = thermal.coolant_temperature_c(
         t, np.interp(t, t[k], y_model) * lhv_kw, ambient,
@@ -210,7 +231,8 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
         return fx.delayed(t, f, eff["fuel_delay"]) if "fuel_delay" in eff else f
 
     if vecto_engine:
-        fuel_bus = fuel_true = engine_fuel(f_injected)
+        fuel_true = engine_fuel(f_injected)
+        fuel_bus = engine_fuel(f_injected + noise[bin_of] * (f_injected > 0.0)) if noise.any() else fuel_true
     else:
         fuel_bus = engine_fuel((y_model + noise)[bin_of])
         fuel_true = engine_fuel(y_model[bin_of])
@@ -270,6 +292,7 @@ def simulate(cfg: TripConfig, progress=None) -> Trip:
         "t_s": t[k], "speed_kmh": speed_kmh[k], "engine_speed_rpm": rpm[k], "torque_true_pct": true_pct[k],
         "engine_speed_bin_rpm": rpm_bin, "torque_true_bin_pct": true_pct_bin,
         "torque_reported_pct": shown_pct[k], "fuel_model": y_model, "noise": noise, "fuel_true": fuel_true[k],
+        "fuel_noise_bin": bin_means(fuel_bus - fuel_true, k),
         "fuel_measured": fuel_bus[k], "pedal_pct": 100.0 * d.pedal[k], "gear": d.gear[k], "mode": d.mode[k],
         "air_density_kg_m3": rho[k], "coolant_c": coolant[k], "fan_pct": fan_pct[k],
         "dpf_active": dpf_active[k], "overrun": overrun[k],
@@ -295,6 +318,8 @@ def summarise(trip: Trip, profile, engine, truck, d, altitude, vecto_engine=None
     config = {**dataclasses.asdict(cfg), "effects": dict(cfg.effects), "vin": cfg.vehicle_id}
     if not vecto_engine:
         config.pop("engine")  # the paper truths' files stay as they were before engine sets existed
+    if cfg.noise is None:
+        config.pop("noise")
     idle = (tr["mode"] == NEUTRAL) & (tr["speed_kmh"] == 0)
     dt = cfg.dt_s
     return {
@@ -315,8 +340,9 @@ def summarise(trip: Trip, profile, engine, truck, d, altitude, vecto_engine=None
                   "mean_speed_kmh": round(float(tr["speed_kmh"].mean()), 2),
                   "idle_share": round(float(idle.mean()), 4),
                   "time_in_mode_s": {m: round(float(np.sum(d.mode == i)) * dt, 1) for i, m in enumerate(MODE_NAMES)}},
-        "fuel_truth": fuel.describe(truth) if truth else describe_map_truth(vecto_engine),
+        "fuel_truth": fuel.describe(truth, cfg.noise) if truth else describe_map_truth(vecto_engine, cfg.noise),
         "effects": fx.describe(dict(cfg.effects)),
+        "noise_floor": noise_floor(tr["fuel_noise_bin"], fuel_unit, cfg.diesel),
         "fuel": {"unit": fuel_unit,
                  "mean": round(float(tr["fuel_measured"].mean()), 3),
                  "mean_true": round(float(tr["fuel_true"].mean()), 3),
@@ -330,27 +356,42 @@ def summarise(trip: Trip, profile, engine, truck, d, altitude, vecto_engine=None
     }
 
 
+def noise_floor(noise_bin: np.ndarray, unit: str, diesel: bool) -> dict:
+    """The truth-file entry of the noise floor: the RMS of the per-bin fuel noise (module docstring)."""
+    return {"rms": round(float(np.sqrt(np.mean(noise_bin ** 2))), 6), "unit": unit,
+            "definition": "RMS over every Ts bin of the trip of (bin mean of the fuel the bus reports - bin mean "
+                          "of the same fuel without the noise H e), before "
+                          + ("LFE1's 0.05 L/h quantisation (under 0.015 L/h RMS)" if diesel
+                             else "the flow meter's own error (flow_meter)")
+                          + "; per bin: truth.npz fuel_noise_bin. No model of the bus signals explains it: a "
+                          "model's RMS simulation error on this trip is at least about this"}
+
+
 PAPER_NPZ_NOTE = ("fuel_model = operating point + Gw W + GT T on the means of the true inputs over "
                   "each bin [t_s, t_s + Ts) (engine_speed_bin_rpm, torque_true_bin_pct; no noise, no "
                   "effects); fuel_true = fuel_model through the "
                   "effects (noise-free truth as the bus reports it, before quantisation); "
                   "fuel_measured = the same with the noise H e; these three and every other array "
-                  "sampled at t_s from trip start")
+                  "sampled at t_s from trip start; fuel_noise_bin = mean of (measured - true) over each bin")
 MAP_NPZ_NOTE = ("fuel_model = the map engine's injected fuel (steady-state map at the instantaneous speed and "
                 "flywheel torque, times the transient factor) averaged over each bin [t_s, t_s + Ts), no effects; "
-                "noise = 0 (the map truth has no added noise); fuel_true = fuel_measured = the injected fuel "
-                "through the effects and the ECU's LFE1 update, sampled at t_s (before quantisation)")
+                "noise = the fuel noise H e per bin (0 without --noise; added only while fuel is injected); "
+                "fuel_true = the injected fuel through the effects and the ECU's LFE1 update, fuel_measured = "
+                "the same with the noise, both sampled at t_s (before quantisation); fuel_noise_bin = mean of "
+                "(measured - true) over each bin")
 
 
-def describe_map_truth(vecto_engine) -> dict:
+def describe_map_truth(vecto_engine, noise: float | None = None) -> dict:
     """The truth-file entry of the map truth."""
     return {"name": MAP_TRUTH, "engine": vecto.describe(vecto_engine),
-            "structure": "f = map(n, T_brake + T_aux + T_fan) x k_tr / rho, 0 at or below the motoring torque; "
-                         "k_tr = 1 + c_max r/(r + T_max), r = lagged rate of torque increase [Nm/s]; "
-                         "LFE1 = mean over each 0.1 s ECU update, held",
+            "structure": "f = map(n, T_brake + T_aux + T_fan) x k_tr / rho + [f > 0] H e, 0 at or below the "
+                         "motoring torque; k_tr = 1 + c_max r/(r + T_max), r = lagged rate of torque increase "
+                         "[Nm/s]; LFE1 = mean over each 0.1 s ECU update, held",
             "transient": {"c_max": round(2.0 * max(0.0, vecto_engine.whtc["urban"] - 1.0), 6),
                           "tau_s": mapfuel.TRANSIENT_TAU_S},
-            "diesel_density_kg_l": mapfuel.DIESEL_DENSITY_KG_L, "ecu_update_s": mapfuel.LFE1_UPDATE_S,
+            "noise": {"std": noise or 0.0, "spectrum": f"H = C/D of {MAP_NOISE_SPECTRUM} (its H_simulated)",
+                      "held_over_s": fuel.TS_S},
+            "fuel_density_kg_l": vecto_engine.fuel_density_kg_l, "ecu_update_s": mapfuel.LFE1_UPDATE_S,
             "output": {"unit": "L/h", "signal": "LFE1.EngFuelRate (SPN 183)"},
             "inputs": {"W": {"signal": "EEC1.EngSpeed", "spn": 190, "unit": "rpm"},
                        "T": {"signal": "EEC1.ActualEngPercentTorque", "spn": 513, "unit": "%",

@@ -2,17 +2,25 @@
 
 VECTO (the European Commission's truck CO2 certification simulator) describes an engine by three files:
 
-    .veng  JSON, {"Body": {"IdlingSpeed" [rpm], "Inertia" [kg m²], "Displacement" [cm³], "FuelMap": "x.vmap",
-           "FullLoadCurve": "x.vfld", "WHTC-Urban"/"WHTC-Rural"/"WHTC-Motorway" [-]}}; file names relative to it
-    .vmap  CSV, one header line: engine speed [rpm], flywheel torque [N m], fuel consumption [g/h]
+    .veng  JSON, {"Header": {"FileVersion": n}, "Body": {"IdlingSpeed" [rpm], "Inertia" [kg m²],
+           "Displacement" [cm³], "FullLoadCurve": "x.vfld", "RatedPower" [W], "RatedSpeed" [rpm],
+           "MaxTorque" [N m], ...}}; file names relative to it. The fuel is named in one of two ways:
+             FileVersion <= 4: Body "FuelMap": "x.vmap", "FuelType" (a name or its number in FUEL_TYPES,
+                               absent: diesel), "WHTC-Urban"/"WHTC-Rural"/"WHTC-Motorway" [-]
+             FileVersion 5:    Body "Fuels": [{"FuelMap", "FuelType", "WHTC-Urban", ...}, ...], one entry per
+                               fuel (two for a dual-fuel engine; the first is the primary fuel and the one read)
+           RatedPower, RatedSpeed or MaxTorque absent or 0: taken from the full-load curve.
+    .vmap  CSV, one header line: engine speed [rpm], flywheel torque [N m], fuel consumption [g/h]; the grid need
+           not be rectangular (the full-load line cuts it at high torque)
     .vfld  CSV, one header line: engine speed [rpm], full-load torque [N m], motoring torque [N m] (<= 0),
            optionally a PT1 time constant of the torque build-up [s]
 
 `read_engine` reads a set (a .veng path or a shipped set's short name, `SHIPPED`) into a `VectoEngine`; any
-malformed or incomplete file raises a FuelidError naming the file and the field. The steady-state map is
-interpolated linearly on a Delaunay triangulation of its (speed, torque) points, as VECTO does; a query is first
-clamped to the speed range and to [motoring, full load], and a point still outside the map's convex hull takes
-the value of the nearest map point.
+malformed or incomplete file raises a FuelidError naming the file and the field, in one line. Files may start
+with a byte-order mark and use CR LF, as VECTO writes them. The steady-state map is interpolated linearly on a
+Delaunay triangulation of its (speed, torque) points, as VECTO does; a query is first clamped to the speed range
+and to [motoring, full load], and a point still outside the map's convex hull takes the value of the nearest map
+point.
 """
 import json
 import math
@@ -29,9 +37,15 @@ from fuelid.errors import FuelidError
 SHIPPED = {"vecto_325kW": "vecto_325kW_12.7l/Engine_325kW_12.7l.veng"}
 """Short name -> engine file of the sets shipped in fuelid/sim/engines/ (each with its SOURCES.md)."""
 
-REQUIRED_VENG = ("IdlingSpeed", "Inertia", "FullLoadCurve", "FuelMap")
+REQUIRED_VENG = ("IdlingSpeed", "Inertia", "FullLoadCurve")
 WHTC_FIELDS = ("WHTC-Urban", "WHTC-Rural", "WHTC-Motorway")
 """Transient correction factors; VECTO's engineering-mode files may omit them (then 1: no correction)."""
+FUEL_TYPES = ("DieselCI", "EthanolCI", "PetrolPI", "EthanolPI", "LPGPI", "NGPI", "NGCI")
+"""VECTO's fuel types, in the order of their numbers (a FuelType given as a number indexes this)."""
+LIQUID_DENSITY_KG_L = {"DieselCI": 0.835, "EthanolCI": 0.820, "PetrolPI": 0.748, "EthanolPI": 0.786,
+                       "LPGPI": 0.560}
+"""Density of each liquid fuel [kg/L] (diesel B7, ED95, E10, E85 and liquefied petroleum gas), to turn the map's g/h
+into the L/h of LFE1 (SPN 183). The natural-gas types have no liquid volume: the map truth refuses them."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,6 +58,11 @@ class VectoEngine:
     inertia_kgm2: float
     displacement_cm3: float | None
     whtc: dict                      # {"urban": f, "rural": f, "motorway": f}, dimensionless
+    fuel_type: str                  # one of FUEL_TYPES (the primary fuel of a dual-fuel engine)
+    fuels: tuple                    # every fuel type the file lists, primary first
+    file_version: int | None        # Header.FileVersion, None when absent
+    rated_power_kw: float           # declared, or the full-load curve's largest power
+    rated_speed_rpm: float          # declared, or the speed of the full-load curve's largest power
     map_rpm: np.ndarray
     map_nm: np.ndarray
     map_g_h: np.ndarray
@@ -53,6 +72,14 @@ class VectoEngine:
     pt1_s: np.ndarray | None         # torque build-up time constant per fld speed [s], None if not given
     _linear: LinearNDInterpolator = field(repr=False, default=None)
     _nearest: NearestNDInterpolator = field(repr=False, default=None)
+
+    @property
+    def fuel_density_kg_l(self) -> float:
+        """Density of the (primary) fuel [kg/L]; FuelidError for a gaseous fuel (no L/h to report)."""
+        if self.fuel_type not in LIQUID_DENSITY_KG_L:
+            raise FuelidError(f"{self.path}: fuel type {self.fuel_type} is a gas; the map truth reports L/h "
+                              f"(LFE1) and needs a liquid fuel ({', '.join(LIQUID_DENSITY_KG_L)})")
+        return LIQUID_DENSITY_KG_L[self.fuel_type]
 
     @property
     def max_torque_nm(self) -> float:
@@ -113,34 +140,89 @@ def read_engine(name_or_path) -> VectoEngine:
     missing = [k for k in REQUIRED_VENG if k not in body]
     if missing:
         raise FuelidError(f"{path}: field {missing[0]!r} missing")
+    version = _file_version(path, doc)
+    fuel_doc, fuels = _fuels(path, body)
     idle = _number(path, body, "IdlingSpeed", 200.0, 1500.0)
     inertia = _number(path, body, "Inertia", 0.1, 50.0)
     displacement = _number(path, body, "Displacement", 100.0, 100000.0) if "Displacement" in body else None
-    whtc = {k.split("-")[1].lower(): (_number(path, body, k, 0.8, 1.5) if k in body else 1.0) for k in WHTC_FIELDS}
+    whtc = {k.split("-")[1].lower(): (_number(path, fuel_doc, k, 0.8, 1.5) if k in fuel_doc else 1.0)
+            for k in WHTC_FIELDS}
     fld_rpm, full, motoring, pt1 = _read_full_load(_beside(path, body, "FullLoadCurve"))
-    map_path = _beside(path, body, "FuelMap")
+    map_path = _beside(path, fuel_doc, "FuelMap")
     map_rpm, map_nm, map_g_h = _read_map(map_path)
     if fld_rpm[0] > idle:
         raise FuelidError(f"{path}: IdlingSpeed {idle:g} rpm is below the full-load curve's first speed "
                           f"{fld_rpm[0]:g} rpm")
+    power_w = full * fld_rpm * math.pi / 30.0  # P = T ω [W]
+    declared_w = _number(path, body, "RatedPower", 0.0, 2e6) if "RatedPower" in body else 0.0
+    declared_rpm = _number(path, body, "RatedSpeed", 0.0, 10000.0) if "RatedSpeed" in body else 0.0
     points = np.column_stack([map_rpm, map_nm])
     try:
         linear = LinearNDInterpolator(points, map_g_h, rescale=True)
     except QhullError:
         raise FuelidError(f"{map_path}: the map's (speed, torque) points span no area (all on one line?)") from None
     return VectoEngine(name=str(body.get("ModelName") or path.stem), path=str(path), idle_speed_rpm=idle,
-                       inertia_kgm2=inertia, displacement_cm3=displacement, whtc=whtc, map_rpm=map_rpm,
+                       inertia_kgm2=inertia, displacement_cm3=displacement, whtc=whtc, fuel_type=fuels[0],
+                       fuels=fuels, file_version=version,
+                       rated_power_kw=(declared_w or float(power_w.max())) / 1000.0,
+                       rated_speed_rpm=declared_rpm or float(fld_rpm[np.argmax(power_w)]), map_rpm=map_rpm,
                        map_nm=map_nm, map_g_h=map_g_h, fld_rpm=fld_rpm, full_load_nm=full, motoring_nm=motoring,
                        pt1_s=pt1, _linear=linear, _nearest=NearestNDInterpolator(points, map_g_h, rescale=True))
 
 
 def describe(engine: VectoEngine) -> dict:
     """The truth-file entry of an engine set (scalars only, no curves)."""
-    return {"name": engine.name, "file": Path(engine.path).name, "idle_speed_rpm": engine.idle_speed_rpm,
+    dual = (f"dual-fuel engine ({', '.join(engine.fuels)}): the map truth burns the primary fuel "
+            f"{engine.fuel_type} only, on its own map" if len(engine.fuels) > 1 else None)
+    return {"name": engine.name, "file": Path(engine.path).name, "file_version": engine.file_version,
+            "fuel_type": engine.fuel_type, "fuels": list(engine.fuels), **({"fuels_note": dual} if dual else {}),
+            "rated_power_kw": round(engine.rated_power_kw, 3), "rated_speed_rpm": engine.rated_speed_rpm,
+            "idle_speed_rpm": engine.idle_speed_rpm,
             "inertia_kgm2": engine.inertia_kgm2, "displacement_cm3": engine.displacement_cm3,
             "max_torque_nm": engine.max_torque_nm, "whtc": engine.whtc, "map_points": int(len(engine.map_rpm)),
             "speed_range_rpm": [float(engine.fld_rpm[0]), float(engine.fld_rpm[-1])],
             "pt1": engine.pt1_s is not None}
+
+
+def _file_version(path: Path, doc: dict) -> int | None:
+    header = doc.get("Header")
+    value = header.get("FileVersion") if isinstance(header, dict) else None
+    if value is None:
+        return None
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        raise FuelidError(f"{path}: Header field 'FileVersion' is not a number: {value!r}") from None
+
+
+def _fuel_type(path: Path, value) -> str:
+    """A FuelType given as a name (any case) or as its number in FUEL_TYPES."""
+    names = {n.lower(): n for n in FUEL_TYPES}
+    if isinstance(value, str) and value.strip().lower() in names:
+        return names[value.strip().lower()]
+    if isinstance(value, (int, str)) and not isinstance(value, bool) and str(value).strip().isdigit():
+        k = int(str(value).strip())
+        if k < len(FUEL_TYPES):
+            return FUEL_TYPES[k]
+    raise FuelidError(f"{path}: field 'FuelType' = {value!r} is not a VECTO fuel type "
+                      f"({', '.join(FUEL_TYPES)}, or their numbers 0-{len(FUEL_TYPES) - 1})")
+
+
+def _fuels(path: Path, body: dict) -> tuple[dict, tuple]:
+    """(the object that holds the primary fuel's FuelMap, FuelType and WHTC factors, every fuel type listed):
+    Body itself (FileVersion <= 4) or Body.Fuels[0] (FileVersion 5)."""
+    if "Fuels" not in body:
+        if "FuelMap" not in body:
+            raise FuelidError(f"{path}: field 'FuelMap' missing (or 'Fuels', as FileVersion 5 names the maps)")
+        return body, (_fuel_type(path, body.get("FuelType", "DieselCI")),)
+    fuels = body["Fuels"]
+    if not isinstance(fuels, list) or not fuels or not all(isinstance(f, dict) for f in fuels):
+        raise FuelidError(f"{path}: field 'Fuels' must be a list of fuel objects, got {fuels!r:.60}")
+    for k, f in enumerate(fuels):
+        for key in ("FuelMap", "FuelType"):
+            if key not in f:
+                raise FuelidError(f"{path}: field 'Fuels[{k}].{key}' missing")
+    return fuels[0], tuple(_fuel_type(path, f["FuelType"]) for f in fuels)
 
 
 def _number(path: Path, body: dict, key: str, low: float, high: float) -> float:
