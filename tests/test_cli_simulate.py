@@ -52,3 +52,25 @@ def test_every_shipped_catalog_entry_is_in_replay_logs():
         f"generic_{name}_20min" for name in catalog.GENERIC_EFFECT_TRIPS}
     assert "--truth map" in catalog.command_line("map_cycle_01") and "--engine vecto_325kW" in \
         catalog.command_line("map_cycle_01")
+
+
+def test_a_catalog_entry_on_another_engine_with_noise(tmp_path, capsys):
+    veng = engine_file("vecto_325kW")
+    assert main(["simulate", "--catalog", "sample_diesel_1min", "--engine", str(veng), "--noise", "0.5", "--dir",
+                 str(tmp_path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["truth"] == "map"
+    summary = json.loads((tmp_path / "sample_diesel_1min.truth.json").read_text())
+    assert summary["fuel_truth"]["engine"]["file"] == veng.name and summary["config"]["engine"] == str(veng)
+    assert summary["fuel_truth"]["noise"]["std"] == 0.5 and 0.2 < summary["noise_floor"]["rms"] < 0.8
+
+
+def test_an_engine_burning_gas_is_refused_in_one_line(tmp_path, capsys):
+    for f in engine_file("vecto_325kW").parent.iterdir():
+        shutil.copy(f, tmp_path / f.name)
+    veng = tmp_path / "Engine_325kW_12.7l.veng"
+    doc = json.loads(veng.read_text())
+    doc["Body"]["FuelType"] = "NGPI"
+    veng.write_text(json.dumps(doc))
+    assert main(["simulate", "--engine", str(veng), "-o", str(tmp_path / "t.log.gz")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "fuel type NGPI is a gas" in err

@@ -105,7 +105,8 @@ def validation_pair(seed: int, truth: str = "map", engine: str = "", noise: floa
     diesel_ident_90min / diesel_valid_40min pair."""
     ident = TripConfig(truth=truth, engine=engine, noise=noise, cycle="mixed", duration_s=ident_s, seed=seed,
                        mass_kg=40000.0)
-    return ident, replace(ident, duration_s=valid_s, seed=seed + SECOND_TRIP_SEED, mass_kg=42000.0)
+    return ident, replace(ident, duration_s=valid_s, seed=seed + SECOND_TRIP_SEED, mass_kg=42000.0,
+                          start_unix_s=None, vin=ident.vehicle_id)  # its own day's start, the same truck's VIN
 
 
 def command_line(name: str) -> str:

@@ -11,7 +11,8 @@ from fuelid.logger.readers import read_frames
 from fuelid.logger.recorder import Recorder
 from fuelid.sim import mapfuel, route
 from fuelid.sim.drive import DRIVE, simulate_drive
-from fuelid.sim.trip import write
+from fuelid.sim.effects import ALL_EFFECTS
+from fuelid.sim.trip import TripConfig, simulate, write
 from fuelid.sim.vecto import read_engine
 from fuelid.sim.vehicle import Truck
 
@@ -157,3 +158,26 @@ def test_a_pt1_full_load_slows_the_torque_build_up(vecto):
         return np.percentile(np.diff(x.brake_torque_nm)[in_gear] / DT, 99.9)
 
     assert rise(d) < 0.5 * rise(drives["static"])
+
+
+def test_the_fuel_noise_leaves_the_noise_free_truth_and_sets_the_floor(trip):
+    quiet = trip(truth="map", cycle="mixed", duration_s=600.0, seed=35)
+    noisy = trip(truth="map", cycle="mixed", duration_s=600.0, seed=35, noise=0.5)
+    assert quiet.summary["noise_floor"]["rms"] == 0.0 and not quiet.truth["fuel_noise_bin"].any()
+    np.testing.assert_array_equal(noisy.truth["fuel_true"], quiet.truth["fuel_true"])
+    floor = noisy.summary["noise_floor"]
+    assert 0.3 < floor["rms"] < 0.7 and floor["unit"] == "L/h"  # 0.5 L/h std, less while the injection is cut
+    assert floor["rms"] == pytest.approx(np.sqrt(np.mean(noisy.truth["fuel_noise_bin"] ** 2)), abs=1e-6)
+    cut = quiet.signals["fuel_rate_l_h"] == 0.0  # no noise while no fuel is injected: the ECU reports 0
+    assert cut.mean() > 0.05 and np.all(noisy.signals["fuel_rate_l_h"][cut] == 0.0)
+
+
+def test_every_built_in_effect_runs_on_each_shared_engine(shared_engine):
+    effects = tuple((name, e.default) for name, e in ALL_EFFECTS.items())
+    t = simulate(TripConfig(truth="map", engine=str(shared_engine), cycle="urban", duration_s=120.0, seed=36,
+                            effects=effects, noise=0.5))
+    assert {e["name"] for e in t.summary["effects"]} == set(ALL_EFFECTS)
+    assert np.all(np.isfinite(t.truth["fuel_measured"])) and t.truth["fuel_measured"].mean() > 1.0
+    engine = t.summary["fuel_truth"]["engine"]
+    assert engine["file"] == shared_engine.name and engine["name"] == read_engine(shared_engine).name
+    assert t.summary["engine"]["reference_torque_nm"] == read_engine(shared_engine).max_torque_nm

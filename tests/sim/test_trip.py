@@ -79,3 +79,16 @@ def test_the_bus_fuel_of_each_dataset_bin_is_that_bins_truth():
     assert ok.sum() > 900
     assert np.max(np.abs(ds.y[ok] - np.maximum(truth["fuel_measured"][k[ok]], 0.0))) <= 0.026
     assert np.median(np.abs(ds.u[ok, 0] - truth["engine_speed_bin_rpm"][k[ok]])) < 0.2  # point samples: 1 rpm
+
+
+def test_the_noise_floor_of_the_paper_truth_is_its_noise(trip):
+    t = trip(cycle="mixed", duration_s=900.0, seed=14)
+    floor = t.summary["noise_floor"]
+    assert floor["unit"] == "L/h" and 1.2 < floor["rms"] < 2.4  # the diesel truth's 1.8 L/h std, over 15 minutes
+    diff = t.truth["fuel_measured"] - t.truth["fuel_true"]  # point samples: the noise held over their bin
+    assert floor["rms"] == pytest.approx(np.sqrt(np.mean(diff ** 2)), rel=0.02)
+    quieter = trip(cycle="mixed", duration_s=900.0, seed=14, noise=0.9)
+    # half the std, half the floor (up to the clipping of negative fuel at 0)
+    assert quieter.summary["noise_floor"]["rms"] == pytest.approx(floor["rms"] / 2.0, rel=0.03)
+    assert quieter.summary["fuel_truth"]["noise_std"] == 0.9 and quieter.summary["config"]["noise"] == 0.9
+    assert "noise" not in t.summary["config"]  # the default: the files stay as they were

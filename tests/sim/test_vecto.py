@@ -1,4 +1,5 @@
-"""Reading VECTO engine sets: the shipped 325 kW engine, and a clear one-line error for each broken set."""
+"""Reading VECTO engine sets: the shipped 325 kW engine, every set in ../shared/engines, small FileVersion 5 sets
+(one fuel, dual fuel, non-rectangular maps), and a clear one-line error for each broken set."""
 import json
 import shutil
 
@@ -6,7 +7,8 @@ import numpy as np
 import pytest
 
 from fuelid.errors import FuelidError
-from fuelid.sim.vecto import engine_file, read_engine
+from fuelid.sim.vecto import describe, engine_file, read_engine
+from tests.sim.conftest import SHARED_ENGINES as SHARED
 
 
 @pytest.fixture
@@ -121,3 +123,124 @@ def test_a_pt1_column_is_read_per_speed(engine_set):
 def test_an_unknown_name_lists_the_shipped_engines(tmp_path):
     with pytest.raises(FuelidError, match="vecto_325kW"):
         read_engine(tmp_path / "nothing.veng")
+
+
+def test_every_shared_engine_set_reads_and_its_map_is_reproduced(shared_engine):
+    e = read_engine(shared_engine)
+    assert e.fuel_type == "DieselCI" and e.fuels == ("DieselCI",) and e.fuel_density_kg_l == pytest.approx(0.835)
+    assert 150.0 < e.rated_power_kw < 400.0 and e.fld_rpm[0] <= e.idle_speed_rpm < e.rated_speed_rpm
+    inside = (e.map_nm <= e.full_load(e.map_rpm)) & (e.map_nm > e.motoring(e.map_rpm))
+    np.testing.assert_allclose(e.fuel_g_h(e.map_rpm[inside], e.map_nm[inside]), e.map_g_h[inside], rtol=1e-9)
+    # up to rated speed: above it the 220 kW map thins out to two points at 2600 rpm, where linear interpolation on
+    # long thin triangles need not grow with torque
+    n, t = np.meshgrid(np.linspace(e.idle_speed_rpm, e.rated_speed_rpm, 40), np.linspace(0.0, e.max_torque_nm, 40))
+    f = e.fuel_g_h(n, np.minimum(t, e.full_load(n)))
+    assert np.all(np.isfinite(f)) and np.all(np.diff(f, axis=0) >= -1e-6)  # fuel grows with torque
+    assert np.all(e.fuel_g_h(n[0], e.motoring(n[0]) - 1.0) == 0.0)
+
+
+def test_the_220kW_set_declares_its_rated_power_and_names_its_fuel():
+    veng = SHARED / "vecto_220kW_7.7l" / "Engine_220kW.veng"
+    if not veng.is_file():
+        pytest.skip(f"VECTO engine sets not available ({veng.parent})")
+    e = read_engine(veng)
+    assert (e.rated_power_kw, e.rated_speed_rpm, e.max_torque_nm) == (220.0, 2200.0, 1200.0)
+    assert e.pt1_s is None and e.file_version == 4 and e.displacement_cm3 == 7700.0
+    assert describe(e)["fuel_type"] == "DieselCI" and "fuels_note" not in describe(e)
+
+
+def test_a_set_without_rated_power_takes_it_from_the_full_load_curve():
+    e = read_engine("vecto_325kW")  # FileVersion 3: no RatedPower, RatedSpeed, MaxTorque
+    power_kw = e.full_load_nm * e.fld_rpm * np.pi / 30.0 / 1000.0
+    assert e.rated_power_kw == pytest.approx(power_kw.max()) and 300.0 < e.rated_power_kw < 340.0
+    assert e.rated_speed_rpm == e.fld_rpm[np.argmax(power_kw)]
+
+
+FLD = "engine speed [rpm],full load torque [Nm],motoring torque [Nm]\n600,500,-40\n1000,900,-55\n1800,800,-80\n2200,600,-100\n"
+"""A small full-load curve: the map below is cut by it (600 rpm: up to 500 Nm; 1000 rpm: up to 900 Nm)."""
+
+
+def _non_rectangular_map() -> str:
+    rows = ["engine speed [rpm],torque [Nm],fuel consumption [g/h]"]
+    for n, t_max in ((600, 500), (1000, 900), (1400, 850), (1800, 800), (2200, 600)):
+        rows.append(f"{n},{-40 - 0.03 * (n - 600):g},0")
+        for t in range(0, t_max + 1, 100):
+            rows.append(f"{n},{t},{600 + 0.5 * n + 0.2 * t * (1 + n / 2000) + 1e-4 * t * t:g}")
+    return "\n".join(rows) + "\n"
+
+
+def _v5(tmp_path, fuels, body=None, bom=True):
+    """A FileVersion 5 set in tmp_path (a BOM and CR LF as VECTO writes on Windows); returns the .veng path."""
+    def write(name, text):
+        data = text.replace("\n", "\r\n").encode()
+        (tmp_path / name).write_bytes((b"\xef\xbb\xbf" if bom else b"") + data)
+
+    write("e.vfld", FLD)
+    write("diesel.vmap", _non_rectangular_map())
+    write("gas.vmap", _non_rectangular_map())
+    doc = {"Header": {"FileVersion": 5},
+           "Body": {"ModelName": "synthetic v5", "IdlingSpeed": 600.0, "Inertia": 3.0, "Displacement": 7000,
+                    "RatedPower": 0.0, "RatedSpeed": 0.0, "MaxTorque": 0.0, "FullLoadCurve": "e.vfld",
+                    "Fuels": fuels, **(body or {})}}
+    write("e.veng", json.dumps(doc, indent=2))
+    return tmp_path / "e.veng"
+
+
+DIESEL = {"FuelMap": "diesel.vmap", "FuelType": "DieselCI", "WHTC-Urban": 1.02, "WHTC-Rural": 1.01,
+          "WHTC-Motorway": 1.0, "ColdHotBalancingFactor": 1.0, "CFRegPer": 1.0}
+
+
+def test_a_file_version_5_set_reads_its_first_fuel_and_the_curve_gives_the_ratings(tmp_path):
+    e = read_engine(_v5(tmp_path, [DIESEL]))
+    assert e.file_version == 5 and e.fuel_type == "DieselCI" and e.whtc == {"urban": 1.02, "rural": 1.01,
+                                                                           "motorway": 1.0}
+    assert e.max_torque_nm == 900.0 and e.rated_power_kw == pytest.approx(800.0 * 1800.0 * np.pi / 30.0 / 1000.0)
+    # the non-rectangular grid: between its points linear, above the full-load line held there, 0 when motoring
+    assert 600 + 0.5 * 1000 + 0.2 * 400 * 1.5 < e.fuel_g_h(1000.0, 450.0) < 600 + 0.5 * 1000 + 0.2 * 500 * 1.5 + 50
+    assert e.fuel_g_h(600.0, 800.0) == pytest.approx(e.fuel_g_h(600.0, 500.0))
+    assert e.fuel_g_h(1400.0, -100.0) == 0.0
+
+
+def test_a_dual_fuel_set_uses_its_primary_fuel_and_says_so(tmp_path):
+    gas = {**DIESEL, "FuelMap": "gas.vmap", "FuelType": "NGCI", "WHTC-Urban": 1.05}
+    e = read_engine(_v5(tmp_path, [DIESEL, gas]))
+    assert e.fuels == ("DieselCI", "NGCI") and e.whtc["urban"] == 1.02
+    d = describe(e)
+    assert d["fuels"] == ["DieselCI", "NGCI"] and "primary fuel DieselCI" in d["fuels_note"]
+
+
+@pytest.mark.parametrize("fuel_type, name, density", [(0, "DieselCI", 0.835), ("2", "PetrolPI", 0.748),
+                                                      ("ethanolci", "EthanolCI", 0.820)])
+def test_a_fuel_type_by_number_or_name_sets_the_density(tmp_path, fuel_type, name, density):
+    e = read_engine(_v5(tmp_path, [{**DIESEL, "FuelType": fuel_type}]))
+    assert e.fuel_type == name and e.fuel_density_kg_l == density
+
+
+def test_a_file_version_4_fuel_type_is_read_beside_the_map(engine_set):
+    _edit_json(engine_set, FuelType="PetrolPI")
+    assert read_engine(engine_set).fuel_type == "PetrolPI"
+
+
+def test_a_gaseous_primary_fuel_has_no_litres_to_report(tmp_path):
+    e = read_engine(_v5(tmp_path, [{**DIESEL, "FuelType": "NGPI"}]))
+    with pytest.raises(FuelidError, match="fuel type NGPI is a gas") as err:
+        e.fuel_density_kg_l
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("fuels, body, message", [
+    ([], None, "field 'Fuels' must be a list of fuel objects"),
+    ("diesel.vmap", None, "field 'Fuels' must be a list of fuel objects"),
+    ([{"FuelType": "DieselCI"}], None, "field 'Fuels[0].FuelMap' missing"),
+    ([DIESEL, {"FuelMap": "gas.vmap"}], None, "field 'Fuels[1].FuelType' missing"),
+    ([{**DIESEL, "FuelType": "Kerosene"}], None, "field 'FuelType' = 'Kerosene' is not a VECTO fuel type"),
+    ([{**DIESEL, "FuelType": 9}], None, "field 'FuelType' = 9 is not a VECTO fuel type"),
+    ([{**DIESEL, "FuelMap": "none.vmap"}], None, "field 'FuelMap' names"),
+    ([{**DIESEL, "WHTC-Urban": "high"}], None, "field 'WHTC-Urban' is not a number"),
+    ([DIESEL], {"RatedPower": -5}, "field 'RatedPower' = -5 is outside"),
+])
+def test_a_broken_file_version_5_set_is_one_line_naming_the_field(tmp_path, fuels, body, message):
+    veng = _v5(tmp_path, fuels, body)
+    with pytest.raises(FuelidError) as err:
+        read_engine(veng)
+    assert message in str(err.value) and str(veng) in str(err.value) and "\n" not in str(err.value)
