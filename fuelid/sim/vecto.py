@@ -9,7 +9,8 @@ VECTO (the European Commission's truck CO2 certification simulator) describes an
                                absent: diesel), "WHTC-Urban"/"WHTC-Rural"/"WHTC-Motorway" [-]
              FileVersion 5:    Body "Fuels": [{"FuelMap", "FuelType", "WHTC-Urban", ...}, ...], one entry per
                                fuel (two for a dual-fuel engine; the first is the primary fuel and the one read)
-           RatedPower, RatedSpeed or MaxTorque absent or 0: taken from the full-load curve.
+           RatedPower or RatedSpeed absent or 0: taken from the full-load curve (its largest power T ω); the
+           largest torque is always the curve's (a declared MaxTorque is not used).
     .vmap  CSV, one header line: engine speed [rpm], flywheel torque [N m], fuel consumption [g/h]; the grid need
            not be rectangular (the full-load line cuts it at high torque)
     .vfld  CSV, one header line: engine speed [rpm], full-load torque [N m], motoring torque [N m] (<= 0),
