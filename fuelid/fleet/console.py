@@ -27,6 +27,7 @@ from pydantic import BaseModel, Field
 from pydantic_core import to_json
 
 from fuelid.fleet import auth, db
+from fuelid.fleet.effectlist import ENGINE_PROPERTIES, in_model, missing
 from fuelid.fleet.drift import DEFAULT_POINTS, Drift, ReferencePoint, SteadyFuel, drift, fleet_median, \
     parse_points, steady_fuel, versus_median
 from fuelid.fleet.storage import BlobStore
@@ -63,6 +64,9 @@ class DriftInfo(BaseModel):
     drift_std_percent: float | None = Field(None, description="standard error of drift_percent [%]")
     drift_alert: bool = False
     note: str | None = Field(None, description="why steady fuel or drift is missing")
+    steady_reference: dict[str, str] | None = Field(
+        None, description="the reference condition of the steady state: bus signal -> what it was held at "
+                          "(speed and torque are the points')")
 
 
 class Alert(BaseModel):
@@ -87,8 +91,11 @@ class TruckSummary(DriftInfo):
     fit_percent: float | None = Field(description="latest version's simulation fit [%]")
     cycle_fuel_error_percent: float | None = Field(description="latest version's RMS cycle fuel error [%]")
     unit: str | None = Field(description="fuel unit of the model (L/h or kg/h)")
-    top_effect: str | None = Field(description="the missing effect the latest diagnosis named")
-    effects: list[str] = Field(description="effects the latest model includes")
+    top_effect: str | None = Field(description="the hidden effect the latest diagnosis recommended first (never "
+                                               "the engine's own map)")
+    effects: list[str] = Field(description="effects the latest model includes (\"in the model\")")
+    missing_effects: list[str] = Field(description="hidden effects the latest diagnosis recommends that the model "
+                                                   "lacks (\"missing\"); the engine's map is never one")
     vs_fleet_percent: float | None = Field(description="100 (S / fleet median S − 1) [%]")
     alerts: list[Alert]
 
@@ -110,6 +117,7 @@ class VersionInfo(DriftInfo):
     unit: str | None
     top_effect: str | None
     effects: list[str]
+    missing_effects: list[str]
     duration_s: float | None
     has_report: bool
 
@@ -157,6 +165,7 @@ class ModelCache:
         self.store, self.max_models, self.max_steady = store, max_models, max_steady
         self._models: dict[str, PolyModel | str] = {}
         self._steady: dict[tuple, dict[str, SteadyFuel | str]] = {}  # points -> sha256 -> steady fuel
+        self._candidates: dict[str, list[dict]] = {}  # diagnosis sha256 -> its candidates
 
     def model(self, sha256: str) -> PolyModel | str:
         """The model, or why it cannot be read (one line)."""
@@ -189,14 +198,32 @@ class ModelCache:
         return steady
 
     def effects(self, sha256: str) -> list[str]:
+        """The ids of the effects the model includes, each once."""
         model = self.model(sha256)
-        return [] if isinstance(model, str) else list(model.effects)
+        return [] if isinstance(model, str) else in_model(model.effects)
+
+    def missing(self, model_sha256: str, diagnosis_sha256: str | None) -> list[str]:
+        """The hidden effects the diagnosis recommends that the model lacks (fleet.effectlist.missing); none
+        when the diagnosis cannot be read."""
+        if diagnosis_sha256 is None:
+            return []
+        if diagnosis_sha256 not in self._candidates:
+            if len(self._candidates) >= self.max_models:
+                self._candidates.clear()
+            try:
+                doc = json.loads(self.store.path(diagnosis_sha256).read_text(encoding="utf-8"))
+                found = doc.get("candidates") if isinstance(doc, dict) else None
+            except (OSError, ValueError, FuelidError):  # a missing or damaged diagnosis names nothing
+                found = None
+            self._candidates[diagnosis_sha256] = [c for c in found or [] if isinstance(c, dict)]
+        return missing(self._candidates[diagnosis_sha256], self.effects(model_sha256))
 
 
 def _drift_fields(current: SteadyFuel | str, first: SteadyFuel | str | None, threshold: float) -> dict:
     if isinstance(current, str):
         return {"note": current}
-    out = {"steady_fuel": current.mean, "steady_fuel_std": current.std_error, "per_point": list(current.per_point)}
+    out = {"steady_fuel": current.mean, "steady_fuel_std": current.std_error, "per_point": list(current.per_point),
+           "steady_reference": current.reference}
     if first is None or isinstance(first, str):
         return {**out, "note": None if first is None else f"first version: {first}"}
     try:
@@ -229,7 +256,7 @@ def _alerts(truck: str, latest: dict, fields: dict, new_effect: bool) -> list[Al
                             message=f"steady-state fuel {fields['drift_percent']:+.1f} %"
                                     + (f" ± {sd:.1f} %" if sd is not None else " (uncertainty unknown)")
                                     + " since the first model"))
-    if new_effect:
+    if new_effect and latest["top_effect"] not in ENGINE_PROPERTIES:
         alerts.append(Alert(truck=truck, kind="new effect", version=latest["version"],
                             message=f"the diagnosis names a new effect: {latest['top_effect']}"))
     return alerts
@@ -264,6 +291,7 @@ def _fleet_query(named_trucks: bool = False) -> sa.Select:
     columns = (t, files.c.files, files.c.recorded_ns, files.c.last_upload, files.c.start_ns, files.c.end_ns,
                span.c.versions, latest.c.id.label("latest_id"), latest.c.version.label("latest_version"),
                latest.c.created_unix_s.label("latest_created_unix_s"), latest.c.model_sha256.label("latest_sha256"),
+               latest.c.diagnosis_sha256.label("latest_diagnosis_sha256"),
                latest.c.top_effect, sa.cast(latest.c.metrics, sa.Text).label("metrics"),
                first.c.model_sha256.label("first_sha256"), named_before.label("named_before"))
     joined = (db.trucks.outerjoin(files, files.c.truck == t).outerjoin(span, span.c.truck == t)
@@ -306,7 +334,7 @@ def truck_summary(r, cache: ModelCache, points, threshold: float) -> TruckSummar
     row = {"truck": r["truck"], "files": r["files"] or 0, "data_hours": hours, "last_upload_unix_s": r["last_upload"],
            "start_ns": r["start_ns"], "end_ns": r["end_ns"], "versions": r["versions"] or 0, "latest_version": None,
            "latest_created_unix_s": None, "fit_percent": None, "cycle_fuel_error_percent": None, "unit": None,
-           "top_effect": None, "effects": [], "vs_fleet_percent": None, "alerts": [], "note": "no model yet"}
+           "top_effect": None, "effects": [], "missing_effects": [], "vs_fleet_percent": None, "alerts": [], "note": "no model yet"}
     if r["latest_id"] is not None:
         steady = cache.steady_at(points)
         current = steady(r["latest_sha256"])
@@ -319,6 +347,7 @@ def truck_summary(r, cache: ModelCache, points, threshold: float) -> TruckSummar
                    fit_percent=metrics["fit_percent"], cycle_fuel_error_percent=metrics["cycle_fuel_error_percent"],
                    unit=metrics["unit"] or (current.unit if isinstance(current, SteadyFuel) else None),
                    top_effect=r["top_effect"], effects=cache.effects(r["latest_sha256"]),
+                   missing_effects=cache.missing(r["latest_sha256"], r["latest_diagnosis_sha256"]),
                    alerts=_alerts(r["truck"], latest, fields, new))
     return TruckSummary.model_validate(row)
 
@@ -388,7 +417,8 @@ def truck_history(engine: sa.Engine, cache: ModelCache, truck: str, points, thre
         fields = _drift_fields(current, None if i == 0 else first, threshold)
         versions.append({**fields, **_metrics(r["metrics"] or {}), "version": r["version"],
                          "created_unix_s": r["created_unix_s"], "job_id": r["job_id"], "top_effect": r["top_effect"],
-                         "effects": cache.effects(r["model_sha256"]), "duration_s": r["duration_s"],
+                         "effects": cache.effects(r["model_sha256"]),
+                         "missing_effects": cache.missing(r["model_sha256"], r["diagnosis_sha256"]), "duration_s": r["duration_s"],
                          "has_report": r["report_sha256"] is not None})
     return {"truck": truck, "points": [str(p) for p in points], "threshold_percent": threshold, "versions": versions,
             "files": db.list_files(engine, truck), "jobs": db.list_jobs(engine, truck=truck, limit=20)}

@@ -2,17 +2,13 @@
 the parameter covariance, and the change against the truck's first model and the fleet median.
 
 A reference point p = (engine speed n [rpm], engine torque T [N·m or % of reference torque, the model's
-torque unit]) is held forever; the model's output settles at
+torque unit]) is held for ever; the model's output settles at y_ss(p), the whole model's steady state with
+every other signal at the stated reference condition (ident.steady: the effects' inputs rebuilt at the point,
+the engine map's included). The fleet compares the mean over the K points, S = (1/K) Σ_k y_ss(p_k), whose
+standard error by the delta method is σ_S = √(gᵀ P g), g = ∂S/∂θ (ident.steady.steady_gradient at the mean
+input deviation: S is linear in them) and P the covariance of θ.
 
-    y_ss(p) = y0 + Σ_i G_i (u_i − u0_i),    G_i = B_i(1) / (A(1) F_i(1))   [output unit]
-
-with u = (n, T) and any further input (an effect's regressor) at its operating point. The fleet compares the
-mean over the K points, S = (1/K) Σ_k y_ss(p_k), whose standard error by the delta method is
-σ_S = √(gᵀ P g), g = ∂S/∂θ and P the covariance of θ (order of ident.polymodel.parameter_names):
-
-    ∂y_ss/∂b_i,l = Δu_i / (A(1) F_i(1)),   ∂y_ss/∂f_i,k = −G_i Δu_i / F_i(1),   ∂y_ss/∂a_j = −Σ_i G_i Δu_i / A(1)
-
-and 0 for the noise model (c, d). Drift of the latest model against the first is d = 100 (S₁/S₀ − 1) [%] with
+Drift of the latest model against the first is d = 100 (S₁/S₀ − 1) [%] with
 σ_d = 100 √(σ₁² + (S₁/S₀)² σ₀²) / S₀ (the two fits are on different data, so independent). A truck is
 flagged when |d| exceeds the threshold and 2σ_d, so a change within the fits' noise is not called drift.
 """
@@ -20,11 +16,13 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from fuelid.errors import InputError
 from fuelid.ident.polymodel import PolyModel
+from fuelid.ident.steady import static_gains, std_error, steady_inputs
 
 TORQUE_UNITS = ("Nm", "%")
 _POINT = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*x\s*(-?[0-9]+(?:\.[0-9]*)?)\s*(Nm|%)\s*$")
@@ -66,37 +64,28 @@ DEFAULT_POINTS = parse_points("1000x600Nm,1200x1200Nm,1400x1800Nm")
 @dataclass(frozen=True)
 class SteadyFuel:
     """The model's steady-state fuel at the reference points: per point [unit], their mean S [unit] and its
-    standard error σ_S [unit] (None without a covariance)."""
+    standard error σ_S [unit] (None without a covariance), and the reference condition (signal → what it was
+    held at: ident.steady)."""
 
     per_point: tuple[float, ...]
     mean: float
     std_error: float | None
     unit: str
+    reference: dict = field(default_factory=dict, compare=False)
 
 
 def steady_fuel(model: PolyModel, points: tuple[ReferencePoint, ...]) -> SteadyFuel:
-    """y_ss at each point and the mean S with σ_S (module docstring). ValueError when the model's first two
-    inputs are not engine speed [rpm] and torque in the points' unit."""
+    """y_ss at each point (ident.steady) and the mean S with σ_S (module docstring). InputError when the model's
+    first two inputs are not engine speed [rpm] and torque in the points' unit, or a signal its effects use has
+    no reference value."""
     unit = points[0].torque_unit
     if len(model.B) < 2 or model.input_units[0] != "rpm" or model.input_units[1] != unit:
-        raise ValueError(f"model inputs are in {', '.join(model.input_units)}; the reference points need rpm "
+        raise InputError(f"model inputs are in {', '.join(model.input_units)}; the reference points need rpm "
                          f"and {unit}")
-    s = model.structure
-    a1 = model.A.sum()
-    f1 = np.array([f.sum() for f in model.F])
-    gains = np.array([b.sum() for b in model.B]) / (a1 * f1)
-    du = np.zeros((len(points), len(model.B)))
-    du[:, 0] = [p.speed_rpm for p in points]
-    du[:, 1] = [p.torque for p in points]
-    du[:, :2] -= np.asarray(model.u0[:2])
-    per_point = model.y0 + du @ gains
-    mean_du = du.mean(axis=0)  # S is linear in Δu, so its gradient is the gradient at the mean Δu
-    grad = [np.full(s.na, -(gains @ mean_du) / a1)]
-    grad += [np.full(nb, mean_du[i] / (a1 * f1[i])) for i, nb in enumerate(s.nb)]
-    grad += [np.full(nf, -gains[i] * mean_du[i] / f1[i]) for i, nf in enumerate(s.nf)]
-    grad = np.concatenate(grad + [np.zeros(s.nc + s.nd)])
-    std = None if model.covariance is None else math.sqrt(max(grad @ model.covariance @ grad, 0.0))
-    return SteadyFuel(tuple(float(v) for v in per_point), float(per_point.mean()), std, model.output_unit)
+    du, reference = zip(*(steady_inputs(model, p.speed_rpm, p.torque) for p in points))
+    per_point = model.y0 + np.array(du) @ static_gains(model)
+    return SteadyFuel(tuple(float(v) for v in per_point), float(per_point.mean()),
+                      std_error(model, np.mean(du, axis=0)), model.output_unit, reference[0])
 
 
 @dataclass(frozen=True)

@@ -30,12 +30,14 @@ from pathlib import Path
 from threadpoolctl import threadpool_limits
 
 from fuelid.errors import FuelidError
+from fuelid.fleet.effectlist import missing
 from fuelid.ident.dataset import build_dataset
 from fuelid.ident.diagnosis import confirmed_effects, diagnose
 from fuelid.ident.identify import identify_model
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parse_orders
 from fuelid.ident.report import write_report
+from fuelid.ident.steady import data_reference
 from fuelid.ident.validation import evaluate
 from fuelid.output import json_safe
 
@@ -82,7 +84,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     "duration_s" (valid data [s]), "wall_s" and "cpu_s" (this job's wall and CPU time [s]), "phases_s" (wall time
     [s] of dataset, identify, diagnose with the held-out refits, identify with effects, write of the files and
     report), "top_effect"
-    (the id of the significant missing effect, or None), "warnings"}. Raises JobError for unusable data, with a
+    (the first hidden effect the diagnosis recommends, never the engine's own map: fleet.effectlist; or None), "warnings"}. Raises JobError for unusable data, with a
     one-line message.
     """
     t_start, cpu_start = time.perf_counter(), time.process_time()
@@ -125,6 +127,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
                 previous_metrics = evaluate(previous, ds)
             except FuelidError:  # another fuel unit or effects whose signals this data lacks: not comparable
                 pass
+        stored.info["steady_reference"] = data_reference(stored, ds)  # the signals the point decides (ident.steady)
         save_model(stored, model_path)
         diagnosis["data"]["files"] = names
         diagnosis["model"]["file"] = "the model without the effects it names" if effects else str(model_path)
@@ -137,7 +140,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         return {"fit_percent": m["fit_percent"], "rmse": m["rmse"],
                 "cycle_fuel_error_percent": m["cycle_fuel_error_percent"], "unit": ds.output_unit}
 
-    top = diagnosis["candidates"][0] if diagnosis["candidates"] else None
+    recommended = missing(diagnosis["candidates"])
     return json_safe({
         "truck": truck,
         "model_path": str(model_path),
@@ -154,7 +157,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         "wall_s": time.perf_counter() - t_start,
         "cpu_s": time.process_time() - cpu_start,
         "phases_s": phases,
-        "top_effect": top["effect"] if top and top["significant"] else None,
+        "top_effect": recommended[0] if recommended else None,
         "warnings": ds.notes + list(stored.info.get("warnings", [])) + ([report_error] if report_error else []),
     })
 

@@ -32,12 +32,31 @@ def engine_model(factor: float = 1.0, effects=()) -> PolyModel:
     return m
 
 
-def store_version(store: BlobStore, truck: str, model: PolyModel, top_effect=None) -> dict:
-    """model.json, a diagnosis and a small report (an inline script writes the truck's name into it) in the blob
+LOAD = "EEC2.EngPercentLoadAtCurrentSpeed"
+
+
+def mapped_model(factor: float = 1.0) -> PolyModel:
+    """engine_model with the engine map: its six engine_map columns (ñ·T̃, ñ², T̃², relative load, torque rise,
+    rise·T̃ in krpm and kNm, static gains only) and the relative load as the truck's data show it,
+    L = 40 %/kNm · T (ident.steady's stored reference)."""
+    base = engine_model(factor)
+    gains = [0.5, 0.3, 0.8, 0.02, 0.0, 0.0]
+    m = PolyModel(A=base.A, B=base.B + [[factor * g] for g in gains], F=base.F + [[1.0]] * 6, C=base.C, D=base.D,
+                  Ts=base.Ts, nk=base.nk + (0,) * 6, input_names=base.input_names + tuple(f"map {k}" for k in range(6)),
+                  input_units=base.input_units + ("1",) * 6, output_name=base.output_name,
+                  output_unit=base.output_unit, u0=base.u0 + (0.0,) * 6, y0=base.y0, effects=("engine_map",),
+                  info={**base.info, "steady_reference": {LOAD: {"surface": [0, 0, 40.0, 0, 0, 0, 0]}}})
+    m.covariance = 1e-10 * np.eye(m.structure.n_params)
+    return m
+
+
+def store_version(store: BlobStore, truck: str, model: PolyModel, top_effect=None, recommended=()) -> dict:
+    """model.json, a diagnosis (its candidates: `recommended` with recommended true) and a small report (an inline script writes the truck's name into it) in the blob
     store: the sha256 columns of a models row."""
     sha = {}
     for name, text in [("model", json.dumps(to_dict(model))),
-                       ("diagnosis", json.dumps({"truck": truck, "top_effect": top_effect})),
+                       ("diagnosis", json.dumps({"truck": truck, "top_effect": top_effect, "candidates": [
+                           {"id": e, "effect": e, "recommended": True} for e in recommended]})),
                        ("report", "<!doctype html><html><head><title>report</title></head><body><h1 id='t'></h1>"
                                   f"<script>document.getElementById('t').textContent = {json.dumps(truck)} + "
                                   "' fuel model report';</script></body></html>")]:
@@ -66,15 +85,17 @@ def add_truck(engine: sa.Engine, truck: str, hours: float = 10.0, files: int = 2
 
 def simulated_fleet(engine: sa.Engine, store: BlobStore, trucks: int = 6, versions: int = 3,
                     drifting: dict[str, float] | None = None, new_effect: str | None = None,
-                    distinct_middle: bool = True) -> list[str]:
+                    distinct_middle: bool = True, mapped: str | None = None) -> list[str]:
     """`trucks` trucks FLEET-000… (plus the names in `drifting`: truck → final relative drift, e.g. 0.08), each
     with `versions` model versions a day apart; trucks not drifting stay within ±0.2 %. `new_effect` names a
-    truck whose latest diagnosis names fan_on for the first time. distinct_middle False gives the versions
+    truck whose latest diagnosis names fan_on for the first time (and recommends it). `mapped` names a truck whose
+    models carry the engine map (`mapped_model`) and whose every diagnosis recommends engine_map and names it first,
+    as a property of the engine, not an effect. distinct_middle False gives the versions
     between the first and the latest the first one's files (the fleet view reads only those two; a benchmark's
     setup then writes far fewer files). Returns the truck names."""
     rng = np.random.default_rng(7)
     drifting = drifting or {}
-    names = [f"FLEET-{i:03d}" for i in range(trucks)] + list(drifting)
+    names = [f"FLEET-{i:03d}" for i in range(trucks)] + list(drifting) + ([mapped] if mapped else [])
     now = time.time()
     for name in names:
         add_truck(engine, name)
@@ -82,9 +103,10 @@ def simulated_fleet(engine: sa.Engine, store: BlobStore, trucks: int = 6, versio
         rows = []
         for v in range(versions):
             change = drifting.get(name, 0.002 * rng.standard_normal()) * (v / max(versions - 1, 1))
-            effect = "fan_on" if name == new_effect and v == versions - 1 else None
+            effect = "fan_on" if name == new_effect and v == versions - 1 else "engine_map" if name == mapped else None
             if distinct_middle or v in (0, versions - 1):
-                files = store_version(store, name, engine_model(base * (1.0 + change)), effect)
+                model = (mapped_model if name == mapped else engine_model)(base * (1.0 + change))
+                files = store_version(store, name, model, effect, [effect] if effect else [])
             rows.append({"truck": name, "version": v + 1, "job_id": None,
                          "created_unix_s": now - 86400.0 * (versions - 1 - v), **files, "metrics": METRICS,
                          "n_samples": 12000, "duration_s": 3600.0, "top_effect": effect})

@@ -79,6 +79,14 @@ function compare([x, a], [y, b]) {
   return state.sortAsc ? order : -order;
 }
 
+// "in the model: a, b; missing: c": effects the model carries and hidden effects its diagnosis recommends
+function effectsText(t) {
+  const parts = [];
+  if (t.effects.length) parts.push(`in the model: ${t.effects.join(", ")}`);
+  if (t.missing_effects.length) parts.push(`missing: ${t.missing_effects.join(", ")}`);
+  return parts.join("; ") || "–";
+}
+
 function cell(text, className) {
   const c = el("span", text, className);
   c.setAttribute("role", "cell");
@@ -101,7 +109,7 @@ function renderFleet() {
     name.append(link);
     tr.append(name, cell(num(t.data_hours, 1)), cell(when(t.last_upload_unix_s)),
       cell(t.latest_version ?? "–"), cell(num(t.fit_percent, 1)), cell(num(t.cycle_fuel_error_percent, 2)),
-      cell([t.top_effect ? `missing: ${t.top_effect}` : "", ...t.effects].filter(Boolean).join(", ") || "–", "text"),
+      cell(effectsText(t), "text"),
       cell(t.steady_fuel === null ? "–" : `${plusMinus(t.steady_fuel, t.steady_fuel_std, 2)} ${t.unit || ""}`),
       cell(plusMinus(t.drift_percent, t.drift_std_percent, 1, true)), cell(signed(t.vs_fleet_percent, 1)));
     const alerts = cell(null, "text");
@@ -168,7 +176,7 @@ function renderTruck(h) {
       el("td", v.rmse === null ? "–" : `${num(v.rmse, 3)} ${v.unit || ""}`), el("td", num(v.cycle_fuel_error_percent, 2)),
       el("td", plusMinus(v.steady_fuel, v.steady_fuel_std, 2)),
       el("td", v.version === h.versions[0].version ? "reference" : plusMinus(v.drift_percent, v.drift_std_percent, 1, true)),
-      el("td", v.top_effect || "–", "text"), el("td", v.effects.join(", ") || "–", "text"), report);
+      el("td", v.effects.join(", ") || "–", "text"), el("td", v.missing_effects.join(", ") || "–", "text"), report);
     if (v.note && v.steady_fuel === null) tr.cells[5].textContent = v.note;
     versions.append(tr);
   }
@@ -231,6 +239,7 @@ function signOut(message) {
   $("signout").hidden = true;
   $("signin").hidden = false;
   status(message || "", Boolean(message));
+  $("token").focus();
 }
 
 async function start() {
@@ -276,4 +285,5 @@ document.addEventListener("DOMContentLoaded", () => {
     }
   });
   if (sessionStorage.getItem(TOKEN_KEY)) start();
+  else $("token").focus();
 });

@@ -1,0 +1,92 @@
+"""ident.steady: the whole model's steady state at a point — the settled simulation of the inputs the model's own
+effects build (the engine map's included) — its standard error against sampling the parameters, the reference
+condition it states, and the reference values it learns from a truck's data."""
+import numpy as np
+import pytest
+
+from fuelid.errors import InputError
+from fuelid.ident.dataset import Dataset
+from fuelid.ident.modeldata import model_data
+from fuelid.ident.polymodel import PolyModel, from_theta, simulate
+from fuelid.ident.steady import data_reference, steady_fuel
+
+LOAD = "EEC2.EngPercentLoadAtCurrentSpeed"
+REGEN = "DPFC1.DPFActiveRegenStatus"
+
+
+def map_model(map_gain=1.0, cov_scale=1e-10):
+    """Fuel [L/h] from speed [rpm], torque [N·m], the engine map's six columns (five-tap FIRs, as the effect
+    adds them) and a DPF regeneration's three, about idle (600 rpm, 0 N·m, 2 L/h); the relative load as a
+    truck's data show it, L = 40 %/kNm · T."""
+    fir = [[0.3, 0.3, 0.2, 0.1, 0.1]] * 6
+    mp = np.array([0.5, 0.3, 0.8, 0.02, 0.4, 0.1])[:, None] * map_gain
+    B = [[0, 0.004, 0.002], [0.01, 0.004]] + [list(r) for r in mp * np.array(fir)] + [[3.0], [0.001], [0.002]]
+    F = [[1, -0.5], [1, -0.3]] + [[1.0]] * 6 + [[1, -0.2]] * 3
+    m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 10,
+                  input_units=("rpm", "Nm") + ("1",) * 9, output_unit="L/h", u0=(600.0, 0.0) + (0.0,) * 9, y0=2.0,
+                  effects=("engine_map", "dpf_regeneration"),
+                  info={"steady_reference": {LOAD: {"surface": [0, 0, 40.0, 0, 0, 0, 0]}}})
+    n = m.structure.n_params
+    m.covariance = cov_scale * (np.eye(n) + 0.3 * np.ones((n, n)))
+    return m
+
+
+def held(model, speed, torque, n=600, **signals):
+    """A dataset of n samples with speed [rpm] and torque [N·m] held and the given bus signals constant."""
+    return Dataset(Ts=0.3, t=0.3 * np.arange(n), u=np.tile([speed, torque], (n, 1)).astype(float), y=np.zeros(n),
+                   input_names=("speed", "torque"), input_units=("rpm", "Nm"), output_name="fuel", output_unit="L/h",
+                   u0=np.array(model.u0[:2]), y0=model.y0, valid=np.ones(n, bool), cycle=np.full(n, -1),
+                   extra={k: np.full(n, float(v)) for k, v in signals.items()})
+
+
+@pytest.mark.parametrize("point", [(1000, 600), (1400, 1800), (800, 100)])
+def test_steady_fuel_is_the_settled_simulation_of_the_models_own_inputs(point):
+    m = map_model()
+    u, _ = model_data(m, held(m, *point, **{LOAD: 0.04 * point[1], REGEN: 0}))
+    settled = simulate(m, u)[-1]
+    s = steady_fuel(m, *point)
+    assert s.value == pytest.approx(settled, rel=1e-9) and s.unit == "L/h"
+    assert s.reference[REGEN] == "no DPF regeneration" and "data" in s.reference[LOAD]
+
+
+def test_the_engine_map_changes_the_steady_state_by_its_static_curvature():
+    n, T = 1400.0, 1800.0
+    with_map, plane = steady_fuel(map_model(), n, T).value, steady_fuel(map_model(map_gain=0.0), n, T).value
+    dn, dT = (n - 600.0) / 1000.0, T / 1000.0  # krpm, kNm from the operating point
+    load = 0.04 * T / 100.0  # the relative load column [1], 40 %/kNm
+    curvature = 0.5 * dn * dT + 0.3 * dn ** 2 + 0.8 * dT ** 2 + 0.02 * load  # FIR taps sum to 1; no rise when held
+    assert with_map - plane == pytest.approx(curvature / 0.8, rel=1e-9) and curvature > 1.0  # through 1/A(1)
+
+
+def test_a_regenerating_reference_burns_more():
+    m = map_model()
+    assert steady_fuel(m, 1200, 1200, reference={REGEN: 1}).value > steady_fuel(m, 1200, 1200).value + 2.5
+
+
+def test_standard_error_matches_sampling_the_parameters():
+    m = map_model(cov_scale=1e-8)
+    draws = np.random.default_rng(0).multivariate_normal(m.theta, m.covariance, size=2000)
+    values = [steady_fuel(from_theta(t, m.structure, m.Ts, u0=m.u0, y0=m.y0, input_units=m.input_units,
+                                     effects=m.effects, info=m.info), 1200, 1200).value for t in draws]
+    assert steady_fuel(m, 1200, 1200).std_error == pytest.approx(np.std(values), rel=0.08)
+
+
+def test_a_signal_without_a_reference_value_is_named():
+    m = map_model()
+    m.info = {}
+    with pytest.raises(InputError, match=LOAD):
+        steady_fuel(m, 1200, 1200)
+
+
+def test_data_reference_fits_what_the_point_decides_and_takes_the_median_of_the_rest():
+    m = map_model()
+    rng = np.random.default_rng(1)
+    ds = held(m, 0, 0, n=3000)
+    ds.u = np.column_stack([rng.uniform(700, 1800, 3000), rng.uniform(0, 2400, 3000)])
+    ds.extra = {LOAD: 100.0 * ds.u[:, 1] / (2600.0 - 0.3 * ds.u[:, 0]), REGEN: rng.uniform(0, 1, 3000) < 0.1}
+    ds.extra[REGEN] = ds.extra[REGEN].astype(float)
+    ref = data_reference(m, ds)
+    assert set(ref) == {LOAD} and "surface" in ref[LOAD]  # the regeneration state has its stated reference
+    m.info = {"steady_reference": ref}
+    u, _ = model_data(m, held(m, 1200, 1500, **{LOAD: 100.0 * 1500 / (2600.0 - 360.0), REGEN: 0}))
+    assert steady_fuel(m, 1200, 1500).value == pytest.approx(simulate(m, u)[-1], abs=0.02)
