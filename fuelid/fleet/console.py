@@ -213,7 +213,7 @@ class ModelCache:
             try:
                 doc = json.loads(self.store.path(diagnosis_sha256).read_text(encoding="utf-8"))
                 found = doc.get("candidates") if isinstance(doc, dict) else None
-            except (OSError, ValueError, FuelidError):  # a missing or damaged diagnosis names nothing
+            except (OSError, UnicodeDecodeError, json.JSONDecodeError):  # a missing or damaged diagnosis names nothing
                 found = None
             self._candidates[diagnosis_sha256] = [c for c in found or [] if isinstance(c, dict)]
         return missing(self._candidates[diagnosis_sha256], self.effects(model_sha256))

@@ -89,8 +89,8 @@ def simulated_fleet(engine: sa.Engine, store: BlobStore, trucks: int = 6, versio
     """`trucks` trucks FLEET-000… (plus the names in `drifting`: truck → final relative drift, e.g. 0.08), each
     with `versions` model versions a day apart; trucks not drifting stay within ±0.2 %. `new_effect` names a
     truck whose latest diagnosis names fan_on for the first time (and recommends it). `mapped` names a truck whose
-    models carry the engine map (`mapped_model`) and whose every diagnosis recommends engine_map and names it first,
-    as a property of the engine, not an effect. distinct_middle False gives the versions
+    models carry the engine map (`mapped_model`) and whose latest diagnosis recommends engine_map and names it
+    first, for the first time, as the diagnosis names the engine's own map: a property of the engine, not an effect. distinct_middle False gives the versions
     between the first and the latest the first one's files (the fleet view reads only those two; a benchmark's
     setup then writes far fewer files). Returns the truck names."""
     rng = np.random.default_rng(7)
@@ -103,7 +103,7 @@ def simulated_fleet(engine: sa.Engine, store: BlobStore, trucks: int = 6, versio
         rows = []
         for v in range(versions):
             change = drifting.get(name, 0.002 * rng.standard_normal()) * (v / max(versions - 1, 1))
-            effect = "fan_on" if name == new_effect and v == versions - 1 else "engine_map" if name == mapped else None
+            effect = "fan_on" if name == new_effect and v == versions - 1 else "engine_map" if name == mapped and v == versions - 1 else None
             if distinct_middle or v in (0, versions - 1):
                 model = (mapped_model if name == mapped else engine_model)(base * (1.0 + change))
                 files = store_version(store, name, model, effect, [effect] if effect else [])

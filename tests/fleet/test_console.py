@@ -2,7 +2,9 @@
 stand-in job runner) over a simulated fleet whose truck DRIFT-1 burns 8 % more above idle than its first model.
 Signs in, finds that truck at the top of the fleet sorted by drift, opens its report, starts a refit and follows
 the job; no console error, no request off the server's origin, a hostile truck name shown as text, the token in
-session storage only, and screenshots that are not blank. SQLite and PostgreSQL (the `database` fixture)."""
+session storage only, and screenshots that are not blank. The sign-in works from the keyboard alone (focus on the
+token, Enter signs in, a visible focus ring) and its error reads at WCAG AA contrast; a truck whose model carries
+the engine map shows it "in the model", never "missing", and never alerts for it. SQLite and PostgreSQL (the `database` fixture)."""
 import time
 from pathlib import Path
 
@@ -16,6 +18,23 @@ from tests.fleet.simulated_fleet import simulated_fleet
 playwright = pytest.importorskip("playwright.sync_api", reason="pip install playwright (the test extra)")
 CHROMIUM = next((p for p in (Path("/usr/lib/chromium/chromium"), Path("/usr/bin/chromium")) if p.exists()), None)
 HOSTILE = "<img src=/x onerror=alert(1)>"
+# WCAG 2 contrast ratio of an element's text colour and the first opaque background behind it
+CONTRAST = """(selector) => {
+  const channels = (c) => c.match(/[0-9.]+/g).map(Number);
+  const luminance = (c) => {
+    const [r, g, b] = channels(c).slice(0, 3).map((v) => v / 255).map(
+      (v) => (v <= 0.03928 ? v / 12.92 : Math.pow((v + 0.055) / 1.055, 2.4)));
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b;
+  };
+  const node = document.querySelector(selector);
+  let back = "rgb(255, 255, 255)";
+  for (let n = node; n; n = n.parentElement) {
+    const c = getComputedStyle(n).backgroundColor;
+    if (channels(c).length === 3 || channels(c)[3] > 0) { back = c; break; }
+  }
+  const [hi, lo] = [luminance(getComputedStyle(node).color), luminance(back)].sort((x, y) => y - x);
+  return (hi + 0.05) / (lo + 0.05);
+}"""
 
 
 def not_blank(png: Path) -> bool:
@@ -29,7 +48,7 @@ def not_blank(png: Path) -> bool:
 @pytest.fixture
 def console_server(tmp_path, database):
     s = Server(tmp_path / "data", database)
-    simulated_fleet(s.engine, BlobStore(s.data_dir), trucks=8, versions=3, drifting={"DRIFT-1": 0.08})
+    simulated_fleet(s.engine, BlobStore(s.data_dir), trucks=8, versions=3, drifting={"DRIFT-1": 0.08}, mapped="MAP-1")
     with s.engine.begin() as conn:  # a name no upload could give (the API refuses it), straight into the registry
         conn.execute(db.trucks.insert().values(truck=HOSTILE, created_unix_s=time.time()))
     s.start()
@@ -56,15 +75,24 @@ def test_console_finds_the_drifting_truck(console_server, tmp_path):
         context.on("page", watch)
         page = context.new_page()
         page.goto(s.url + "/")
-        page.fill("#token", s.token("truck", "DRIFT-1"))  # a truck's token is refused with a sentence
-        page.click("#signin-form button[type=submit]")
+        playwright.expect(page.locator("#token")).to_be_focused()  # the page opens on the token field
+        page.keyboard.type(s.token("truck", "DRIFT-1"))  # a truck's token is refused with a sentence
+        page.keyboard.press("Enter")
         playwright.expect(page.locator("#status")).to_contain_text("engineer or admin token")
         assert page.locator("#signin").is_visible() and page.evaluate("sessionStorage.length") == 0
-        page.fill("#token", token)
-        page.click("#signin-form button[type=submit]")
+        assert page.evaluate(CONTRAST, "#status") >= 4.5  # WCAG AA for the error
+        playwright.expect(page.locator("#token")).to_be_focused()  # back on the field, to try again
+        page.keyboard.press("Tab")  # next in the focus order: the sign-in button, with a visible focus ring
+        playwright.expect(page.locator("#signin-form button[type=submit]")).to_be_focused()
+        ring = page.evaluate("() => { const s = getComputedStyle(document.activeElement); "
+                             "return [s.outlineStyle, parseFloat(s.outlineWidth)]; }")
+        assert ring[0] != "none" and ring[1] >= 2, ring
+        page.keyboard.press("Shift+Tab")
+        page.keyboard.type(token)
+        page.keyboard.press("Enter")
         rows = page.locator("#fleet-rows .row")
-        rows.nth(9).wait_for()
-        assert rows.count() == 10
+        rows.nth(10).wait_for()
+        assert rows.count() == 11
 
         # sorted by |drift| by default: the drifting truck is first and flagged
         first = rows.first
@@ -72,6 +100,10 @@ def test_console_finds_the_drifting_truck(console_server, tmp_path):
         drift_text = first.locator("[role=cell]").nth(8).text_content()
         assert drift_text.startswith("+7.") or drift_text.startswith("+6.")  # 8 % of the fuel above idle
         assert page.locator("#alerts li").count() == 1 and "DRIFT-1" in page.locator("#alerts").text_content()
+        # the engine's map: in the model, never missing, never an alert (its latest diagnosis named it first)
+        mapped = page.locator("#fleet-rows .row[data-truck='MAP-1']")
+        assert mapped.locator("[role=cell]").nth(6).text_content() == "in the model: engine_map"
+        assert "alert" not in mapped.get_attribute("class") and mapped.locator(".badge").count() == 0
         page.click("#sort-drift")  # ascending, then back
         assert rows.first.get_attribute("data-truck") != "DRIFT-1"
         page.click("#sort-drift")

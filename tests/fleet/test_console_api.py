@@ -23,7 +23,8 @@ def fleet(tmp_path, database):
     app = create_app(Settings(data_dir=tmp_path / "data", database_url=database, refit_after_s=None),
                      runner_factory=FakeRunner)
     engine, store = app.state.engine, app.state.store
-    simulated_fleet(engine, store, trucks=5, versions=3, drifting={"DRIFT-1": 0.08}, new_effect="FLEET-002")
+    simulated_fleet(engine, store, trucks=5, versions=3, drifting={"DRIFT-1": 0.08}, new_effect="FLEET-002",
+                    mapped="MAP-1")
     with TestClient(app) as client:
         client.headers["Authorization"] = "Bearer " + auth.create_token(engine, "engineer")["token"]
         yield client, engine
@@ -50,6 +51,19 @@ def test_fleet_summary_finds_the_drifting_truck(fleet):
     assert trucks["FLEET-002"]["top_effect"] == "fan_on"
     assert body["fleet_median_steady_fuel"] == pytest.approx(statistics.median(t["steady_fuel"] for t in body["trucks"]))
     assert d["vs_fleet_percent"] == pytest.approx(100 * (d["steady_fuel"] / body["fleet_median_steady_fuel"] - 1))
+
+
+def test_effects_in_the_model_and_missing_each_once_and_the_map_never_alerts(fleet):
+    client, _ = fleet
+    trucks = {t["truck"]: t for t in client.get("/api/v1/fleet").json()["trucks"]}
+    assert trucks["FLEET-002"]["effects"] == [] and trucks["FLEET-002"]["missing_effects"] == ["fan_on"]
+    mapped = trucks["MAP-1"]
+    assert mapped["effects"] == ["engine_map"] and mapped["missing_effects"] == [] and mapped["alerts"] == []
+    assert mapped["steady_reference"]["EEC2.EngPercentLoadAtCurrentSpeed"].startswith("as the truck's data show")
+    assert abs(mapped["drift_percent"]) < 0.5  # the map is in every version: no spurious drift
+    latest = client.get("/api/v1/trucks/MAP-1/history").json()["versions"][-1]
+    assert latest["effects"] == ["engine_map"] and latest["missing_effects"] == []
+    assert all(a["truck"] != "MAP-1" for a in client.get("/api/v1/alerts").json())
 
 
 def test_reference_points_and_threshold_per_request(fleet):
@@ -209,14 +223,14 @@ def test_a_view_holds_one_row_per_truck(fleet):
     cache = console.ModelCache(client.app.state.store)
     with engine.connect() as conn:
         view.refresh(conn, cache, fingerprint(conn))
-    assert sorted(view.rows) == ["DRIFT-1", "FLEET-000", "FLEET-001", "FLEET-002", "FLEET-003", "FLEET-004"]
+    assert sorted(view.rows) == ["DRIFT-1", "FLEET-000", "FLEET-001", "FLEET-002", "FLEET-003", "FLEET-004", "MAP-1"]
     with engine.begin() as conn:
         conn.execute(db.models.delete().where(db.models.c.truck == "FLEET-004"))
         conn.execute(db.files.delete().where(db.files.c.truck == "FLEET-004"))
         conn.execute(db.trucks.delete().where(db.trucks.c.truck == "FLEET-004"))
     with engine.connect() as conn:
         view.refresh(conn, cache, fingerprint(conn))
-    assert sorted(view.rows) == ["DRIFT-1", "FLEET-000", "FLEET-001", "FLEET-002", "FLEET-003"]
+    assert sorted(view.rows) == ["DRIFT-1", "FLEET-000", "FLEET-001", "FLEET-002", "FLEET-003", "MAP-1"]
 
 
 def test_alerts_and_history(fleet):
