@@ -1,7 +1,17 @@
 """fleet.drift: steady-state fuel at reference points against the simulated steady state, its standard error
-against the Monte-Carlo spread of the parameters, drift of a known size flagged and noise not flagged."""
+against the Monte-Carlo spread of the parameters, drift of a known size flagged and noise not flagged; on the
+shipped map-engine trip (the README's front door), the identified model's steady fuel against the fuel measured
+near the points, and two fits of the same truck on the same data within their error bars."""
+from pathlib import Path
+
 import numpy as np
 import pytest
+
+from fuelid.cli import main
+from fuelid.ident.dataset import build_dataset
+from fuelid.ident.identify import identify_model
+from fuelid.ident.polymodel import Structure, parse_orders
+from fuelid.ident.steady import data_reference
 
 from fuelid.fleet.drift import DEFAULT_POINTS, SteadyFuel, drift, fleet_median, parse_points, steady_fuel, versus_median
 from fuelid.ident.polymodel import PolyModel, from_theta, simulate
@@ -63,3 +73,40 @@ def test_points_and_units():
         steady_fuel(engine_model(), parse_points("1000x50%"))
     assert versus_median(11.0, fleet_median([10.0, 9.0, 11.0])) == pytest.approx(10.0)
     assert fleet_median([]) is None and versus_median(1.0, None) is None
+
+
+TRIP = Path(__file__).resolve().parents[2] / "replay_logs" / "map_effect_dpf_regeneration_20min.log.gz"
+
+
+@pytest.fixture(scope="module")
+def front_door(tmp_path_factory):
+    """The trip's dataset and its model with the engine map and the DPF regeneration (the front door's), with
+    the reference values a fleet job records."""
+    mcap = tmp_path_factory.mktemp("drift") / "trip.mcap"
+    assert main(["convert", str(TRIP), "-o", str(mcap), "--json"]) == 0
+    ds = build_dataset([mcap])
+    model = identify_model(ds, Structure(**parse_orders("paper")), ["engine_map", "dpf_regeneration"])
+    model.info["steady_reference"] = data_reference(model, ds)
+    return ds, model
+
+
+def test_front_door_steady_fuel_is_the_fuel_measured_near_the_points(front_door):
+    ds, model = front_door
+    sf = steady_fuel(model, DEFAULT_POINTS)
+    assert sf.reference["DPFC1.DPFActiveRegenStatus"] == "no DPF regeneration"
+    no_regeneration = ds.extra["DPFC1.DPFActiveRegenStatus"] != 1
+    measured = []
+    for p in DEFAULT_POINTS:  # within 150 rpm and 225 N·m of the point, not regenerating
+        near = ds.valid & no_regeneration & (abs(ds.u[:, 0] - p.speed_rpm) < 150) & (abs(ds.u[:, 1] - p.torque) < 225)
+        assert near.sum() >= 20
+        measured.append(ds.y[near].mean())
+    assert np.allclose(sf.per_point, measured, rtol=0.15), (sf.per_point, measured)
+    assert sf.mean == pytest.approx(np.mean(measured), rel=0.10)
+
+
+def test_two_fits_of_the_same_truck_on_the_same_data_do_not_drift(front_door):
+    ds, model = front_door
+    again = identify_model(ds, Structure(**parse_orders("paper")), ["engine_map", "dpf_regeneration"], init=model)
+    again.info["steady_reference"] = data_reference(again, ds)
+    d = drift(steady_fuel(again, DEFAULT_POINTS), steady_fuel(model, DEFAULT_POINTS))
+    assert abs(d.percent) < 2 * d.std_error_percent and not d.alert
