@@ -1,10 +1,9 @@
 """fuelid dataset: MCAP recordings to a resampled identification data set (.csv or .mat) for cross-checks."""
 import sys
 import warnings
-from pathlib import Path
 
 from fuelid.errors import FuelidError
-from fuelid.ident.datacache import cache_path, cached_dataset
+from fuelid.ident.datacache import cached_dataset
 from fuelid.ident.dataset import build_dataset, csv_sidecar, save_dataset
 from fuelid.output import print_json
 
@@ -23,9 +22,9 @@ def add_dataset_arguments(p):
                    help="leave out chunks of a recording that fail their CRC (a gap, listed in the warnings) "
                         "instead of stopping with an error")
     p.add_argument("--no-cache", action="store_true",
-                   help=f"build the data set again instead of reusing the one cached beside the first recording "
-                        f"({cache_path(Path('DATA.mcap')).name}, rebuilt whenever a file's content or an option "
-                        "differs; FUELID_DATASET_CACHE=0 turns it off too)")
+                   help="build the data set again instead of reusing the one in the user cache directory "
+                        "(FUELID_CACHE_DIR, else $XDG_CACHE_HOME/fuelid or ~/.cache/fuelid; rebuilt whenever a "
+                        "file's content or an option differs; FUELID_DATASET_CACHE=0 turns it off too)")
 
 
 def build(args, paths):
