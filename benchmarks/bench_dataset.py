@@ -1,7 +1,7 @@
 """Dataset build from MCAP: from a converted file's message columns, against the record-by-record build and the
 column-wise JSON build of the same file, in one run.
 
-    .venv/bin/python benchmarks/bench_dataset.py [--hours 70] [--repeat 1] [--json]
+    .venv/bin/python benchmarks/bench_dataset.py [--hours 70] [--repeat 1] [--json] [--csv-only]
 
 Data: the shipped 1.5 h trip (replay_logs/diesel_ident_90min.log.gz) converted by `fuelid convert` (every
 channel, /can/raw included, and the message columns), and a long recording: that trip's decoded messages
@@ -15,8 +15,14 @@ and peak RSS (getrusage ru_maxrss, imports included: about 100 MB). The peer is 
 the dataset used before (one Python dict per decoded message: `read_messages` → `build_dataset(records)`),
 run on the 1.5 h trip only — at ~380 MB per hour of data it cannot hold a long recording; beside it the
 column-wise JSON build, which files without message columns get (the same file, columns ignored), and the
-commands' second build of the same file and options, read from the cache beside it (ident.datacache). All give the
-same Dataset (checked here by a SHA-256 of its arrays, and bit for bit in tests/ident/).
+commands' second build of the same file and options, read from the user cache directory (ident.datacache). All
+give the same Dataset (checked here by a SHA-256 of its arrays, and bit for bit in tests/ident/).
+
+CSV: `fuelid dataset -o x.csv`'s writer (ident.dataset.save_dataset, pyarrow's CSV writer) on the trip's Dataset,
+in MB of CSV written per second of wall time and per CPU second (the best of at least 3, the metadata sidecar
+included; on a loaded machine the wall time waits for a core), beside the
+row-by-row writer it replaced (one Python string per value; the same content: tests/ident/test_dataset_csv.py).
+Limit: ≥ 50 MB/s. `--csv-only` measures only that.
 """
 import argparse
 import json
@@ -151,17 +157,66 @@ def run(mode: str, paths: list[Path]) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def row_writer(ds, path: Path) -> None:
+    """The row-by-row CSV writer the dataset used before (the peer): repr(float) per value, NaN empty."""
+    import numpy as np
+
+    cols = [ds.t - ds.t[0], ds.valid.astype(float), ds.cycle.astype(float), ds.u[:, 0], ds.u[:, 1], ds.y,
+            *ds.extra.values()]
+    stamps = np.datetime64("1970-01-01T00:00:00", "ms") + np.round(ds.t * 1e3).astype("timedelta64[ms]")
+    with open(path, "w", newline="") as f:
+        f.write("header\n")
+        for stamp, row in zip([f"{s}Z" for s in stamps.astype(str)], np.column_stack(cols)):
+            values = ["" if np.isnan(v) else repr(float(v)) for v in row]
+            f.write(",".join([values[0], stamp, *values[1:]]) + "\n")
+
+
+def csv_speed(trip: Path, repeat: int) -> dict:
+    """MB/s of the CSV writer and of the row-by-row writer on the trip's Dataset (best of `repeat`)."""
+    import tempfile
+
+    from fuelid.ident.dataset import build_dataset, save_dataset
+
+    ds = build_dataset([trip])
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, write in (("pyarrow", save_dataset), ("rows", row_writer)):
+            best, cpu = None, None
+            for _ in range(repeat):
+                path = Path(tmp) / f"{name}.csv"
+                t0, c0 = time.perf_counter(), time.process_time()
+                write(ds, path)
+                wall, c = time.perf_counter() - t0, time.process_time() - c0
+                best, cpu = (wall, c) if best is None else (min(best, wall), min(cpu, c))
+            mb = path.stat().st_size / 1e6
+            out[name] = {"wall_s": best, "cpu_s": cpu, "mb": mb, "mb_per_s": mb / best, "mb_per_cpu_s": mb / cpu}
+    return {**out, "speedup": out["rows"]["wall_s"] / out["pyarrow"]["wall_s"], "samples": len(ds),
+            "load_average": os.getloadavg()}
+
+
+def print_csv(c: dict) -> None:
+    print(f"CSV of the trip ({c['samples']} samples): pyarrow writer {c['pyarrow']['mb']:.1f} MB in "
+          f"{c['pyarrow']['wall_s']:.2f} s = {c['pyarrow']['mb_per_s']:.0f} MB/s wall, "
+          f"{c['pyarrow']['mb_per_cpu_s']:.0f} MB per CPU s (limit 50 MB/s); row-by-row writer "
+          f"{c['rows']['mb_per_s']:.1f} MB/s; {c['speedup']:.1f}× faster (load average {c['load_average'][0]:.1f})")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=70.0, help="length of the long recording [h] (0: skip it)")
     ap.add_argument("--repeat", type=int, default=1, help="builds per case; the fastest counts")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--csv-only", action="store_true", help="measure only the CSV writer")
     ap.add_argument("--child", nargs="+", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         return child(args.child[0], args.child[1:])
 
     trip = converted_trip()
+    if args.csv_only:
+        c = csv_speed(trip, max(args.repeat, 3))
+        print(json.dumps(c, indent=1)) if args.json else print_csv(c)
+        return
     load_before = os.getloadavg()
     best = {}
     run("cache", [trip])  # writes the cache (or finds it)
@@ -185,6 +240,7 @@ def main():
         long = run("columns", files)
         summary["long"] = {"files": len(files), "hours": len(files) * 1.5,
                            "mcap_mb": sum(f.stat().st_size for f in files) / 1e6, **long}
+    summary["csv"] = csv_speed(trip, max(args.repeat, 3))
     summary["load_average_after"] = os.getloadavg()
     if args.json:
         print(json.dumps(summary, indent=1))
@@ -208,6 +264,7 @@ def main():
         print(f"long: {lg['files']} files, {lg['hours']:.1f} h ({lg['mcap_mb']:.0f} MB, /j1939 + columns), "
               f"{lg['samples']} samples: {lg['cpu_s']:.1f} CPU s ({lg['cpu_s'] / lg['hours']:.2f} s per hour of "
               f"data), peak RSS {lg['peak_rss_mb']:.0f} MB")
+    print_csv(summary["csv"])
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ LAZY_IMPORTS = {
     "foxglove": "heavy to load: MCAP writers need the SDK, readers do not",
     "serial": "pyserial opens ports only: parsing and replaying meter captures do not need it",
     "scipy": "scipy.signal, scipy.io: kept off the in-cab estimator's path, loaded by the features using them",
+    "pyarrow": "heavy to load: only the dataset CSV writer (`fuelid dataset -o x.csv`) needs it",
     "fuelid.fleet.app": "FastAPI (optional extra [fleet]): `fuelid serve` only",
     "fuelid.fleet.console": "FastAPI (optional extra [fleet]): `fuelid serve` only",
     "fuelid.fleet.auth": "SQLAlchemy (optional extra [fleet]): `fuelid token` offline only",

@@ -30,7 +30,7 @@ from pathlib import Path
 from threadpoolctl import threadpool_limits
 
 from fuelid.errors import FuelidError
-from fuelid.fleet.effectlist import missing
+from fuelid.fleet import effectlist
 from fuelid.ident.dataset import build_dataset
 from fuelid.ident.diagnosis import confirmed_effects, diagnose
 from fuelid.ident.identify import identify_model
@@ -140,7 +140,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         return {"fit_percent": m["fit_percent"], "rmse": m["rmse"],
                 "cycle_fuel_error_percent": m["cycle_fuel_error_percent"], "unit": ds.output_unit}
 
-    recommended = missing(diagnosis["candidates"])
+    recommended = effectlist.missing(diagnosis["candidates"])
     return json_safe({
         "truck": truck,
         "model_path": str(model_path),

@@ -843,6 +843,41 @@ def _csv_units(ds: Dataset) -> dict[str, str]:
     return units
 
 
+CSV_CHUNK_ROWS = 1 << 16  # rows formatted at once: the writer's memory is bounded whatever the data's length
+
+
+def _csv_chunk(first: np.ndarray, ms: np.ndarray, columns: list[np.ndarray]) -> bytes:
+    """CSV rows (no header) by pyarrow's writer: `first`, the times ms [ms since 1970] as ISO 8601 UTC to the
+    millisecond ('2023-11-14T22:13:20.300Z'), then `columns`; numbers in their shortest round-trip form (whole
+    numbers as integers), NaN as an empty field."""
+    import pyarrow as pa  # heavy to load: only this writer needs it
+    import pyarrow.compute as pc
+    import pyarrow.csv as pacsv
+
+    stamps = pc.cast(pa.array(ms, pa.timestamp("ms")), pa.string())  # '2023-11-14 22:13:20.300'
+    iso = pc.binary_join_element_wise(pc.replace_substring(stamps, " ", "T"), "Z", "")
+
+    def number(x):
+        whole = np.isfinite(x).all() and np.all(x == np.round(x)) and np.abs(x).max(initial=0) < 2 ** 53
+        return pa.array(x.astype(np.int64)) if whole else pa.array(x, from_pandas=True)  # from_pandas: NaN → null
+
+    arrays = [number(first), iso] + [number(c) for c in columns]
+    sink = pa.BufferOutputStream()
+    pacsv.write_csv(pa.table(arrays, names=[str(k) for k in range(len(arrays))]), sink,
+                    pacsv.WriteOptions(include_header=False, quoting_style="none"))
+    return sink.getvalue().to_pybytes()
+
+
+def _write_rows(path: Path, t: np.ndarray, columns: list[np.ndarray]) -> None:
+    """Append the rows of `_csv_chunk` (columns[0], t [s since 1970] as ISO time, columns[1:]) to the CSV at
+    path, CSV_CHUNK_ROWS at a time."""
+    ms = np.round(np.asarray(t, float) * 1e3).astype(np.int64)
+    with open(path, "ab") as f:
+        for a in range(0, len(t), CSV_CHUNK_ROWS):
+            p = slice(a, a + CSV_CHUNK_ROWS)
+            f.write(_csv_chunk(columns[0][p], ms[p], [c[p] for c in columns[1:]]))
+
+
 def _write_csv(ds: Dataset, path: Path) -> None:
     """A plain CSV a spreadsheet opens (one header row, 'name [unit]'; time as seconds since the first sample
     and as ISO 8601 UTC), and its CSVW metadata sidecar with the units, the start time and fuelid's metadata."""
@@ -850,16 +885,11 @@ def _write_csv(ds: Dataset, path: Path) -> None:
     t0 = float(ds.t[0]) if len(ds.t) else 0.0
     units = _csv_units(ds)
     cols = {"time_s": ds.t - t0, **{k: v for k, v in cols.items() if k != "t"}}
-    stamps = (np.datetime64("1970-01-01T00:00:00", "ms") + np.round(ds.t * 1e3).astype("timedelta64[ms]"))
-    iso = [f"{s}Z" for s in stamps.astype(str)]
     names = list(cols)
     header = ["time_s [s]", "time_utc"] + [f"{n} [{units[n]}]" if n in units else n for n in names[1:]]
     with open(path, "w", newline="") as f:
         f.write(",".join(header) + "\n")
-        data = np.column_stack(list(cols.values()))
-        for stamp, row in zip(iso, data):
-            values = ["" if np.isnan(v) else repr(float(v)) for v in row]
-            f.write(",".join([values[0], stamp, *values[1:]]) + "\n")
+    _write_rows(path, ds.t, [np.asarray(v, float) for v in cols.values()])
     columns = [{"name": "time_s", "titles": header[0], "datatype": "number", "schema:unitText": "s",
                 "dc:description": "time since the first sample"},
                {"name": "time_utc", "titles": "time_utc", "datatype": "dateTime",

@@ -3,6 +3,7 @@ import json
 
 import pytest
 
+from fuelid.fleet.effectlist import ENGINE_PROPERTIES
 from fuelid.fleet.jobs import JobError, JobRunner, identify_truck
 from fuelid.cli import main
 from fuelid.ident.modelfile import load_model
@@ -57,7 +58,8 @@ def test_identify_truck_writes_model_diagnosis_and_returns_metrics(trip, tmp_pat
     assert res["duration_s"] == pytest.approx(900, rel=0.02)
     diagnosis = json.loads(open(res["diagnosis_path"]).read())
     assert diagnosis["data"]["files"] == [str(trip)] and diagnosis["candidates"]
-    assert res["top_effect"] in {None} | {c["effect"] for c in diagnosis["candidates"] if c["significant"]}
+    assert res["top_effect"] in {None} | {c["effect"] for c in diagnosis["candidates"] if c.get("recommended")} - ENGINE_PROPERTIES
+    assert set(load_model(res["model_path"]).info["steady_reference"]) <= {"EEC2.EngPercentLoadAtCurrentSpeed"}
     assert "<html" in open(res["report_path"], encoding="utf-8").read(2000).lower()
     assert res["wall_s"] > 0 and set(res["phases_s"]) == {"dataset", "identify", "diagnose", "identify with effects", "write"}
     json.dumps(res, allow_nan=False)  # the server stores it as it is
