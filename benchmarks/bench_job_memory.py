@@ -1,8 +1,10 @@
 """Peak memory and CPU of one fleet refit job's phases on many files of one truck: the dataset, PEM (paper
-orders) and the diagnosis, in one process, for 1.5 h files of the shipped trip (bench_dataset.long_recording),
-so memory per hour of data and per file can be read off.
+orders) on all of it, the diagnosis on the job's bounded sample (fleet.jobs.diagnosis_sample), and PEM again
+with the effects the diagnosis recommends, in one process, for 1.5 h files of the shipped trip
+(bench_dataset.long_recording), so memory per hour of data and per file can be read off. Limit: a truck-week
+(70 h) within 1 GB.
 
-    python benchmarks/bench_job_memory.py --hours 3 12 24
+    python benchmarks/bench_job_memory.py --hours 3 12 24 72
 
 Each size runs in a fresh process (peak RSS only grows; Linux: /proc); prints peak RSS [MB] after each phase and CPU [s].
 """
@@ -20,7 +22,8 @@ from pathlib import Path
 from threadpoolctl import threadpool_limits
 
 from fuelid.ident.dataset import build_dataset
-from fuelid.ident.diagnosis import diagnose
+from fuelid.fleet.jobs import diagnosis_sample
+from fuelid.ident.diagnosis import confirmed_effects, diagnose
 from fuelid.ident.identify import identify_model
 from fuelid.ident.polymodel import Structure, parse_orders
 
@@ -36,17 +39,24 @@ def peak_rss_mb() -> float:
 
 
 def one_job(paths: list[str]) -> dict:
-    """The phases of fleet.jobs.identify_truck up to the diagnosis, with peak RSS [MB] and CPU [s] after each."""
+    """The phases of fleet.jobs.identify_truck up to the identification with effects, with peak RSS [MB] and CPU
+    [s] after each."""
     phases, t0 = {}, time.process_time()
+    structure = Structure(**parse_orders("paper"))
     with threadpool_limits(1), warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = build_dataset(paths)
         phases["dataset"] = (peak_rss_mb(), time.process_time() - t0)
-        model = identify_model(ds, Structure(**parse_orders("paper")))
+        model = identify_model(ds, structure)
         phases["identify"] = (peak_rss_mb(), time.process_time() - t0)
-        diagnose(model, ds)
+        sample = diagnosis_sample(ds)
+        effects = confirmed_effects(diagnose(model, sample).to_json()["candidates"])
         phases["diagnose"] = (peak_rss_mb(), time.process_time() - t0)
-    return {"files": len(paths), "samples": int(ds.t.size), "phases": phases}
+        if effects:
+            identify_model(ds, structure, effects, base=model)
+        phases["identify with effects"] = (peak_rss_mb(), time.process_time() - t0)
+    return {"files": len(paths), "samples": int(ds.t.size), "diagnosed_samples": int(sample.t.size),
+            "effects": effects, "phases": phases}
 
 
 def main() -> None:
@@ -58,7 +68,8 @@ def main() -> None:
         print(json.dumps(one_job(args.child)))
         return
     files = [str(p) for p in long_recording(converted_trip(), max(args.hours))]
-    print(f"{'hours':>6} {'files':>5}  peak RSS [MB] after dataset / identify / diagnose   CPU [s] at each")
+    print(f"{'hours':>6} {'files':>5}  peak RSS [MB] after dataset / identify / diagnose / with effects   "
+          "CPU [s] at each   (samples, diagnosed, effects)")
     for hours in args.hours:
         n = max(1, round(hours / 1.5))
         out = subprocess.run([sys.executable, __file__, "--child", *files[:n]], capture_output=True, text=True,
@@ -66,7 +77,8 @@ def main() -> None:
         r = json.loads(out.stdout.strip().splitlines()[-1])
         rss = " / ".join(f"{v[0]:6.0f}" for v in r["phases"].values())
         cpu = " / ".join(f"{v[1]:5.1f}" for v in r["phases"].values())
-        print(f"{n * 1.5:6.1f} {n:5d}  {rss}      {cpu}")
+        print(f"{n * 1.5:6.1f} {n:5d}  {rss}      {cpu}   ({r['samples']}, {r['diagnosed_samples']}, "
+              f"{','.join(r['effects']) or '-'})")
 
 
 if __name__ == "__main__":

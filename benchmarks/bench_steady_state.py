@@ -8,9 +8,9 @@ convert` records it, and `fuelid identify`'s own code (ident.identify.identify_m
 model with the engine map (`--effect engine_map`), its reference values taken from the trip as a fleet job takes
 them (ident.steady.data_reference). Made once into benchmarks/.cache/steady/ (git-ignored).
 
-Points: engine speeds 1000, 1200, 1400 rpm × 30, 50, 70 % of the engine's largest full-load torque [N·m], kept
-when the trip drove within 100 rpm and 5 % of that torque at least 100 times (0.3 s samples), so the model is
-judged where its data are.
+Points: engine speeds 1000, 1200, 1400, 1600 rpm × 30, 50, 70 % of the engine's largest full-load torque [N·m],
+kept when the trip drove within 100 rpm and 5 % of that torque at least MIN_SAMPLES times (0.3 s samples), so the
+model is judged where its data are.
 
 The measured steady fuel at a point is the simulator's own in a steady run (`steady_run`: speed and reported
 torque held for 60 s, fuel as sim.mapfuel computes it — the VECTO map at the combustion torque, the transient
@@ -34,9 +34,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 CACHE = REPO / "benchmarks" / ".cache" / "steady"
 ENGINES = REPO.parent / "shared" / "engines"
-SPEEDS_RPM = (1000.0, 1200.0, 1400.0)
+SPEEDS_RPM = (1000.0, 1200.0, 1400.0, 1600.0)
 TORQUE_SHARES = (0.3, 0.5, 0.7)
 LIMIT_PERCENT = 2.0
+MIN_SAMPLES = 50  # samples of the trip near a point for it to be judged
 
 
 def steady_run(engine_file: Path, speed_rpm: float, torque_nm: float, seconds: float = 60.0, dt: float = 0.01) -> float:
@@ -61,8 +62,8 @@ def trip_model(engine_file: Path, seed: int, minutes: float):
     from fuelid.ident.polymodel import Structure, parse_orders
     from fuelid.ident.steady import data_reference
 
-    stem = CACHE / f"{engine_file.parent.name}_s{seed}_{minutes:g}min"
-    log, mcap, model_path = stem.with_suffix(".log.gz"), stem.with_suffix(".mcap"), stem.with_suffix(".json")
+    stem = f"{engine_file.parent.name}_s{seed}_{minutes:g}min"
+    log, mcap, model_path = (CACHE / f"{stem}{suffix}" for suffix in (".log.gz", ".mcap", ".model.json"))
     CACHE.mkdir(parents=True, exist_ok=True)
     if not mcap.exists():
         run = [sys.executable, "-m", "fuelid.cli"]
@@ -94,7 +95,7 @@ def engine_case(engine_file: Path, seed: int, minutes: float) -> list[dict]:
         for share in TORQUE_SHARES:
             T = share * t_max
             near = ds.valid & (np.abs(ds.u[:, 0] - n) < 100.0) & (np.abs(ds.u[:, 1] - T) < 0.05 * t_max)
-            if near.sum() < 100:
+            if near.sum() < MIN_SAMPLES:
                 continue
             s = steady_fuel(model, n, T)
             measured = steady_run(engine_file, n, T)

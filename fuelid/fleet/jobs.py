@@ -5,8 +5,13 @@
 model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
+Bounded memory: the model is identified on all the truck's data, but what the diagnosis, its verification and the
+report hold grows with the samples they see, so they see a bounded sample of it (`diagnosis_sample`): whole drive
+cycles (ident.dataset's, 30 min), evenly spaced over the data, at most DIAGNOSIS_HOURS of them — a truck-week
+costs a job what DIAGNOSIS_HOURS of data cost, whatever the hours.
+
 Held-out evidence: the model is fitted on all the truck's data (the newest file included) and the diagnosis
-runs on the same data, because its score tests are by construction tests at the fitted model; what needs
+runs on (a sample of) the same data, because its score tests are by construction tests at the fitted model; what needs
 unseen data is measured by refits: diagnose verifies candidate effects by a linearised refit scored on each
 60-s block left out of the fit, and scores the model itself the same way (the diagnosis's `held_out`),
 reported as metrics["held_out"] next to the in-sample metrics.
@@ -19,6 +24,7 @@ readable by the workers (same host, or storage shared with the cluster).
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import os
@@ -27,11 +33,12 @@ import uuid
 import warnings
 from pathlib import Path
 
+import numpy as np
 from threadpoolctl import threadpool_limits
 
 from fuelid.errors import FuelidError
 from fuelid.fleet import effectlist
-from fuelid.ident.dataset import build_dataset
+from fuelid.ident.dataset import Dataset, build_dataset
 from fuelid.ident.diagnosis import confirmed_effects, diagnose
 from fuelid.ident.identify import identify_model
 from fuelid.ident.modelfile import load_model, save_model
@@ -40,6 +47,27 @@ from fuelid.ident.report import write_report
 from fuelid.ident.steady import data_reference
 from fuelid.ident.validation import evaluate
 from fuelid.output import json_safe
+
+
+DIAGNOSIS_HOURS = 6.0  # the most data the diagnosis and the report of one job see [h]
+
+
+def diagnosis_sample(ds: Dataset, hours: float = DIAGNOSIS_HOURS) -> Dataset:
+    """ds itself when its drive cycles last at most `hours` [h] in all; else a Dataset of the samples of whole
+    drive cycles (ds.cycle ≥ 0), k of the K cycles at evenly spaced positions (k the most whose total stays within
+    `hours`), the rest of the fields as ds's."""
+    ids, counts = np.unique(ds.cycle[ds.cycle >= 0], return_counts=True)
+    seconds = counts * ds.Ts
+    if seconds.sum() <= 3600.0 * hours:
+        return ds
+    k = max(int(3600.0 * hours // max(float(np.median(seconds)), ds.Ts)), 1)
+    while k > 1 and seconds[np.unique(np.linspace(0, len(ids) - 1, k).round().astype(int))].sum() > 3600.0 * hours:
+        k -= 1
+    chosen = ids[np.unique(np.linspace(0, len(ids) - 1, k).round().astype(int))]
+    rows = np.flatnonzero(np.isin(ds.cycle, chosen))
+    return dataclasses.replace(ds, t=ds.t[rows], u=ds.u[rows], y=ds.y[rows], valid=ds.valid[rows],
+                               cycle=ds.cycle[rows], extra={name: x[rows] for name, x in ds.extra.items()},
+                               notes=list(ds.notes))
 
 
 class JobError(FuelidError):
@@ -113,7 +141,8 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             previous = load_model(previous_model) if previous_model else None
             model = identify_model(ds, structure, files=names, init=previous)
             lap("identify")
-            found = diagnose(model, ds)
+            sample = diagnosis_sample(ds)
+            found = diagnose(model, sample)
             lap("diagnose")
             diagnosis = found.to_json()
             effects = confirmed_effects(diagnosis["candidates"])
@@ -130,10 +159,13 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         stored.info["steady_reference"] = data_reference(stored, ds)  # the signals the point decides (ident.steady)
         save_model(stored, model_path)
         diagnosis["data"]["files"] = names
+        if sample is not ds:
+            diagnosis["data"]["sample"] = (f"{len(np.unique(sample.cycle))} of {len(np.unique(ds.cycle[ds.cycle >= 0]))} "
+                                           f"drive cycles, evenly spaced (at most {DIAGNOSIS_HOURS:g} h)")
         diagnosis["model"]["file"] = "the model without the effects it names" if effects else str(model_path)
         _write_json(diagnosis_path, diagnosis)
         after = [(f"with {', '.join(effects)}", stored)] if effects else []
-        report_path, report_error = _report(out, model, found, ds, truck, names, after)
+        report_path, report_error = _report(out, model, found, sample, truck, names, after)
         lap("write")
 
     def metrics(m):

@@ -1,10 +1,12 @@
 """fleet.jobs: one truck's identification job, and fleet refits on a Dask LocalCluster, on simulated trips."""
 import json
 
+import numpy as np
 import pytest
 
 from fuelid.fleet.effectlist import ENGINE_PROPERTIES
-from fuelid.fleet.jobs import JobError, JobRunner, identify_truck
+from fuelid.fleet.jobs import JobError, JobRunner, diagnosis_sample, identify_truck
+from fuelid.ident.dataset import Dataset
 from fuelid.cli import main
 from fuelid.ident.modelfile import load_model
 from fuelid.logger.mcap_log import McapLogWriter
@@ -125,3 +127,20 @@ def test_a_refit_stores_the_model_with_the_effects_its_diagnosis_confirmed(tmp_p
     assert diagnosis["data"]["files"] == ["2024-06-01-trip.mcap"]
     page = open(res["report_path"]).read()
     assert "2024-06-01-trip.mcap" in page and str(blob) not in page and "with dpf_regeneration" in page
+
+
+def test_the_diagnosis_sample_is_whole_cycles_evenly_spaced_and_bounded():
+    """A 10-hour truck: the job diagnoses at most DIAGNOSIS_HOURS of it, whole 30-min drive cycles spread over the
+    whole time; a short truck is diagnosed on all of its data."""
+    ts, n = 0.3, int(10 * 3600 / 0.3)
+    t = np.arange(n) * ts
+    cycle = (t // 1800).astype(int)
+    ds = Dataset(Ts=ts, t=t, u=np.column_stack([t, t]), y=t.copy(), input_names=("n", "T"), input_units=("rpm", "Nm"),
+                 output_name="fuel", output_unit="L/h", u0=np.zeros(2), y0=0.0, valid=np.ones(n, bool), cycle=cycle,
+                 extra={"ET1.EngCoolantTemp": t.copy()})
+    sample = diagnosis_sample(ds, hours=3.0)
+    kept = np.unique(sample.cycle)
+    assert len(kept) == 6 and kept[0] == 0 and kept[-1] == 19 and np.all(np.diff(kept) >= 3)
+    assert len(sample.t) == 6 * 6000 and np.array_equal(sample.extra["ET1.EngCoolantTemp"], sample.t)
+    assert len(sample.segments()) == 6  # the gaps between the cycles split the data
+    assert diagnosis_sample(ds, hours=12.0) is ds
