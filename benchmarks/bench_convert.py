@@ -11,8 +11,9 @@ loses at most a second). Each contender gets the frames already in memory and wr
 directory; the best of --repeat runs counts. One core: the process is pinned to CPU 0 where possible.
 
 End to end (--candump, skipped when empty): each command runs as a user runs it, in a child process pinned to
-the same core, reading the gzipped candump and writing its file; CPU time (user + sys) of the best of --repeat
-runs counts, and the file sizes are compared with the gzipped candump and with the same frames written the way
+the same core, reading the gzipped candump and writing its file, the two commands alternating; wall-clock time
+(start-up, reading and writing included) and CPU time (user + sys) of the best of --repeat runs count, each as
+fuelid's ÷ logconvert's (limit: wall clock ≤ 1.0×), and the file sizes are compared with the gzipped candump and with the same frames written the way
 the daemon writes (one-second chunks with message indexes).
 """
 import argparse
@@ -86,20 +87,25 @@ def time_python_can(writer_class, frames, path: Path) -> float:
     return time.perf_counter() - start
 
 
-def child_cpu_s(command: list[str]) -> float:
-    """CPU time [s] (user + sys) of running `command` to completion in a child process."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+def child_times(command: list[str]) -> tuple[float, float]:
+    """(wall-clock, CPU time (user + sys)) [s] of running `command` to completion in a child process."""
+    before, start = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    wall, after = time.perf_counter() - start, resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
 
 
 def end_to_end(candump: Path, repeat: int, tmp: Path) -> None:
     mcap, blf, live = tmp / "converted.mcap", tmp / "converted.blf", tmp / "live.mcap"
     fuelid = [str(Path(sys.executable).with_name("fuelid")), "convert", str(candump), "-o", str(mcap)]  # as installed
     logconvert = [sys.executable, "-m", "can.logconvert", str(candump), str(blf)]
-    cpu = {"fuelid convert → MCAP (decoded channels)": min(child_cpu_s(fuelid) for _ in range(repeat)),
-           "python -m can.logconvert → BLF": min(child_cpu_s(logconvert) for _ in range(repeat))}
+    names = {"fuelid convert → MCAP (decoded channels)": fuelid, "python -m can.logconvert → BLF": logconvert}
+    runs = {name: [] for name in names}
+    for _ in range(repeat):  # alternating, so a burst of other work on the machine hits both alike
+        for name, command in names.items():
+            runs[name].append(child_times(command))
+    wall = {name: min(w for w, _ in r) for name, r in runs.items()}
+    cpu = {name: min(c for _, c in r) for name, r in runs.items()}
     frames = 0
     writer = open_writer(live, source="benchmark")  # the daemon's file of the same frames
     recorder = Recorder(writer)
@@ -107,11 +113,13 @@ def end_to_end(candump: Path, repeat: int, tmp: Path) -> None:
         recorder.on_message_received(msg)
         frames += 1
     writer.close()
-    ours = cpu["fuelid convert → MCAP (decoded channels)"]
-    print(f"\nend to end on {candump} ({frames} frames), CPU s (user + sys) best of {repeat}, one core")
-    print(f"{'command':<45} {'CPU s':>8} {'frames/s':>10} {'fuelid ÷ it (time)':>19}")
-    for name, seconds in cpu.items():
-        print(f"{name:<45} {seconds:>8.2f} {frames / seconds:>10,.0f} {ours / seconds:>19.2f}")
+    ours = "fuelid convert → MCAP (decoded channels)"
+    print(f"\nend to end on {candump} ({frames} frames), best of {repeat}, one core, load average "
+          f"{os.getloadavg()[0]:.1f}")
+    print(f"{'command':<45} {'wall s':>8} {'CPU s':>8} {'fuelid ÷ it: wall':>18} {'CPU':>6}")
+    for name in names:
+        print(f"{name:<45} {wall[name]:>8.2f} {cpu[name]:>8.2f} {wall[ours] / wall[name]:>18.2f} "
+              f"{cpu[ours] / cpu[name]:>6.2f}")
     sizes = {"fuelid convert (MCAP, big chunks, no message indexes)": mcap.stat().st_size,
              "the daemon's MCAP (1 s chunks, message indexes)": live.stat().st_size,
              "BLF (can.logconvert)": blf.stat().st_size, "gzipped candump (input)": candump.stat().st_size}
