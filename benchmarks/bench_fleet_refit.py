@@ -16,7 +16,7 @@ speed-up goal with 2 workers on a 2-core machine is ≥ 1.7×. Also printed: the
 seconds / (workers × refit wall time): below 100 % the workers waited for a core other work held), the
 control speed-up (as many tasks of fixed pure-Python work as trucks, run right after each refit on the same
 workers: the parallelism the machine itself gave at that moment), CPU seconds per hour of data, peak worker
-memory, MCAP bytes per hour — the inputs of docs/install/fleet-scaling.md — and the load average before and after
+memory (and by phase of the jobs, fleet.jobs' peak_rss_mb), MCAP bytes per hour — the inputs of docs/install/fleet-scaling.md — and the load average before and after
 (other work on the machine makes the figures noisy).
 """
 import argparse
@@ -106,6 +106,7 @@ def refit(fleet: list[dict], workers: int, work: Path, orders: str, spin_n: int)
     return {"workers": workers, "startup_s": t_start, "refit_wall_s": wall, "control_wall_s": control,
             "job_wall_s": [r["wall_s"] for r in results], "job_cpu_s": [r["cpu_s"] for r in results],
             "phases_s": {k: sum(r["phases_s"][k] for r in results) for k in results[0]["phases_s"]},
+            "peak_rss_mb_by_phase": {k: max(r["peak_rss_mb"][k] for r in results) for k in results[0]["peak_rss_mb"]},
             "peak_worker_rss_mb": max(rss.values()),
             "fit_percent": [r["metrics"]["fit_percent"]["simulation"] for r in results]}
 
@@ -171,6 +172,10 @@ def main():
               f"{100 * r['cpu_utilisation']:>6.0f}% {r.get('control_speedup', 1.0):>15.2f}× "
               f"{r['startup_s']:>10.1f} {r['peak_worker_rss_mb']:>11.0f}")
     share = ", ".join(f"{k} {100 * v:.0f} %" for k, v in summary["phase_share"].items())
+    for r in runs:
+        print(f"{r['workers']} worker(s), peak worker RSS [MB] after each phase: "
+              + ", ".join(f"{k} {v:.0f}" for k, v in r["peak_rss_mb_by_phase"].items())
+              + " (limit per worker: 1024 MB for a truck-week)")
     print(f"per hour of data: {summary['cpu_s_per_data_hour']:.1f} CPU s (job wall time: {share}); mean fit "
           f"{sum(base['fit_percent']) / len(fleet):.1f} %; load average after {summary['load_average_after'][0]:.2f}")
 

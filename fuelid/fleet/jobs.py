@@ -28,6 +28,7 @@ import dataclasses
 import importlib
 import json
 import os
+import resource
 import time
 import uuid
 import warnings
@@ -111,7 +112,8 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     held_out, or None), "n_samples" (identification samples, Ts = 0.3 s),
     "duration_s" (valid data [s]), "wall_s" and "cpu_s" (this job's wall and CPU time [s]), "phases_s" (wall time
     [s] of dataset, identify, diagnose with the held-out refits, identify with effects, write of the files and
-    report), "top_effect"
+    report), "peak_rss_mb" (the worker process's peak resident memory [MB] after each phase: its peak so far, earlier
+    jobs on the worker included), "top_effect"
     (the first hidden effect the diagnosis recommends, never the engine's own map: fleet.effectlist; or None), "warnings"}. Raises JobError for unusable data, with a
     one-line message.
     """
@@ -126,10 +128,11 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     model_path, diagnosis_path = out / "model.json", out / "diagnosis.json"
-    phases = {}
+    phases, peaks = {}, {}
 
-    def lap(name):  # wall time [s] of each phase, for the fleet-scaling sketch
+    def lap(name):  # wall time [s] and the process's peak memory [MB] after each phase, for the fleet-scaling sketch
         phases[name] = time.perf_counter() - t_start - sum(phases.values())
+        peaks[name] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB
 
     with threadpool_limits(1):  # one BLAS/OpenMP thread: the cluster runs one job per core
         try:
@@ -189,6 +192,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         "wall_s": time.perf_counter() - t_start,
         "cpu_s": time.process_time() - cpu_start,
         "phases_s": phases,
+        "peak_rss_mb": peaks,
         "top_effect": recommended[0] if recommended else None,
         "warnings": ds.notes + list(stored.info.get("warnings", [])) + ([report_error] if report_error else []),
     })
