@@ -86,10 +86,17 @@ def _surface(n: np.ndarray, T: np.ndarray, torque_unit: str) -> np.ndarray:
     return np.column_stack([np.ones_like(n), n, T, n * T, n * n, T * T, n * n * T])
 
 
+def _signals_of(effect_id: str, defined) -> tuple[str, ...]:
+    """The bus signals an effect names; a generic effect ``FORM:SIG`` (ident.effects.generic_effects) names SIG."""
+    if ":" in effect_id:
+        return (effect_id.split(":", 1)[1],)
+    return get_effect(effect_id, None, defined).signals
+
+
 def _model_signals(model: PolyModel) -> list[tuple[str, str]]:
     """(effect spec, bus signal) of every signal the model's effects name."""
     defined = effects_of_model(model)
-    return [(spec, sig) for spec in model.effects for sig in get_effect(parse_effect(spec)[0], None, defined).signals]
+    return [(spec, sig) for spec in model.effects for sig in _signals_of(parse_effect(spec)[0], defined)]
 
 
 def data_reference(model: PolyModel, ds: Dataset) -> dict:
@@ -153,12 +160,16 @@ def steady_inputs(model: PolyModel, speed_rpm: float, torque: float,
         raise InputError(f"model inputs are in {', '.join(model.input_units)}; a steady state needs engine speed "
                          "[rpm] and torque first")
     values, said = _signal_values(model, speed_rpm, torque, dict(reference or {}))
+    # A generic effect is found only on a signal that varies: its signal steps by 1 after the first n samples,
+    # and the inputs are read in the middle of the constant part, where every builder sees a held value.
+    generic = {sig for spec, sig in _model_signals(model) if ":" in parse_effect(spec)[0]}
     n = SAMPLES
-    ds = Dataset(Ts=model.Ts, t=np.arange(n) * model.Ts, u=np.tile([speed_rpm, torque], (n, 1)).astype(float),
-                 y=np.full(n, model.y0), input_names=("engine speed", "engine torque"),
+    extra = {k: np.r_[np.full(n, v), np.full(n, v + (k in generic))] for k, v in values.items()}
+    ds = Dataset(Ts=model.Ts, t=np.arange(2 * n) * model.Ts, u=np.tile([speed_rpm, torque], (2 * n, 1)).astype(float),
+                 y=np.full(2 * n, model.y0), input_names=("engine speed", "engine torque"),
                  input_units=tuple(model.input_units[:2]), output_name=model.output_name,
                  output_unit=model.output_unit, u0=np.asarray(model.u0[:2], float), y0=model.y0,
-                 valid=np.ones(n, bool), cycle=np.full(n, -1), extra={k: np.full(n, v) for k, v in values.items()})
+                 valid=np.ones(2 * n, bool), cycle=np.full(2 * n, -1), extra=extra)
     u, _ = model_data(model, ds)
     return u[n // 2] - np.asarray(model.u0), said
 

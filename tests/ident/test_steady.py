@@ -90,3 +90,21 @@ def test_data_reference_fits_what_the_point_decides_and_takes_the_median_of_the_
     m.info = {"steady_reference": ref}
     u, _ = model_data(m, held(m, 1200, 1500, **{LOAD: 100.0 * 1500 / (2600.0 - 360.0), REGEN: 0}))
     assert steady_fuel(m, 1200, 1500).value == pytest.approx(simulate(m, u)[-1], abs=0.02)
+
+
+def test_an_effect_on_a_bus_signal_is_held_at_its_reference():
+    """A generic effect (scales:SIG, centred on the level the model carries) at that level adds nothing; a level:SIG
+    effect at the value the truck's data show (its median) adds its gain times that value."""
+    base = map_model(map_gain=0.0)
+    sig = "ET1.EngOilTemp1"
+    for spec, extra_info, B, expected in [
+            (f"scales:{sig}", {"effect_parameters": {f"scales:{sig}": 95.0}}, [[0.1], [0.01], [0.02]], 0.0),
+            (f"level:{sig}", {"steady_reference": {sig: {"median": 90.0}}}, [[0.1]], 0.1 * 90.0 / 0.8)]:
+        m = PolyModel(A=base.A, B=base.B + B, F=base.F + [[1.0]] * len(B), C=base.C, D=base.D, Ts=0.3,
+                      nk=base.nk + (0,) * len(B), input_units=base.input_units + ("1",) * len(B), output_unit="L/h",
+                      u0=base.u0 + (0.0,) * len(B), y0=2.0, effects=base.effects + (spec,),
+                      info={**base.info, **extra_info,
+                            "steady_reference": {**base.info["steady_reference"], **extra_info.get("steady_reference", {})}})
+        s = steady_fuel(m, 1200, 1200)
+        assert s.value - steady_fuel(base, 1200, 1200).value == pytest.approx(expected, abs=1e-9), spec
+        assert sig in s.reference
