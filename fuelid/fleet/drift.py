@@ -40,6 +40,10 @@ class ReferencePoint:
         return f"{self.speed_rpm:g}x{self.torque:g}{self.torque_unit}"
 
 
+MAX_SPEED_RPM = 10_000.0  # [rpm] above any truck engine's cut-off speed
+MAX_TORQUE = 100_000.0  # [N·m or %] above any truck engine's torque
+
+
 def parse_points(text: str) -> tuple[ReferencePoint, ...]:
     """Points written 'RPMxTORQUE<Nm|%>' separated by commas, e.g. '1000x600Nm,1400x1800Nm'; one torque unit.
     ValueError with one line when malformed."""
@@ -49,7 +53,11 @@ def parse_points(text: str) -> tuple[ReferencePoint, ...]:
         if not m:
             raise ValueError(f"reference point {part.strip()!r} is not RPMxTORQUE followed by Nm or %, "
                              "e.g. 1200x1500Nm")
-        points.append(ReferencePoint(float(m[1]), float(m[2]), m[3]))
+        speed, torque = float(m[1]), float(m[2])
+        if not (0.0 < speed <= MAX_SPEED_RPM and abs(torque) <= MAX_TORQUE):  # 390 digits parse to inf
+            raise ValueError(f"reference point {part.strip()!r} is out of range "
+                             f"(0 < rpm ≤ {MAX_SPEED_RPM:g}, |torque| ≤ {MAX_TORQUE:g})")
+        points.append(ReferencePoint(speed, torque, m[3]))
     if len({p.torque_unit for p in points}) != 1:
         raise ValueError("reference points must all give torque in the same unit (Nm or %)")
     if len(points) > 20:

@@ -66,7 +66,7 @@ def test_known_drift_is_flagged_and_noise_is_not():
 def test_points_and_units():
     assert [str(p) for p in DEFAULT_POINTS] == ["1000x600Nm", "1200x1200Nm", "1400x1800Nm"]
     assert parse_points(" 900 x 50% ,1200x75%")[1].torque_unit == "%"
-    for bad in ["1000x600", "1000x600Nm,1200x50%", "x600Nm", "1000x600Nm;1200x1Nm"]:
+    for bad in ["1000x600", "1000x600Nm,1200x50%", "x600Nm", "1000x600Nm;1200x1Nm", "0x600Nm", "9" * 390 + "x600Nm"]:
         with pytest.raises(ValueError):
             parse_points(bad)
     with pytest.raises(ValueError, match="rpm and %"):
