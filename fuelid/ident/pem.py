@@ -168,30 +168,48 @@ def _used(n: int, starts, n0: int):
     return keep
 
 
-def _regressors(blocks, n: int, starts=(0,), out: np.ndarray | None = None) -> np.ndarray:
+class _Lagged(NamedTuple):
+    """The N × d matrix whose columns are sig(t − l), zero before the start of t's segment, for each (sig, lags)
+    block in turn (segments begin at `starts`): Ψ or a regressor matrix, held as its few signals (O(N) each) and
+    made chunk by chunk of samples (`self[a:b]`), so that the whole N × d is formed only where asked for."""
+
+    blocks: list
+    n: int
+    starts: tuple = (0,)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.n, sum(len(lags) for _, lags in self.blocks)
+
+    def __getitem__(self, samples: slice) -> np.ndarray:
+        """Rows a … b − 1 (a slice of samples, step 1) as a (b − a) × d array in Fortran order."""
+        a, b, _ = samples.indices(self.n)
+        out = np.empty((max(b - a, 0), self.shape[1]), order="F")
+        c = 0
+        for sig, lags in self.blocks:
+            for lag in lags:
+                col = out[:, c]
+                lo = a - lag  # the sample of sig in the chunk's first row
+                col[max(-lo, 0):] = sig[max(lo, 0) : b - lag]
+                col[: max(-lo, 0)] = 0.0
+                for start in self.starts[1:]:  # the segments' first `lag` samples
+                    col[max(start - a, 0) : max(min(start + lag, b) - a, 0)] = 0.0
+                c += 1
+        return out
+
+
+def _regressors(blocks, n: int, starts=(0,)) -> np.ndarray:
     """The d × N matrix whose rows are sig(t − l), zero before the start of t's segment, for each (sig, lags)
-    block in turn (segments begin at `starts`); written into `out` when given.
-
-    Rows, so every copy is contiguous; the N × d regressor matrix is its transpose (a view).
-    """
-    rows = np.empty((sum(len(lags) for _, lags in blocks), n)) if out is None else out
-    r = 0
-    for sig, lags in blocks:
-        for lag in lags:
-            rows[r, :lag] = 0.0
-            rows[r, lag:] = sig[: n - lag]
-            for a in starts[1:]:
-                rows[r, a : a + lag] = 0.0
-            r += 1
-    return rows
+    block in turn (segments begin at `starts`): `_Lagged`, whole and transposed (C-contiguous rows)."""
+    return _Lagged(blocks, n, tuple(starts))[:].T
 
 
-def _least_squares(rows: np.ndarray, target: np.ndarray, used) -> np.ndarray:
-    """θ minimising Σ_{t used} (target(t) − φ(t)ᵀθ)², φ(t) the columns of rows (used: `_used`): by the QR
-    factorisation [Φ target] = Q [[R, z], [0, ρ]] (`_triangular_factor`), then R S⁻¹ (S the column norms) η = z by
-    scipy.linalg.lstsq (an SVD: robust to rank deficiency) and θ = S⁻¹ η."""
-    d = rows.shape[0]
-    Rbar = _triangular_factor(rows.T, target, used)
+def _least_squares(phi: _Lagged, target: np.ndarray, used) -> np.ndarray:
+    """θ minimising Σ_{t used} (target(t) − φ(t)ᵀθ)², φ(t)ᵀ the rows of Φ = phi (used: `_used`): by the QR
+    factorisation [Φ target] = Q [[R, z], [0, ρ]] (`_triangular_factor`, chunk by chunk), then R S⁻¹ (S the column
+    norms) η = z by scipy.linalg.lstsq (an SVD: robust to rank deficiency) and θ = S⁻¹ η."""
+    d = phi.shape[1]
+    Rbar = _triangular_factor(phi, target, used)
     scale = np.linalg.norm(Rbar[:d, :d], axis=0)
     scale[scale == 0] = 1.0
     return lstsq(Rbar[:d, :d] / scale, Rbar[:d, d], check_finite=False)[0] / scale
@@ -245,10 +263,9 @@ def _responses(m: Polynomials, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Re
     return _Responses(m, x, w, each([(m.D, m.C, w)])[0])
 
 
-def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,),
-              out: np.ndarray | None = None) -> np.ndarray:
-    """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ, its transpose written into `out`
-    (d × N) when given; the signals of empty regressor blocks are not filtered."""
+def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Lagged:
+    """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ: its at most 2m + 3 filtered signals,
+    lagged (`_Lagged`, made chunk by chunk where used); the signals of empty regressor blocks are not filtered."""
     m = r.m
     dens = [np.convolve(m.C, f) for f in m.F]
     with_f = [i for i in range(s.n_inputs) if s.nf[i]]  # an FIR input (F_i = 1) has no x_i/F_i block
@@ -261,7 +278,7 @@ def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=
     blocks += [(-next(filtered), range(1, s.nf[i] + 1)) for i in with_f]
     blocks += [(next(filtered), range(1, s.nc + 1))] if s.nc else []
     blocks += [(-next(filtered), range(1, s.nd + 1))] if s.nd else []
-    return _regressors(blocks, y.size, starts, out).T
+    return _Lagged(blocks, y.size, tuple(starts))
 
 
 def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobian: bool = False, starts=(0,)):
@@ -269,7 +286,7 @@ def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobia
 
     starts: the indices where segments begin (the first 0); every filter restarts from zero state there."""
     r = _responses(polynomials(theta, s), u, y, starts)
-    return (r.eps, _jacobian(r, s, u, y, starts)) if jacobian else r.eps
+    return (r.eps, _jacobian(r, s, u, y, starts)[:]) if jacobian else r.eps
 
 
 def _loss(eps: np.ndarray, used) -> float:
@@ -286,26 +303,29 @@ QR_CHUNK = 4096  # samples of [Ψ ε] per QR update: the working array is (d + 1
 DAMPING_FLOOR = 1e-15
 
 
-def _triangular_factor(psi: np.ndarray, eps: np.ndarray, used) -> np.ndarray:
+def _triangular_factor(psi, eps: np.ndarray, used) -> np.ndarray:
     """The (d + 1) × (d + 1) upper triangular R̄ of the QR factorisation of [Ψ ε] over the used samples,
     accumulated over chunks of QR_CHUNK samples (TSQR): R̄ ← R(qr([R̄; Ψ_k ε_k])). R̄ = [[R, z], [0, ρ]] with
-    Ψ = Q R, z = Qᵀε and ρ = ‖ε − Q z‖; the chunks' extra memory is O(QR_CHUNK · d), whatever N.
+    Ψ = Q R, z = Qᵀε and ρ = ‖ε − Q z‖. psi: an N × d array or `_Lagged` (made chunk by chunk here); the extra
+    memory is O(QR_CHUNK · d), whatever N.
 
-    Chunked here because scipy.linalg.qr and numpy.linalg.qr take the whole N × (d + 1) matrix (a second copy of
-    Ψ) and are slower on it than on chunks that stay in cache."""
+    Chunked here because scipy.linalg.qr and numpy.linalg.qr take the whole N × (d + 1) matrix (a copy of Ψ) and
+    are slower on it than on chunks that stay in cache."""
     n, d = psi.shape
-    index = np.arange(n)[used]
+    keep = np.zeros(n, bool)
+    keep[used] = True
     R = np.zeros((0, d + 1))
     work = np.empty((d + 1 + QR_CHUNK, d + 1), order="F")
-    for a in range(0, index.size, QR_CHUNK):
-        rows = index[a : a + QR_CHUNK]
-        if rows[-1] - rows[0] + 1 == rows.size:  # a run of samples: a view, not a gather
-            rows = slice(rows[0], rows[-1] + 1)
+    for a in range(0, n, QR_CHUNK):
+        rows = keep[a : a + QR_CHUNK]
         k = R.shape[0]
-        m = k + (index[a : a + QR_CHUNK]).size
+        m = k + int(np.count_nonzero(rows))
+        if m == k:
+            continue
+        chunk = psi[a : a + QR_CHUNK]
         work[:k] = R
-        work[k:m, :d] = psi[rows]
-        work[k:m, d] = eps[rows]
+        work[k:m, :d] = chunk if m - k == rows.size else chunk[rows]
+        work[k:m, d] = eps[a : a + QR_CHUNK][rows]
         factored = qr(work[:m], mode="raw", overwrite_a=True, check_finite=False)[0][0]  # R in its upper triangle
         R = np.triu(factored[: d + 1])
     if R.shape[0] < d + 1:  # fewer used samples than d + 1
@@ -323,7 +343,7 @@ class _Linearised(NamedTuple):
     c: np.ndarray
 
 
-def _linearised(psi: np.ndarray, eps: np.ndarray, used) -> _Linearised:
+def _linearised(psi, eps: np.ndarray, used) -> _Linearised:
     """`_Linearised` of Ψ, ε over the used samples: R and z from the QR of [Ψ ε] (`_triangular_factor`), never
     ΨᵀΨ (whose condition number is the square of Ψ's)."""
     d = psi.shape[1]
@@ -350,7 +370,7 @@ class LMResult(NamedTuple):
     converged: bool
     reason: str
     history: list
-    psi: np.ndarray | None
+    psi: _Lagged | None
     eps: np.ndarray | None
     mu: float
     flat: int
@@ -452,9 +472,7 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
                              f"continued to {max_iter}")
         theta, m = after.theta, polynomials(after.theta, s)
     r = _responses(m, u, y, starts)
-    # Ψ of every iteration is written into this one array: a new one each iteration costs page faults
-    rows = np.empty((s.n_params, y.size))
-    eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)
+    eps, psi = r.eps, _jacobian(r, s, u, y, starts)
     dof = max(eps[used].size - s.n_params, 1)
     if after is None:
         V, mu, flat, cut, first = _loss(eps, used), 1e-4, 0, False, 1
@@ -492,7 +510,7 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         flat = flat + 1 if V - taken.V <= ftol * V / dof else 0
         V, theta, mu, cut, r = taken.V, taken.theta, max(damping, DAMPING_FLOOR), taken.cut, taken.r
         history.append(V)
-        eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)  # the accepted trial's signals, not filtered again
+        eps, psi = r.eps, _jacobian(r, s, u, y, starts)  # the accepted trial's signals, not filtered again
     return stopped(max_iter, False, "max_iterations")
 
 
@@ -500,7 +518,7 @@ def _arx_ls(u, y, na: int, nb, nk, starts=(0,)):
     """Least-squares ARX: A y = Σ B_i u_i + e; returns (A, [B_i]) with nk leading zeros in B_i."""
     n0 = max([na] + [k + b - 1 for k, b in zip(nk, nb)])
     blocks = [(-y, range(1, na + 1))] + [(u[:, i], range(nk[i], nk[i] + nb[i])) for i in range(u.shape[1])]
-    th = _least_squares(_regressors(blocks, y.size, starts), y, _used(y.size, starts, n0))
+    th = _least_squares(_Lagged(blocks, y.size, tuple(starts)), y, _used(y.size, starts, n0))
     parts = _split(th, [na, *nb])
     return np.r_[1.0, parts[0]], [np.r_[np.zeros(k), b] for b, k in zip(parts[1:], nk)]
 
@@ -529,8 +547,8 @@ def _hannan_rissanen(w, nc: int, nd: int, starts=(0,)):
     warm = np.ones(w.size, bool)
     warm[_used(w.size, starts, L)] = False
     e_hat[warm] = 0.0
-    rows = _regressors([(-w, range(1, nd + 1)), (e_hat, range(1, nc + 1))], w.size, starts)
-    th = _least_squares(rows, w - e_hat, _used(w.size, starts, L + max(nc, nd)))
+    phi = _Lagged([(-w, range(1, nd + 1)), (e_hat, range(1, nc + 1))], w.size, tuple(starts))
+    th = _least_squares(phi, w - e_hat, _used(w.size, starts, L + max(nc, nd)))
     return stabilize(np.r_[1.0, th[nd:]]), stabilize(np.r_[1.0, th[:nd]])
 
 

@@ -111,6 +111,24 @@ def test_the_triangular_factor_over_chunks_is_the_qr_of_the_whole(monkeypatch, u
     np.testing.assert_allclose(np.abs(got), np.abs(want), rtol=1e-9, atol=1e-12 * np.abs(want).max())
 
 
+def test_the_jacobian_made_chunk_by_chunk_is_the_whole_one(monkeypatch):
+    """Ψ is held as its filtered signals, lagged (`_Lagged`), and made chunk by chunk for the QR: over three segments
+    and chunks that cut through them, the triangular factor is the one of the whole Ψ."""
+    s = Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=3, nd=3)
+    rng = np.random.default_rng(6)
+    u, y = rng.normal(size=(3000, 2)), rng.normal(size=3000)
+    starts = (0, 1000, 2300)
+    theta = 0.05 * rng.normal(size=s.n_params)
+    r = pem_module._responses(pem_module.polynomials(theta, s), u, y, starts)
+    lagged = pem_module._jacobian(r, s, u, y, starts)
+    whole = lagged[:]
+    np.testing.assert_array_equal(np.vstack([lagged[a : a + 333] for a in range(0, 3000, 333)]), whole)
+    used = pem_module._used(3000, starts, s.n_start)
+    monkeypatch.setattr(pem_module, "QR_CHUNK", 450)
+    got, want = (np.abs(pem_module._triangular_factor(m, r.eps, used)) for m in (lagged, whole))
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * want.max())
+
+
 @pytest.mark.parametrize("mu", [1e-12, 1e-6, 1e-2])
 def test_the_damped_step_solves_the_stacked_least_squares_problem(mu):
     """δ(μ) minimises ‖ε − Ψ δ‖² + μ σ_max² ‖S δ‖² (S the column norms): the least-squares solution of
@@ -130,7 +148,7 @@ def test_the_least_squares_stay_accurate_where_the_normal_equations_fail():
     precision) the exact θ of noise-free data comes back to 1e-4."""
     X = ill_conditioned(4000, 10, 4, decades=10)
     theta = np.random.default_rng(5).normal(size=10)
-    got = pem_module._least_squares(np.ascontiguousarray(X.T), X @ theta, slice(None))
+    got = pem_module._least_squares(X, X @ theta, slice(None))
     np.testing.assert_allclose(got, theta, rtol=1e-4)
     normal = np.linalg.solve(X.T @ X, X.T @ (X @ theta))
     assert np.abs(normal - theta).max() > 1e3 * np.abs(got - theta).max()
