@@ -312,20 +312,22 @@ def _triangular_factor(psi, eps: np.ndarray, used) -> np.ndarray:
     Chunked here because scipy.linalg.qr and numpy.linalg.qr take the whole N × (d + 1) matrix (a copy of Ψ) and
     are slower on it than on chunks that stay in cache."""
     n, d = psi.shape
-    keep = np.zeros(n, bool)
-    keep[used] = True
+    keep = np.zeros(n + 2, bool)
+    keep[1:-1][used] = True
+    edges = np.flatnonzero(np.diff(keep))  # the used samples: runs [edges[2j], edges[2j + 1])
     R = np.zeros((0, d + 1))
     work = np.empty((d + 1 + QR_CHUNK, d + 1), order="F")
     for a in range(0, n, QR_CHUNK):
-        rows = keep[a : a + QR_CHUNK]
-        k = R.shape[0]
-        m = k + int(np.count_nonzero(rows))
+        b = min(a + QR_CHUNK, n)
+        chunk, k = psi[a:b], R.shape[0]
+        work[:k] = R
+        m = k
+        for lo, hi in zip(np.clip(edges[0::2], a, b), np.clip(edges[1::2], a, b)):
+            work[m : m + hi - lo, :d] = chunk[lo - a : hi - a]
+            work[m : m + hi - lo, d] = eps[lo:hi]
+            m += hi - lo
         if m == k:
             continue
-        chunk = psi[a : a + QR_CHUNK]
-        work[:k] = R
-        work[k:m, :d] = chunk if m - k == rows.size else chunk[rows]
-        work[k:m, d] = eps[a : a + QR_CHUNK][rows]
         factored = qr(work[:m], mode="raw", overwrite_a=True, check_finite=False)[0][0]  # R in its upper triangle
         R = np.triu(factored[: d + 1])
     if R.shape[0] < d + 1:  # fewer used samples than d + 1
