@@ -1,9 +1,10 @@
 """BLAS on one thread for fuelid's narrow matrix products: a speed choice.
 
-The prediction-error fits factor N × d matrices with d up to about a hundred, chunk by chunk (ident.pem), where
-OpenBLAS's threads cost more time than they save: `python benchmarks/bench_blas_threads.py` times the fit of the
-shipped 1.5 h trip with BLAS on one thread and on every core (docs/explanation/numerics.md has the figures). The
-fits run in `one_blas_thread()`; the number of threads changes no result beyond rounding.
+The prediction-error fits, the validation's correlations and the diagnosis work on N × d matrices and long vectors,
+d up to about a hundred, where OpenBLAS's threads cost more time than they save, by far on a busy machine (idle
+threads spin). `python benchmarks/bench_blas_threads.py` times the PEM fit of the shipped 1.5 h trip with BLAS on
+one thread and on two (docs/explanation/numerics.md has the figures). So the fits run in `one_blas_thread()`, and
+whole functions in `in_one_blas_thread`. The number of threads changes no result beyond rounding.
 """
 from __future__ import annotations
 
@@ -22,3 +23,12 @@ def _threadpools() -> ThreadpoolController:
 def one_blas_thread():
     """A context in which BLAS (every BLAS library loaded when it is first used) runs on one thread."""
     return _threadpools().limit(limits=1, user_api="blas")
+
+
+def in_one_blas_thread(f):
+    """f, run with BLAS on one thread (`one_blas_thread`)."""
+    @functools.wraps(f)
+    def in_one_thread(*args, **kwargs):
+        with one_blas_thread():
+            return f(*args, **kwargs)
+    return in_one_thread

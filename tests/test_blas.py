@@ -2,7 +2,7 @@
 import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from fuelid.blas import one_blas_thread
+from fuelid.blas import in_one_blas_thread, one_blas_thread
 
 
 def blas_threads():
@@ -15,4 +15,7 @@ def test_one_blas_thread_runs_every_blas_on_one_thread_and_gives_the_threads_bac
         before = blas_threads()
         with one_blas_thread():
             assert blas_threads() and set(blas_threads()) == {1}
+        assert blas_threads() == before
+        assert in_one_blas_thread(blas_threads)() == [1] * len(before)
+        assert in_one_blas_thread(blas_threads).__name__ == "blas_threads"
         assert blas_threads() == before

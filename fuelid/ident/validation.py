@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import norm
 
+from fuelid.blas import in_one_blas_thread
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.polymodel import predict
@@ -72,6 +73,7 @@ def _xcov(a: np.ndarray, b: np.ndarray, lags: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+@in_one_blas_thread  # its long dot products: BLAS threads cost more time than they save (fuelid.blas)
 def autocorr_test(e, max_lag: int = 25, confidence: float = 0.99) -> CorrelationTest:
     """Whiteness of the prediction error e (any unit), eq. (18).
 
@@ -86,6 +88,7 @@ def autocorr_test(e, max_lag: int = 25, confidence: float = 0.99) -> Correlation
     return CorrelationTest(lags, r, bound, bool(np.all(np.abs(r[1:]) < bound)))
 
 
+@in_one_blas_thread
 def crosscorr_test(e, u, max_lag: int = 25, confidence: float = 0.99, feedback: bool = True):
     """Independence of the prediction error e from one input u (any units), eq. (19).
 
@@ -116,6 +119,7 @@ def crosscorr_test(e, u, max_lag: int = 25, confidence: float = 0.99, feedback: 
     return CorrelationTest(lags, r, bound, bool(np.all(np.abs(r[tested]) < bound)))
 
 
+@in_one_blas_thread
 def fit_percent(y, yhat) -> float:
     """Normalised root-mean-square fit [%] as MATLAB's ``compare``: 100 (1 − ‖y − ŷ‖ / ‖y − ȳ‖).
 

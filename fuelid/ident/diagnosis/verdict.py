@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fuelid.blas import in_one_blas_thread
 from fuelid.errors import FuelidError, InputError
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.builds import BuiltCheck, built_record
@@ -143,6 +144,7 @@ def _map_sentence(term: Candidate, full: Candidate | None, product: Candidate | 
            f"of the engine, not a hidden effect; add effect {term.effect}"
 
 
+@in_one_blas_thread
 def diagnose(model: PolyModel, ds, alpha: float = 0.05, n_verify: int = 10, min_effect_percent: float = 1.0,
              candidates=None, min_drop_percent: float = 2.0, effects=(), workers: int = 0) -> Diagnosis:
     """The whole diagnosis of `model` on dataset ds (ident.diagnosis and its modules).
