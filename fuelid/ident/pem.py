@@ -27,7 +27,11 @@ the paper's orders), c = Uᵀ z. The damped step
 
 is the least-squares solution of [Ψ S⁻¹; √μ σ_max I] S δ ≈ [ε; 0], i.e. it minimises ‖ε − Ψ δ‖² + μ σ_max² ‖S δ‖²;
 one factorisation per iteration serves every μ tried, μ adapts (`levenberg_marquardt`) and never falls below
-DAMPING_FLOOR. Memory: Ψ (N × d) once, the filtered signals (a few N), and O(QR_CHUNK · d) for the factorisation.
+DAMPING_FLOOR. Memory: Ψ is never formed whole (`_Lagged`: its at most 2m + 3 filtered signals, lagged chunk by
+chunk), so the LM needs O(m N) for the signals and O(QR_CHUNK · d) for the factorisation. The LM loop is written
+here, its linear algebra scipy's and numpy's (scipy.linalg.qr, lstsq; numpy.linalg.svd):
+scipy.optimize.least_squares (MINPACK's LM, or its trust-region methods) takes the whole N × d Jacobian as one
+array and has no place for the stability projection of each trial step.
 
 Stopping (`levenberg_marquardt`, reasons in `STOP_REASONS`, recorded in model.info). The Gauss–Newton
 decrement Δ = ½ ‖c‖² is the fall of V a full Gauss–Newton step promises; since λ̂ = 2V/(N − d)

@@ -330,6 +330,21 @@ def test_roots_within_agrees_with_np_roots():
     assert pem_module._roots_within([1.0, -0.999], pem_module.RHO_MAX * pem_module.STABLE_MARGIN)
 
 
+def test_a_fit_held_at_the_stability_bound_is_not_called_converged():
+    """Noise with a zero of C on the unit circle (C = 1 + q⁻¹, a spectral null at the Nyquist frequency): the
+    minimum lies on the circle, the fit ends with C's root clipped at |z| = RHO_MAX, and it says so — not converged,
+    stop_reason "stability_bound", the polynomial named in the warning."""
+    truth = PolyModel(A=[1], B=[[0.5, 0.3]], F=[[1, -0.7]], C=[1, 1.0], D=[1, -0.5], Ts=1.0, nk=(0,))
+    rng = np.random.default_rng(0)
+    u = lfilter([1.0], [1.0, -0.5], rng.normal(size=3000))
+    y = simulate(truth, u) + lfilter(truth.C, truth.D, 0.1 * rng.normal(size=3000))
+    with pytest.warns(UserWarning, match="did not converge.*C at the stability bound"):
+        est = pem(u, y, truth.structure, 1.0)
+    assert at_stability_bound(est) == ["C"]
+    assert not est.info["converged"] and est.info["stop_reason"] == "stability_bound"
+    assert np.abs(np.roots(est.C)).max() == pytest.approx(pem_module.RHO_MAX, abs=1e-9)
+
+
 def test_stability_enforced_from_unstable_start():
     """An unstable initial F, C, D (and data from an unstable noise denominator) still give a stable model."""
     truth = PolyModel(A=[1], B=[[0.5, 0.3]], F=[[1, -0.9]], C=[1, 0.5], D=[1, -1.02], Ts=1.0, nk=(0,))
