@@ -1,4 +1,4 @@
-"""lfilter: scipy.signal.lfilter(b, a, x) to the bit, by a compiled kernel for IIR filters of 1-D and 2-D data.
+"""lfilter: scipy.signal.lfilter(b, a, x), faster, by a compiled kernel for IIR filters of 1-D and 2-D data.
 
 The prediction-error fits filter short polynomials (2–17 coefficients: D/(C F_i) with the paper's noise-model
 orders) through 10⁴–10⁵ samples thousands of times (pem: u_i/F_i, x_i/F_i and B_i/F_i u_i in every
@@ -8,11 +8,11 @@ the state in registers:
 
     y[t] = z₀ + b₀ x[t],   z_k ← (z_{k+1} + x[t] b_{k+1}) − y[t] a_{k+1},   z_{n−2} ← x[t] b_{n−1} − y[t] a_{n−1}
 
-with b and a zero-padded to one length n ≤ MAX_TAPS and divided by a₀, from zero state — as scipy does, so the
-numbers are the same to the last bit (tests/ident/test_filters.py). `lfilter_each` filters many 1-D signals, each
+with b and a zero-padded to one length n ≤ MAX_TAPS and divided by a₀, from zero state — as scipy does; the
+numbers agree with scipy's to rounding (tests/ident/test_filters.py). `lfilter_each` filters many 1-D signals, each
 through its own filter: two of one filter length and signal length go through the kernel side by side
-(`_iir.iir_pair`, the two halves of an SSE2 register), each the same to the bit, the pair in about the time of one
-(pem's Jacobian filters 10–20 signals an iteration). A FIR filter of 1-D data is scipy's own
+(`_iir.iir_pair`, the two halves of an SSE2 register), the pair in about the time of one (pem's Jacobian filters
+10–20 signals an iteration). A FIR filter of 1-D data is scipy's own
 np.convolve(b / a₀, x) cut to x's length, called directly (scipy wraps it in a per-lane loop that costs as much as
 the convolution). Everything else (2-D FIR filters; more than two dimensions; complex data; longer filters) and an
 install built without a C compiler go to scipy itself, imported on first use so that the in-cab live estimator,
@@ -26,7 +26,7 @@ import numpy as np
 
 try:
     from fuelid.ident import _iir
-except ImportError:  # built without a C compiler (the extension is optional): scipy's loop, the same numbers
+except ImportError:  # built without a C compiler (the extension is optional): scipy's loop, slower
     _iir = None
 
 MAX_TAPS = 32  # the longest b, a the kernel takes (_iir.c)
@@ -45,7 +45,7 @@ def compiled() -> bool:
 
 
 def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
-    """scipy.signal.lfilter(b, a, x, axis=axis) without initial conditions, the same to the bit: y = B(q)/A(q) x
+    """scipy.signal.lfilter(b, a, x, axis=axis) without initial conditions: y = B(q)/A(q) x
     (b, a the coefficients of B, A in powers of q⁻¹) along `axis` of x (1-D, or 2-D: each column or row alike),
     from zero state."""
     b, a, x = np.asarray(b), np.asarray(a), np.asarray(x)
@@ -68,7 +68,7 @@ def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
 
 
 def lfilter_each(jobs) -> list[np.ndarray]:
-    """[lfilter(b, a, x) for b, a, x in jobs] for 1-D signals x, the same to the bit. IIR filters of one length
+    """[lfilter(b, a, x) for b, a, x in jobs] for 1-D signals x. IIR filters of one length
     through signals of one length run two at a time, side by side (`_iir.iir_pair`), in about the time of one."""
     jobs = list(jobs)
     if len(jobs) == 1:  # nothing to pair

@@ -15,39 +15,49 @@ Gradient by filtering (no finite differences). With x_i = B_i/F_i ũ_i and w = A
 Each family is one filtered signal, shifted: for m inputs at most 2m + 3 lfilter calls give the whole N × d Jacobian
 Ψ = [ψ(n0) … ψ(N−1)]ᵀ.
 
-Levenberg–Marquardt step: with S = diag of the column norms of Ψ and the eigendecomposition
-S⁻¹ΨᵀΨS⁻¹ = Q diag(ℓ) Qᵀ (a d × d problem, d = 41 for the paper's orders), g = Qᵀ S⁻¹ Ψᵀ ε and
-δ(μ) = S⁻¹ Q diag(1/(ℓ + μ ℓ_max)) g, which minimises ‖ε − Ψ δ‖² + μ ℓ_max ‖S δ‖². One decomposition per
-iteration serves every μ tried; μ adapts (see `levenberg_marquardt`).
-(Normal equations rather than a QR/SVD of the N × d Ψ: 10× cheaper here, and accurate enough for the step,
-which is always checked by evaluating V.)
+Levenberg–Marquardt step, by QR (never the normal equations, whose ΨᵀΨ squares Ψ's condition number). The
+triangular factor of [Ψ ε] over the used samples, accumulated over chunks of samples (TSQR, `_triangular_factor`),
+
+    [Ψ ε] = Q [[R, z], [0, ρ]],   z = Qᵀε,
+
+is scaled by S = diag of the column norms of Ψ and decomposed, R S⁻¹ = U diag(σ) Vᵀ (a d × d problem, d = 41 for
+the paper's orders), c = Uᵀ z. The damped step
+
+    δ(μ) = S⁻¹ V diag(σ / (σ² + μ σ_max²)) c
+
+is the least-squares solution of [Ψ S⁻¹; √μ σ_max I] S δ ≈ [ε; 0], i.e. it minimises ‖ε − Ψ δ‖² + μ σ_max² ‖S δ‖²;
+one factorisation per iteration serves every μ tried, μ adapts (`levenberg_marquardt`) and never falls below
+DAMPING_FLOOR. Memory: Ψ is never formed whole (`_Lagged`: its at most 2m + 3 filtered signals, lagged chunk by
+chunk), so the LM needs O(m N) for the signals and O(QR_CHUNK · d) for the factorisation. The LM loop is written
+here, its linear algebra scipy's and numpy's (scipy.linalg.qr, lstsq; numpy.linalg.svd):
+scipy.optimize.least_squares (MINPACK's LM, or its trust-region methods) takes the whole N × d Jacobian as one
+array and has no place for the stability projection of each trial step.
 
 Stopping (`levenberg_marquardt`, reasons in `STOP_REASONS`, recorded in model.info). The Gauss–Newton
-decrement Δ = ½ gᵀ diag(1/ℓ) g is the fall of V a full Gauss–Newton step promises; since λ̂ = 2V/(N − d)
+decrement Δ = ½ ‖c‖² is the fall of V a full Gauss–Newton step promises; since λ̂ = 2V/(N − d)
 and P = λ̂ (ΨᵀΨ)⁻¹, 2Δ/λ̂ = δᵀ P⁻¹ δ is the squared length of that step in standard errors. Converged when
 Δ ≤ tol · V (MATLAB's SearchOptions.Tolerance, there in %, default 0.01 % — ours is stricter), or when V
-fell by ≤ ftol · λ̂/2 (a thousandth of what one standard error is worth) in each of the last 3 iterations and
-either the step left is within one standard error or the steps were being cut back by the stability
-projection (a minimum on the boundary of the stable region), or when no damped step lowers V and every one
-was cut back by the projection. Near pole–zero cancellations (e.g. the paper's orders on data from its own model: Gw's printed F
-has a lightly damped pair at |z| = 0.9988 all but cancelled by zeros of B) make V flat along the direction
-that moves the pair together, and can put the pair on the stability bound: the promised Δ is then never
-realised (the step pushes the pair outward and is clipped back), so a decrement-only rule runs to the
-iteration limit while V no longer changes (measured on the shipped 1.5 h trip: V fell by < 1e-7 of itself
-per iteration from iteration 13 and < 1e-9 from about 30, while Δ stayed at 7.5e-6 V). The fit is fine then, the cancelling pair's coefficients are not
-determined; pem says so in its warning. Not converged: the iteration limit, or no damping lowering V while
-the step left is larger than one standard error and not all the steps tried were cut back at the bound.
+fell by ≤ ftol · λ̂/2 (a thousandth of what one standard error is worth, far above rounding) in each of the last 3
+iterations and the step left is within one standard error, or when no damped step lowers V and the step left is
+within one standard error. Near pole–zero cancellations (e.g. the paper's orders on data from its own model: Gw's
+printed F has a lightly damped pair at |z| = 0.9988 all but cancelled by zeros of B) make V flat along the
+direction that moves the pair together: the fit is fine then, the cancelling pair's coefficients are not
+determined; pem says so in its warning. Not converged: the iteration limit; no damping lowering V while the step
+left is larger than one standard error; and a root of F_i, C or D held at the stability bound (below).
 
 Continuing a search: Levenberg–Marquardt's state after an iteration is θ, V, μ, the count of flat iterations and
 whether the last step was cut back (`LMResult`); a search stopped at its iteration limit continues from it
-(`levenberg_marquardt(after=...)`, `pem_with_search`) through the same iterates, to the bit, as one search run to
-the larger limit — so a short warm-started refit need not be run again as the start of a longer one
+(`levenberg_marquardt(after=...)`, `pem_with_search`) through the same iterates as one search run to the larger
+limit in the same process — so a short warm-started refit need not be run again as the start of a longer one
 (ident.identify.FitMemo).
 
 Stability: after every step the roots of F_i, C and D outside the unit circle are reflected to 1/z̄ and all
-roots are clipped to radius ≤ 0.9999 (`stabilize`); the reflected candidate must still lower V to be
+roots are clipped to radius ≤ RHO_MAX = 0.9999 (`stabilize`); the reflected candidate must still lower V to be
 accepted. F_i and C stable keeps the predictor stable; D stable makes H = C/D a stationary noise model (the
-spectrum |C/D|² changes only by a constant factor under reflection).
+spectrum |C/D|² changes only by a constant factor under reflection). A fit that ends with a root at the bound
+(`at_stability_bound`) is where the projection held the search, not a minimum of V: it is reported not converged,
+stop_reason "stability_bound", with the polynomials named in its warning (when the steps keep being cut back and V
+is flat, the search stops there too).
 
 Initial conditions: every filter starts from zero state (the data are deviations from the operating point)
 and the first n0 = max(na, nk_i + nb_i − 1, nf_i, nc, nd) samples are left out of V and Ψ.
@@ -66,7 +76,8 @@ A_h ≈ H⁻¹ (prefiltering by the inverse noise model makes the OE criterion t
 sec. 14.4) — by LM for OE_LM_ITERATIONS iterations, then, when it is still going, by variable projection; then
 the noise model C/D by Hannan–Rissanen (a long AR, then least squares) on the residual
 w = A y − Σ B_i/F_i u_i, refined by LM as an ARMA model. Hand-written because SciPy has no PEM; the linear
-algebra is numpy/scipy.linalg and all filtering scipy.signal.lfilter's (ident.filters: the same numbers, compiled).
+algebra is numpy/scipy.linalg (the least squares by QR: `_least_squares`) and all filtering scipy.signal.lfilter's
+(ident.filters: compiled, the same numbers to rounding).
 
 Variable projection (Golub & Pereyra 1973; Kaufman's Jacobian, Ruhe & Wedin 1980) for the OE start's flat valleys.
 The Steiglitz–McBride start reduces each input's response on its own, so where inputs are collinear (the engine
@@ -88,15 +99,13 @@ filters; its LM would need Φ⁺'s derivative by finite differences.
 """
 from __future__ import annotations
 
-import functools
-import operator
 import time
 import warnings
 from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import lapack, lstsq
+from scipy.linalg import lstsq, qr
 
 from fuelid.blas import one_blas_thread
 from fuelid.errors import InputError
@@ -163,32 +172,51 @@ def _used(n: int, starts, n0: int):
     return keep
 
 
-def _regressors(blocks, n: int, starts=(0,), out: np.ndarray | None = None) -> np.ndarray:
+class _Lagged(NamedTuple):
+    """The N × d matrix whose columns are sig(t − l), zero before the start of t's segment, for each (sig, lags)
+    block in turn (segments begin at `starts`): Ψ or a regressor matrix, held as its few signals (O(N) each) and
+    made chunk by chunk of samples (`self[a:b]`), so that the whole N × d is formed only where asked for."""
+
+    blocks: list
+    n: int
+    starts: tuple = (0,)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.n, sum(len(lags) for _, lags in self.blocks)
+
+    def __getitem__(self, samples: slice) -> np.ndarray:
+        """Rows a … b − 1 (a slice of samples, step 1) as a (b − a) × d array in Fortran order."""
+        a, b, _ = samples.indices(self.n)
+        out = np.empty((max(b - a, 0), self.shape[1]), order="F")
+        c = 0
+        for sig, lags in self.blocks:
+            for lag in lags:
+                col = out[:, c]
+                lo = a - lag  # the sample of sig in the chunk's first row
+                col[max(-lo, 0):] = sig[max(lo, 0) : b - lag]
+                col[: max(-lo, 0)] = 0.0
+                for start in self.starts[1:]:  # the segments' first `lag` samples
+                    col[max(start - a, 0) : max(min(start + lag, b) - a, 0)] = 0.0
+                c += 1
+        return out
+
+
+def _regressors(blocks, n: int, starts=(0,)) -> np.ndarray:
     """The d × N matrix whose rows are sig(t − l), zero before the start of t's segment, for each (sig, lags)
-    block in turn (segments begin at `starts`); written into `out` when given.
-
-    Rows, so every copy is contiguous; the N × d regressor matrix is its transpose (a view).
-    """
-    rows = np.empty((sum(len(lags) for _, lags in blocks), n)) if out is None else out
-    r = 0
-    for sig, lags in blocks:
-        for lag in lags:
-            rows[r, :lag] = 0.0
-            rows[r, lag:] = sig[: n - lag]
-            for a in starts[1:]:
-                rows[r, a : a + lag] = 0.0
-            r += 1
-    return rows
+    block in turn (segments begin at `starts`): `_Lagged`, whole and transposed (C-contiguous rows)."""
+    return _Lagged(blocks, n, tuple(starts))[:].T
 
 
-def _least_squares(rows: np.ndarray, target: np.ndarray, used) -> np.ndarray:
-    """θ minimising Σ_{t used} (target(t) − φ(t)ᵀθ)², φ(t) the columns of rows (used: `_used`); by the normal
-    equations with rows scaled to unit norm, solved by scipy.linalg.lstsq (robust to rank deficiency)."""
-    R = rows[:, used]
-    scale = np.linalg.norm(R, axis=1)
+def _least_squares(phi: _Lagged, target: np.ndarray, used) -> np.ndarray:
+    """θ minimising Σ_{t used} (target(t) − φ(t)ᵀθ)², φ(t)ᵀ the rows of Φ = phi (used: `_used`): by the QR
+    factorisation [Φ target] = Q [[R, z], [0, ρ]] (`_triangular_factor`, chunk by chunk), then R S⁻¹ (S the column
+    norms) η = z by scipy.linalg.lstsq (an SVD: robust to rank deficiency) and θ = S⁻¹ η."""
+    d = phi.shape[1]
+    Rbar = _triangular_factor(phi, target, used)
+    scale = np.linalg.norm(Rbar[:d, :d], axis=0)
     scale[scale == 0] = 1.0
-    R = R / scale[:, None]
-    return lstsq(R @ R.T, R @ target[used], check_finite=False)[0] / scale
+    return lstsq(Rbar[:d, :d] / scale, Rbar[:d, d], check_finite=False)[0] / scale
 
 
 def _stable_theta(theta: np.ndarray, s: Structure) -> tuple[np.ndarray, Polynomials]:
@@ -200,36 +228,6 @@ def _stable_theta(theta: np.ndarray, s: Structure) -> tuple[np.ndarray, Polynomi
         return theta, p
     theta = q.theta(s.nk)
     return theta, polynomials(theta, s)
-
-
-PAIRWISE_BLOCK = 128  # numpy sums up to this many numbers in one pairwise block (numpy's PW_BLOCKSIZE)
-
-
-def _sum_of_columns(x: list[np.ndarray], n: int) -> np.ndarray:
-    """Σ_i x_i of n samples each, bit for bit numpy's sum over the rows of the n × m array [x_1 … x_m], without
-    building that array (its copy was most of the time with the map term's inputs). numpy sums a row's m numbers
-    pairwise: in order when m < 8, else in eight partial sums r_j = x_j + x_{j+8} + … over the first m − m mod 8,
-    joined as ((r_0 + r_1) + (r_2 + r_3)) + ((r_4 + r_5) + (r_6 + r_7)), then the last m mod 8 added in order;
-    column by column here (a test checks it against numpy)."""
-    if not x:
-        return np.zeros(n)
-    if len(x) < 8:
-        return functools.reduce(operator.add, x)
-    if len(x) > PAIRWISE_BLOCK:  # numpy splits the row in halves: not written out here
-        return np.column_stack(x).sum(axis=1)
-    whole = len(x) - len(x) % 8
-    r = [x[j] + x[j + 8] for j in range(8)] if whole > 8 else x[:8]
-    for i in range(16, whole, 8):
-        for j in range(8):
-            r[j] += x[i + j]
-    total, pair = r[0] + r[1], r[2] + r[3]  # two temporaries for the join: each new n-array costs page faults
-    total += pair
-    np.add(r[4], r[5], out=pair)
-    pair += r[6] + r[7]
-    total += pair
-    for k in range(whole, len(x)):
-        total += x[k]
-    return total
 
 
 class _Responses(NamedTuple):
@@ -244,8 +242,7 @@ class _Responses(NamedTuple):
 
 def _filter_each(starts):
     """[lfilter(b, a, x) for b, a, x in jobs] for 1-D signals, every filter restarted at each segment start, by
-    lfilter_each (filters of one length run two at a time); by 1/1 (A, C, D of an OE model) x itself:
-    lfilter([1], [1], x) is x exactly, so the results are the same to the bit."""
+    lfilter_each (filters of one length run two at a time); by 1/1 (A, C, D of an OE model) x itself."""
     def each(jobs):
         jobs = list(jobs)
         out = [x if len(b) == len(a) == 1 and b[0] == a[0] == 1.0 else None for b, a, x in jobs]
@@ -266,14 +263,13 @@ def _responses(m: Polynomials, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Re
     segment `starts`."""
     each = _filter_each(starts)
     x = each((b, f, u[:, i]) for i, (b, f) in enumerate(zip(m.B, m.F)))
-    w = each([(m.A, [1.0], y)])[0] - _sum_of_columns(x, y.size)
+    w = each([(m.A, [1.0], y)])[0] - sum(x, np.zeros(y.size))
     return _Responses(m, x, w, each([(m.D, m.C, w)])[0])
 
 
-def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,),
-              out: np.ndarray | None = None) -> np.ndarray:
-    """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ, its transpose written into `out`
-    (d × N) when given; the signals of empty regressor blocks are not filtered."""
+def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=(0,)) -> _Lagged:
+    """Ψ (N × d), ψ = −∂ε/∂θ (module doc), from the filtered signals r of θ: its at most 2m + 3 filtered signals,
+    lagged (`_Lagged`, made chunk by chunk where used); the signals of empty regressor blocks are not filtered."""
     m = r.m
     dens = [np.convolve(m.C, f) for f in m.F]
     with_f = [i for i in range(s.n_inputs) if s.nf[i]]  # an FIR input (F_i = 1) has no x_i/F_i block
@@ -286,7 +282,7 @@ def _jacobian(r: _Responses, s: Structure, u: np.ndarray, y: np.ndarray, starts=
     blocks += [(-next(filtered), range(1, s.nf[i] + 1)) for i in with_f]
     blocks += [(next(filtered), range(1, s.nc + 1))] if s.nc else []
     blocks += [(-next(filtered), range(1, s.nd + 1))] if s.nd else []
-    return _regressors(blocks, y.size, starts, out).T
+    return _Lagged(blocks, y.size, tuple(starts))
 
 
 def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobian: bool = False, starts=(0,)):
@@ -294,7 +290,7 @@ def prediction_errors(theta, s: Structure, u: np.ndarray, y: np.ndarray, jacobia
 
     starts: the indices where segments begin (the first 0); every filter restarts from zero state there."""
     r = _responses(polynomials(theta, s), u, y, starts)
-    return (r.eps, _jacobian(r, s, u, y, starts)) if jacobian else r.eps
+    return (r.eps, _jacobian(r, s, u, y, starts)[:]) if jacobian else r.eps
 
 
 def _loss(eps: np.ndarray, used) -> float:
@@ -303,36 +299,66 @@ def _loss(eps: np.ndarray, used) -> float:
     return v if np.isfinite(v) else np.inf
 
 
-@functools.lru_cache(maxsize=None)
-def _syevr_workspace(n: int) -> tuple[int, int]:
-    """(lwork, liwork) of LAPACK's dsyevr for an n × n matrix, from its workspace query as scipy.linalg.eigh
-    makes it."""
-    work, iwork, info = lapack.dsyevr_lwork(n, lower=1)
-    if info:
-        raise np.linalg.LinAlgError(f"dsyevr workspace query failed (info {info})")
-    return int(work), int(iwork)
+QR_CHUNK = 4096  # samples of [Ψ ε] per QR update: the working array is (d + 1 + QR_CHUNK) × (d + 1)
+# The LM's damping never falls below this (relative to σ_max², `_damped_step`). The step's component along a
+# direction of singular value σ_k carries a relative rounding error of about u σ_max / σ_k (u = 1.1e-16, QR of Ψ);
+# the floor bounds that amplification at u / √DAMPING_FLOOR ≈ 4e-9, so the step is a smooth function of the data
+# whatever the conditioning of Ψ, and leaves every direction with σ_k above 3e-8 σ_max undamped.
+DAMPING_FLOOR = 1e-15
 
 
-def _eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(ℓ ascending, Q) of the symmetric float64 matrix a: scipy.linalg.eigh's own call (dsyevr on the lower triangle
-    with the workspace its query gives), so the same to the bit, without eigh's checks and a query every call (the
-    LM decomposes a d × d matrix every iteration)."""
-    lwork, liwork = _syevr_workspace(a.shape[0])
-    ell, Q, _, _, info = lapack.dsyevr(a, compute_v=1, lower=1, lwork=lwork, liwork=liwork)
-    if info:
-        raise np.linalg.LinAlgError(f"dsyevr failed (info {info})")
-    return ell, Q
+def _triangular_factor(psi, eps: np.ndarray, used) -> np.ndarray:
+    """The (d + 1) × (d + 1) upper triangular R̄ of the QR factorisation of [Ψ ε] over the used samples,
+    accumulated over chunks of QR_CHUNK samples (TSQR): R̄ ← R(qr([R̄; Ψ_k ε_k])). R̄ = [[R, z], [0, ρ]] with
+    Ψ = Q R, z = Qᵀε and ρ = ‖ε − Q z‖. psi: an N × d array or `_Lagged` (made chunk by chunk here); the extra
+    memory is O(QR_CHUNK · d), whatever N.
+
+    Chunked here because scipy.linalg.qr and numpy.linalg.qr take the whole N × (d + 1) matrix (a copy of Ψ) and
+    are slower on it than on chunks that stay in cache."""
+    n, d = psi.shape
+    keep = np.zeros(n + 2, bool)
+    keep[1:-1][used] = True
+    edges = np.flatnonzero(np.diff(keep))  # the used samples: runs [edges[2j], edges[2j + 1])
+    R = np.zeros((0, d + 1))
+    work = np.empty((d + 1 + QR_CHUNK, d + 1), order="F")
+    for a in range(0, n, QR_CHUNK):
+        b = min(a + QR_CHUNK, n)
+        chunk, k = psi[a:b], R.shape[0]
+        work[:k] = R
+        m = k
+        for lo, hi in zip(np.clip(edges[0::2], a, b), np.clip(edges[1::2], a, b)):
+            work[m : m + hi - lo, :d] = chunk[lo - a : hi - a]
+            work[m : m + hi - lo, d] = eps[lo:hi]
+            m += hi - lo
+        if m == k:
+            continue
+        factored = qr(work[:m], mode="raw", overwrite_a=True, check_finite=False)[0][0]  # R in its upper triangle
+        R = np.triu(factored[: d + 1])
+    if R.shape[0] < d + 1:  # fewer used samples than d + 1
+        R = np.vstack([R, np.zeros((d + 1 - R.shape[0], d + 1))])
+    return R
 
 
-def _scaled_normal_equations(psi: np.ndarray, eps: np.ndarray, used):
-    """(S, Q, ℓ, g) over the used samples: S the column norms of Ψ, Q diag(ℓ) Qᵀ = S⁻¹ΨᵀΨS⁻¹
-    (eigendecomposition), g = Qᵀ S⁻¹ Ψᵀ ε."""
-    J, r = psi[used], eps[used]
-    gram = J.T @ J
-    scale = np.sqrt(np.diag(gram)).copy()
+class _Linearised(NamedTuple):
+    """The LM's linear algebra at one θ (`_linearised`): S the column norms of Ψ, the SVD R S⁻¹ = U diag(σ) Vᵀ of
+    the scaled triangular factor (σ descending), and c = Uᵀ z (z = Qᵀε)."""
+
+    scale: np.ndarray
+    V: np.ndarray
+    sigma: np.ndarray
+    c: np.ndarray
+
+
+def _linearised(psi, eps: np.ndarray, used) -> _Linearised:
+    """`_Linearised` of Ψ, ε over the used samples: R and z from the QR of [Ψ ε] (`_triangular_factor`), never
+    ΨᵀΨ (whose condition number is the square of Ψ's)."""
+    d = psi.shape[1]
+    Rbar = _triangular_factor(psi, eps, used)
+    R, z = Rbar[:d, :d], Rbar[:d, d]
+    scale = np.linalg.norm(R, axis=0)
     scale[scale == 0] = 1.0
-    ell, Q = _eigh(gram / np.outer(scale, scale))
-    return scale, Q, np.maximum(ell, 0.0), Q.T @ ((J.T @ r) / scale)
+    U, sigma, Vt = np.linalg.svd(R / scale)
+    return _Linearised(scale, Vt.T, sigma, U.T @ z)
 
 
 FLAT_ITERATIONS = 3  # consecutive iterations with a negligible fall of V before V counts as flat
@@ -350,7 +376,7 @@ class LMResult(NamedTuple):
     converged: bool
     reason: str
     history: list
-    psi: np.ndarray | None
+    psi: _Lagged | None
     eps: np.ndarray | None
     mu: float
     flat: int
@@ -365,28 +391,33 @@ STOP_REASONS = {
     "expected_improvement": "the Gauss-Newton step promises to lower V by less than tol * V",
     "flat_loss": "V fell by less than ftol * lambda/2 in each of the last iterations and the remaining "
                  "Gauss-Newton step is within one standard error",
-    "stability_bound": "V fell by less than ftol * lambda/2 in each of the last iterations, or no damping lowered "
-                       "it, while the steps were cut back at the stability bound (a constrained minimum)",
+    "stability_bound": f"a root of F_i, C or D is held at the stability bound |z| = {RHO_MAX}: the search stopped "
+                       "at the bound, not at a minimum of V",
     "no_descent": "no damping lowers V",
     "max_iterations": "the iteration limit was reached",
 }
 
 
 def _damping_trials(mu: float) -> tuple[float, ...]:
-    """The LM damping factors tried in turn from the last accepted one, mu: one tenth of it, it, then ten times
-    more each time (a step search stops at the first that lowers V from mu on)."""
-    return (mu / 10.0, mu, *(mu * 10.0**k for k in range(1, 12)))
+    """The LM damping factors tried in turn from the last accepted one, mu (≥ DAMPING_FLOOR): one tenth of it when
+    that is not below the floor, it, then ten times more each time (a step search stops at the first that lowers
+    V from mu on)."""
+    lower = (mu / 10.0,) if mu / 10.0 >= DAMPING_FLOOR else ()
+    return (*lower, mu, *(mu * 10.0**k for k in range(1, 12)))
 
 
-def _decrement(ell: np.ndarray, g: np.ndarray) -> float:
-    """The Gauss–Newton decrement Δ = ½ gᵀ diag(1/ℓ) g of `_scaled_normal_equations`' ℓ and g (ℓ floored at
-    1e-14 ℓ_max): the fall of V a full Gauss–Newton step promises."""
-    return 0.5 * g @ (g / np.maximum(ell, ell[-1] * 1e-14))
+def _decrement(lin: _Linearised) -> float:
+    """The Gauss–Newton decrement Δ = ½ Σ_k c_k² (σ_k below 1e-7 σ_max counting as 1e-7 σ_max, which scales their
+    terms down): the fall of V a full Gauss–Newton step promises, ½‖Qᵀε‖² when Ψ has full rank."""
+    sigma = lin.sigma
+    return 0.5 * float(np.sum(lin.c**2 * (sigma / np.maximum(sigma, 1e-7 * sigma[0]))**2))
 
 
-def _damped_step(scale: np.ndarray, Q: np.ndarray, ell: np.ndarray, g: np.ndarray, mu: float) -> np.ndarray:
-    """δ(μ) = S⁻¹ Q diag(1/(ℓ + μ ℓ_max)) g from `_scaled_normal_equations`' (S, Q, ℓ, g) (module docstring)."""
-    return Q @ (g / (ell + mu * ell[-1])) / scale
+def _damped_step(lin: _Linearised, mu: float) -> np.ndarray:
+    """δ(μ) = S⁻¹ V diag(σ/(σ² + μ σ_max²)) c (module docstring), which minimises ‖ε − Ψ δ‖² + μ σ_max² ‖S δ‖²,
+    for μ ≥ DAMPING_FLOOR."""
+    sigma = lin.sigma
+    return lin.V @ (sigma * lin.c / (sigma**2 + max(mu, DAMPING_FLOOR) * sigma[0]**2)) / lin.scale
 
 
 def _descent(mu: float, V: float, trial: Callable[[float], NamedTuple]) -> tuple[float, NamedTuple] | None:
@@ -423,20 +454,19 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     """Minimise V(θ) from θ (module docstring); starts: segment starts (filters restart there, the first n0
     samples of each are left out of V). after: a search on the same data stopped at its iteration limit, which
     this one continues from its θ and state (theta is then ignored) up to max_iter iterations in all: the same
-    iterates, to the bit, as one search run to max_iter.
+    iterates, in one process, as one search run to max_iter.
 
-    Each iteration tries the damping μ (relative to the largest eigenvalue of the scaled ΨᵀΨ) and μ/10 and
-    keeps the better; when neither lowers V, μ grows tenfold until one does. Stops (reason in `STOP_REASONS`):
-    converged when the Gauss–Newton decrement Δ = ½ gᵀ diag(1/ℓ) g is ≤ tol · V (MATLAB's
+    Each iteration tries the damping μ (relative to σ_max², module docstring) and μ/10 (not below DAMPING_FLOOR)
+    and keeps the better; when neither lowers V, μ grows tenfold until one does. Stops (reason in
+    `STOP_REASONS`): converged when the Gauss–Newton decrement Δ = ½ ‖c‖² is ≤ tol · V (MATLAB's
     SearchOptions.Tolerance, there in %); or when V fell by ≤ ftol · λ̂/2 in each of the last FLAT_ITERATIONS
-    iterations and either Δ ≤ λ̂/2 — the remaining step δ has δᵀ P⁻¹ δ = 2Δ/λ̂ ≤ 1, i.e. it is within one
-    standard error — or the steps were cut back by the stability projection (a minimum on the boundary);
-    when no damping lowers V, converged if one of those two holds or every damped step tried was cut back by
-    the projection (a root pressed against |z| = RHO_MAX: the raw steps leave the stable region, the projected
-    ones rise). ftol is in units of λ̂/2 = V/(N − d), what moving one standard error is worth (likelihood
-    ratio 1): a fall of 1e-3 of that per iteration is statistically nothing whatever N (a tolerance relative
-    to V alone means 4.5× more in standard errors on 18,000 samples than on 4,000). Not converged after
-    max_iter iterations.
+    iterations and Δ ≤ λ̂/2 — the remaining step δ has δᵀ P⁻¹ δ = 2Δ/λ̂ ≤ 1, i.e. it is within one standard
+    error; or when no damping lowers V and Δ ≤ λ̂/2. Not converged: V flat or no damping lowering it while the
+    steps were cut back by the stability projection and more than one standard error is left ("stability_bound":
+    a root pressed against |z| = RHO_MAX), no damping lowering V otherwise, or max_iter iterations. ftol is in
+    units of λ̂/2 = V/(N − d), what moving one standard error is worth (likelihood ratio 1): a fall of 1e-3 of
+    that per iteration is statistically nothing whatever N, and above 10³ times the rounding of V (about 1e-12
+    of V) for N up to 10⁶.
     """
     used = _used(y.size, starts, s.n_start)
     u = np.asfortranarray(u)  # each input is filtered on its own in every trial: its column contiguous, not copied
@@ -448,9 +478,7 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
                              f"continued to {max_iter}")
         theta, m = after.theta, polynomials(after.theta, s)
     r = _responses(m, u, y, starts)
-    # Ψ of every iteration is written into this one array: a new one each iteration costs page faults
-    rows = np.empty((s.n_params, y.size))
-    eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)
+    eps, psi = r.eps, _jacobian(r, s, u, y, starts)
     dof = max(eps[used].size - s.n_params, 1)
     if after is None:
         V, mu, flat, cut, first = _loss(eps, used), 1e-4, 0, False, 1
@@ -463,17 +491,17 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         return LMResult(theta, V, iterations, converged, reason, history, psi, eps, mu, flat, cut)
 
     for it in range(first, max_iter + 1):
-        scale, Q, ell, g = _scaled_normal_equations(psi, eps, used)
-        decrement = _decrement(ell, g)
+        lin = _linearised(psi, eps, used)
+        decrement = _decrement(lin)
         small_step = decrement <= V / dof  # 2Δ/λ̂ ≤ 1 with λ̂ = 2V/dof
         if decrement <= tol * V:
             return stopped(it - 1, True, "expected_improvement")
         if flat >= FLAT_ITERATIONS and (small_step or cut):
-            return stopped(it - 1, True, "stability_bound" if cut and not small_step else "flat_loss")
+            return stopped(it - 1, small_step, "flat_loss" if small_step else "stability_bound")
         cuts = []
 
         def trial(damping: float) -> _Trial:
-            raw = theta + _damped_step(scale, Q, ell, g, damping)
+            raw = theta + _damped_step(lin, damping)
             stable, m = _stable_theta(raw, s)
             cuts.append(stable is not raw and not np.array_equal(stable, raw))
             r = _responses(m, u, y, starts)
@@ -481,14 +509,14 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
 
         best = _descent(mu, V, trial)
         if best is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
-            if all(cuts) and not small_step:
-                return stopped(it - 1, True, "stability_bound")
-            return stopped(it - 1, bool(small_step or cut), "no_descent")
+            if not small_step and (cut or all(cuts)):
+                return stopped(it - 1, False, "stability_bound")
+            return stopped(it - 1, small_step, "no_descent")
         damping, taken = best
         flat = flat + 1 if V - taken.V <= ftol * V / dof else 0
-        V, theta, mu, cut, r = taken.V, taken.theta, max(damping, 1e-15), taken.cut, taken.r
+        V, theta, mu, cut, r = taken.V, taken.theta, max(damping, DAMPING_FLOOR), taken.cut, taken.r
         history.append(V)
-        eps, psi = r.eps, _jacobian(r, s, u, y, starts, rows)  # the accepted trial's signals, not filtered again
+        eps, psi = r.eps, _jacobian(r, s, u, y, starts)  # the accepted trial's signals, not filtered again
     return stopped(max_iter, False, "max_iterations")
 
 
@@ -496,7 +524,7 @@ def _arx_ls(u, y, na: int, nb, nk, starts=(0,)):
     """Least-squares ARX: A y = Σ B_i u_i + e; returns (A, [B_i]) with nk leading zeros in B_i."""
     n0 = max([na] + [k + b - 1 for k, b in zip(nk, nb)])
     blocks = [(-y, range(1, na + 1))] + [(u[:, i], range(nk[i], nk[i] + nb[i])) for i in range(u.shape[1])]
-    th = _least_squares(_regressors(blocks, y.size, starts), y, _used(y.size, starts, n0))
+    th = _least_squares(_Lagged(blocks, y.size, tuple(starts)), y, _used(y.size, starts, n0))
     parts = _split(th, [na, *nb])
     return np.r_[1.0, parts[0]], [np.r_[np.zeros(k), b] for b, k in zip(parts[1:], nk)]
 
@@ -525,8 +553,8 @@ def _hannan_rissanen(w, nc: int, nd: int, starts=(0,)):
     warm = np.ones(w.size, bool)
     warm[_used(w.size, starts, L)] = False
     e_hat[warm] = 0.0
-    rows = _regressors([(-w, range(1, nd + 1)), (e_hat, range(1, nc + 1))], w.size, starts)
-    th = _least_squares(rows, w - e_hat, _used(w.size, starts, L + max(nc, nd)))
+    phi = _Lagged([(-w, range(1, nd + 1)), (e_hat, range(1, nc + 1))], w.size, tuple(starts))
+    th = _least_squares(phi, w - e_hat, _used(w.size, starts, L + max(nc, nd)))
     return stabilize(np.r_[1.0, th[nd:]]), stabilize(np.r_[1.0, th[:nd]])
 
 
@@ -603,18 +631,18 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
     mu, flat, dof, history = 1e-4, 0, max(y_perp.size - s.n_params, 1), [p.V]
     iterations = 0
     while iterations < max_iter:
-        scale, Q, ell, g = _scaled_normal_equations(jacobian(p), p.r, slice(None))
-        decrement = _decrement(ell, g)
+        lin = _linearised(jacobian(p), p.r, slice(None))
+        decrement = _decrement(lin)
         window = history[-1 - PROJECTION_WINDOW] - p.V if len(history) > PROJECTION_WINDOW else np.inf
         if decrement <= tol * p.V or (flat >= FLAT_ITERATIONS and decrement <= p.V / dof) or window < p.V / dof:
             break
         f = np.concatenate([p.F[i][1:] for i in rational])
-        best = _descent(mu, p.V, lambda damping: projection(with_f(f + _damped_step(scale, Q, ell, g, damping))))
+        best = _descent(mu, p.V, lambda damping: projection(with_f(f + _damped_step(lin, damping))))
         if best is None:
             break
         damping, taken = best
         flat = flat + 1 if p.V - taken.V <= ftol * p.V / dof else 0
-        p, mu = taken, max(damping, 1e-15)
+        p, mu = taken, max(damping, DAMPING_FLOOR)
         history.append(p.V)
         iterations += 1
     b = b_rational(p)
@@ -777,27 +805,30 @@ def pem_with_search(u, y, structure: Structure, Ts: float, *, segments=None, ini
         t_init = time.perf_counter()
         fit = levenberg_marquardt(start.theta, s, du, dy, starts=starts, max_iter=max_iter, tol=tol, ftol=ftol,
                                   after=after)
-        scale, Q, ell, g = _scaled_normal_equations(fit.psi, fit.eps, _used(dy.size, starts, s.n_start))
+        lin = _linearised(fit.psi, fit.eps, _used(dy.size, starts, s.n_start))
 
     V = fit.V
     lam = 2.0 * V / (n_used - s.n_params)
-    inv_ell = np.where(ell > ell[-1] * 1e-14, 1.0 / np.maximum(ell, 1e-300), 0.0)
-    P = lam * ((Q * inv_ell) @ Q.T) / np.outer(scale, scale)
-    step_se = float(np.sqrt(2.0 * _decrement(ell, g) / lam))  # √(2Δ/λ̂)
+    sigma = lin.sigma  # P = λ̂ S⁻¹ V diag(1/σ²) Vᵀ S⁻¹, directions with σ ≤ 1e-7 σ_max left out (pseudo-inverse)
+    inv_ell = np.where(sigma > sigma[0] * 1e-7, 1.0 / np.maximum(sigma, 1e-300)**2, 0.0)
+    P = lam * ((lin.V * inv_ell) @ lin.V.T) / np.outer(lin.scale, lin.scale)
+    step_se = float(np.sqrt(2.0 * _decrement(lin) / lam))  # √(2Δ/λ̂)
 
     model = from_theta(fit.theta, s, Ts, u0=tuple(u0), y0=y0, covariance=P)
     msgs = cancellations(model, cancel_tol)
     bound = at_stability_bound(model)
+    # a root held at the bound is where the projection stopped the search, not a minimum of V: never converged
+    converged, reason = (False, "stability_bound") if bound else (fit.converged, fit.reason)
     where = f"; {', '.join(bound)} at the stability bound |z| = {RHO_MAX}" if bound else ""
-    if not fit.converged:
+    if not converged:
         fall = (fit.history[-min(4, len(fit.history))] - V) / V
-        msgs.append(f"PEM did not converge: stopped after {fit.iterations} iterations ({STOP_REASONS[fit.reason]}); "
+        msgs.append(f"PEM did not converge: stopped after {fit.iterations} iterations ({STOP_REASONS[reason]}); "
                     f"the last iterations lowered V by {fall:.1e} of V, the Gauss-Newton step left is "
                     f"{step_se:.2g} standard errors{where}")
-    elif fit.reason != "expected_improvement" and (msgs or bound):
-        msgs.append(f"PEM converged on a flat loss after {fit.iterations} iterations ({STOP_REASONS[fit.reason]})"
-                    f"{where}: near-cancelling pole-zero pairs leave directions of the parameters that the data "
-                    "do not determine; the fit is fine, those coefficients are not (see their standard errors)")
+    elif reason != "expected_improvement" and msgs:
+        msgs.append(f"PEM converged on a flat loss after {fit.iterations} iterations ({STOP_REASONS[reason]}): "
+                    "near-cancelling pole-zero pairs leave directions of the parameters that the data do not "
+                    "determine; the fit is fine, those coefficients are not (see their standard errors)")
     for msg in msgs:
         warnings.warn(msg, stacklevel=2)
     model.info = {
@@ -810,15 +841,15 @@ def pem_with_search(u, y, structure: Structure, Ts: float, *, segments=None, ini
         "initialisation_iterations": {"output_error": start.oe_iterations, "arma": start.arma_iterations,
                                       "output_error_projected": start.projected_iterations},
         "initialisation_time_s": t_init - t_start,
-        "converged": fit.converged,
-        "stop_reason": fit.reason,
+        "converged": converged,
+        "stop_reason": reason,
         "stopping": {"max_iter": max_iter, "tol": tol, "ftol": ftol},
         "loss_history": fit.history,
         "gauss_newton_step_se": step_se,
         "loss_V": V,
         "noise_variance": lam,
         "n_samples": int(dy.size),
-        "condition_number": float(np.sqrt(ell[-1] / ell[0])) if ell[0] > 0 else None,  # None: singular
+        "condition_number": float(sigma[0] / sigma[-1]) if sigma[-1] > 0 else None,  # None: singular
         "parameter_names": parameter_names(s),
         "wall_time_s": time.perf_counter() - t_start,
         "warnings": msgs,

@@ -73,7 +73,7 @@ def _xcov(a: np.ndarray, b: np.ndarray, lags: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-@in_one_blas_thread  # its long dot products: on several threads OpenBLAS sums them in another order (fuelid.blas)
+@in_one_blas_thread  # its long dot products: BLAS threads cost more time than they save (fuelid.blas)
 def autocorr_test(e, max_lag: int = 25, confidence: float = 0.99) -> CorrelationTest:
     """Whiteness of the prediction error e (any unit), eq. (18).
 

@@ -88,7 +88,7 @@ def test_a_memo_serves_a_fit_that_stopped_short_of_its_limit_for_any_limit_above
 
 
 # The initialisation's OE start as it is, and by LM alone (OE_LM_ITERATIONS = INIT_MAX_ITER: no variable projection),
-# which on the inertia's trips below falls into a poor local minimum: the second start is what keeps it out.
+# which on the map engine's inertia trip below falls into a poor local minimum: the second start is what keeps it out.
 OE_STARTS = pytest.mark.parametrize("lm_only", [False, True], ids=["oe_start", "oe_start_lm_only"])
 
 
@@ -96,10 +96,8 @@ OE_STARTS = pytest.mark.parametrize("lm_only", [False, True], ids=["oe_start", "
 def test_the_inertia_the_diagnosis_recommends_does_not_make_the_model_worse_on_another_day(lm_only, monkeypatch):
     """The simulator's trip hiding the crankshaft's inertia (seed 3000, the acceptance benchmark's). The model with
     the J dω/dt input is identified from the usual initialisation and from the model without it; the lower loss is
-    kept, never above the model's without the input, and better on another day's trip too. With the OE start by LM
-    alone the usual initialisation falls into a local minimum (a speed pole pressed against the stability bound:
-    V ≈ 3400 against 1276 without the input, 12 L/h RMS on another day's trip against 2.0) and the second start
-    is kept."""
+    kept, never above the model's without the input, and better on another day's trip too, with the OE start as it
+    is and by LM alone."""
     if lm_only:
         monkeypatch.setattr(pem_module, "OE_LM_ITERATIONS", pem_module.INIT_MAX_ITER)
     ds, _, _ = hidden.simulated("inertia", 3000)
@@ -108,8 +106,6 @@ def test_the_inertia_the_diagnosis_recommends_does_not_make_the_model_worse_on_a
     model = identify_model(ds, hidden.PAPER, ["inertia"], base=base)
     starts = model.info["starts"]
     assert starts["kept"] == min(starts["loss_V"], key=starts["loss_V"].get), starts
-    if lm_only:
-        assert starts["loss_V"]["initialisation"] > 2 * base.info["loss_V"], starts
     assert model.info["loss_V"] <= base.info["loss_V"], (model.info["loss_V"], base.info["loss_V"])
     rmse = {name: evaluate(m, other_day)["rmse"]["simulation"] for name, m in (("base", base), ("with", model))}
     assert rmse["with"] < rmse["base"], rmse
