@@ -184,11 +184,11 @@ class EngineMap:
         i, j = np.broadcast_arrays(np.nan_to_num(i, nan=-1).astype(int), np.nan_to_num(j, nan=-1).astype(int))
         return i, j
 
-    def with_coefficients(self, coef, plane) -> EngineMap:
-        """This map with other coefficients (kn·kt) and plane."""
+    def with_coefficients(self, coef, plane, smoothing: float | None = None) -> EngineMap:
+        """This map with other coefficients (kn·kt) and plane (and smoothing λ, when given)."""
         return EngineMap(self.speed_knots, self.torque_knots, np.asarray(coef, float), plane, self.operating_point,
-                         self.fuel_scale, self.smoothing, self.coverage, self.speed_unit, self.torque_unit,
-                         self.fuel_unit)
+                         self.fuel_scale, self.smoothing if smoothing is None else smoothing, self.coverage,
+                         self.speed_unit, self.torque_unit, self.fuel_unit)
 
     def to_dict(self) -> dict:
         """JSON-ready: the knots, coefficients (speed index first), plane, coverage and units."""

@@ -83,6 +83,24 @@ def steady_state_map(model: PolyModel, n, T) -> np.ndarray:
     return f
 
 
+def map_summary(model: PolyModel) -> dict | None:
+    """The engine map a model carries, in figures (JSON-ready): its region (speed [rpm] and torque [torque unit]
+    ranges), the share of its coverage cells with data, the range of its fuel [fuel unit] over the covered cells'
+    centres and of the model's steady state there (`steady_state_map`), and its units; None without one."""
+    emap = engine_map_of(model)
+    if emap is None:
+        return None
+    k = emap.coverage.shape[0]
+    (n_lo, n_hi), (t_lo, t_hi) = emap.speed_range, emap.torque_range
+    gn, gt = np.meshgrid(n_lo + (np.arange(k) + 0.5) * (n_hi - n_lo) / k, t_lo + (np.arange(k) + 0.5) * (t_hi - t_lo) / k,
+                         indexing="ij")
+    covered = emap.covered(gn, gt)
+    s, f = emap(gn[covered], gt[covered]), steady_state_map(model, gn[covered], gt[covered])
+    return {"speed_range": [n_lo, n_hi], "torque_range": [t_lo, t_hi], "covered_share": float(covered.mean()),
+            "map_range": [float(s.min()), float(s.max())], "steady_state_range": [float(f.min()), float(f.max())],
+            "units": {"speed": emap.speed_unit, "torque": emap.torque_unit, "fuel": emap.fuel_unit}}
+
+
 def loss(model: PolyModel, u: np.ndarray, y: np.ndarray, segments) -> float:
     """PEM's criterion V = ½ Σ_s Σ_{t ≥ n_start} ε_s(t)² over the slices `segments` of u, y, each from zero state."""
     n0 = model.structure.n_start
@@ -125,11 +143,11 @@ def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
             z_all.append(lfilter(model.D, model.C, through, axis=0)[n0:])
         w, Z = np.concatenate(w_all), np.vstack(z_all)
         kn, kt = emap.coef.shape
-        c, _ = penalised_gram_fit(Z.T @ Z, Z.T @ w, float(w @ w), len(w), kn, kt)
+        c, lam = penalised_gram_fit(Z.T @ Z, Z.T @ w, float(w @ w), len(w), kn, kt)
     c = gain * c - (gain - 1.0) * p0  # x_map = φ̄ c − p0 times the gain (φ̄ of a constant is that constant)
     B = list(model.B)
     B[j], B[jr] = B[j] / gain, B[jr] / gain
-    fitted = emap.with_coefficients(c, (emap.plane[0], *(Pi @ c)))
+    fitted = emap.with_coefficients(c, (emap.plane[0], *(Pi @ c)), lam)
     params = {**model.info["effect_parameters"], MAP_EFFECT: fitted.to_dict()}
     return dataclasses.replace(model, B=B, covariance=None, info={**model.info, "effect_parameters": params})
 

@@ -52,3 +52,13 @@ def test_a_linear_model_s_steady_state_is_its_plane():
     gn, gt = np.meshgrid(np.linspace(700, 1800, 5), np.linspace(100, 1600, 5))
     f = steady_state_map(linear, gn, gt)
     assert np.abs(f - engine_data.steady_state(gn, gt, k=0.0)).max() < 0.3
+
+
+def test_the_map_summary_says_its_region_coverage_and_fuel(engine):
+    from fuelid.ident.hammerstein import map_summary
+
+    ds, model, linear = engine
+    s = map_summary(model)
+    assert s["units"] == {"speed": "rpm", "torque": "Nm", "fuel": "L/h"} and 0.5 < s["covered_share"] <= 1.0
+    assert s["speed_range"][0] == pytest.approx(ds.u[:, 0].min(), rel=1e-3) and s["steady_state_range"][1] > s["steady_state_range"][0]
+    assert map_summary(linear) is None
