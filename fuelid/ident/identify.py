@@ -231,7 +231,7 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     if MAP_EFFECT in fx.effects:  # the engine's map and the dynamics jointly (ident.hammerstein)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            model = joint_fit(model, ds, segs, fit=fit, rounds=joint_rounds)
+            model = joint_fit(model, ds, segs, keep=kept_fit, fit=fit, rounds=joint_rounds)
     model = dataclasses.replace(model, validation=evaluate(model, ds))
     model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
                                                 n_train - len(segs) * extended.n_start)
