@@ -12,7 +12,6 @@ from fuelid.ident.modelfile import load_model
 from fuelid.ident.report import write_report
 from fuelid.logger.mcap_log import read_metadata
 from fuelid.paths import readable_file
-from fuelid.sim.mapfuel import DIESEL_DENSITY_KG_L
 from fuelid.sim.vecto import read_engine
 
 
@@ -89,7 +88,7 @@ def true_engine_map(data_paths, torque_unit: str):
         return None
     engine = read_engine(engines.pop())
     scale = engine.max_torque_nm / 100.0 if torque_unit == "%" else 1.0
-    return lambda n, T: engine.fuel_g_h(n, np.asarray(T) * scale + engine.motoring(n)) / (1000.0 * DIESEL_DENSITY_KG_L)
+    return lambda n, T: engine.fuel_g_h(n, np.asarray(T) * scale + engine.motoring(n)) / (1000.0 * engine.fuel_density_kg_l)
 
 
 def run(args) -> int:
