@@ -205,7 +205,7 @@ def test_identify_adds_the_effects_a_diagnosis_named(recording, tmp_path, capsys
         {"effect": "idle_fuelling", "significant": False, "recommended": False}]}))
     model = tmp_path / "after.json"
     spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
-    assert main(["identify", str(recording), "--orders", spec, "--effects-from", str(diagnosis),
+    assert main(["identify", str(recording), "--orders", spec, "--effects-from", str(diagnosis), "--model", "linear",
                  "-o", str(model), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["effects"] == ["power_nonlinearity", "fuel_delay"], out["effects"]

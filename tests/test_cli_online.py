@@ -94,3 +94,23 @@ def test_bad_input_is_one_line(args, says, trip, scratch, tmp_path, capsys):
     err = capsys.readouterr().err
     assert says in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "m.json").exists()
+
+
+def test_an_engine_model_runs_online_over_recorded_files_its_map_fixed(trip, tmp_path, capsys):
+    """The engine model (its map an input like speed and torque, computed from them) as a prior: RPEM tracking the
+    fuel gain and Kalman adapting every parameter run over the trip and keep its fit; the model written keeps the
+    map. The daemon's estimator (speed and torque only) refuses it, saying what to give instead."""
+    from fuelid.errors import FuelidError
+    from fuelid.ident.live import live_estimator
+
+    prior = tmp_path / "engine.json"
+    assert main(["identify", str(trip), "--model", "engine", "-o", str(prior)]) == 0
+    fit = load_model(prior).validation["fit_percent"]["simulation"]
+    for method, adapt in (("rpem", "gain"), ("kalman", "all")):
+        r = _online(capsys, trip, "--prior", prior, "--method", method, "--adapt", adapt, "-o", tmp_path / "o.json")
+        assert r["fit_percent"]["simulation"] > fit - 2.0, (method, r["fit_percent"], fit)
+        online = load_model(tmp_path / "o.json")
+        assert online.effects == ("engine_map",)
+        assert online.info["effect_parameters"]["engine_map"] == load_model(prior).info["effect_parameters"]["engine_map"]
+    with pytest.raises(FuelidError, match="--model linear"):
+        live_estimator(model=prior)

@@ -5,6 +5,7 @@ from fuelid.commands.dataset import add_dataset_arguments, build_for_models
 from fuelid.ident.diagnosis import diagnose
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP
 from fuelid.ident.effectfile import defined_effects
+from fuelid.ident.hammerstein import map_summary
 from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
 
@@ -80,6 +81,14 @@ def format_report(result: dict, top: int = 8) -> str:
         lines.append(f"  (map: {result['engine_map']}, the engine map term — a property of the engine, tested first; "
                      f"the missing effects are tested on the model with it)")
     lines.append(result["verdict"])
+    summary = result["model"].get("engine_map")
+    if summary:
+        u = summary["units"]
+        lines.insert(0, f"engine map (part of the model): {summary['speed_range'][0]:.0f}–{summary['speed_range'][1]:.0f}"
+                        f" {u['speed']} × {summary['torque_range'][0]:.0f}–{summary['torque_range'][1]:.0f} "
+                        f"{u['torque']}, {100 * summary['covered_share']:.0f} % of it covered by the identification "
+                        f"data; steady-state fuel there {summary['steady_state_range'][0]:.1f}–"
+                        f"{summary['steady_state_range'][1]:.1f} {u['fuel']}")
     return "\n".join(lines)
 
 
@@ -91,6 +100,7 @@ def run(args) -> int:
                       min_drop_percent=args.min_drop, effects=effects, workers=args.workers).to_json()
     result["data"]["files"] = list(map(str, args.inputs))
     result["model"]["file"] = args.model
+    result["model"]["engine_map"] = map_summary(model)
     if args.json:
         print_json(result)
     else:

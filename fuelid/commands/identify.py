@@ -9,7 +9,8 @@ from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis import confirmed_effects
 from fuelid.ident.effectfile import defined_effects
-from fuelid.ident.identify import MIN_SEGMENT_S, identify_model
+from fuelid.ident.identify import MIN_SEGMENT_S
+from fuelid.ident.modelchoice import ModelChoice, ModelKind, identify_chosen
 from fuelid.ident.modelfile import save_model
 from fuelid.ident.orders import search_dataset_orders
 from fuelid.ident.polymodel import Structure, parse_orders
@@ -22,6 +23,12 @@ def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings to identify on")
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="model file to write")
     p.add_argument("--orders", default="paper", metavar="paper|auto|SPEC", help=ORDERS_HELP)
+    p.add_argument("--model", dest="model_kind", default="auto", choices=[k.value for k in ModelKind],
+                   help="auto (default): the engine model (the engine's fuel map, a smooth surface over speed x "
+                        "torque, under the paper's dynamics) when it simulates held-out blocks of the data better "
+                        "than the paper's linear model by more than the fits' spread, else the linear model; "
+                        "linear: the paper's linear model; engine: the engine model "
+                        "(docs/explanation/engine-model.md)")
     p.add_argument("--effect", action="append", default=[], metavar="ID",
                    help="add a physical effect as extra input (ids as in `fuelid diagnose`; fuel_delay=SECONDS); "
                         "repeatable")
@@ -73,8 +80,9 @@ def run(args) -> int:
     if structure is None:  # the lowest orders passing the paper's residual tests, then the fit with effects
         search = search_dataset_orders(ds, args.min_segment)
         structure = search.structure
-    model = identify_model(ds, structure, args.effect, min_segment_s=args.min_segment, files=args.inputs,
-                           defined=defined)
+    model = identify_chosen(ds, structure, args.effect, kind=ModelKind(args.model_kind), min_segment_s=args.min_segment,
+                            files=args.inputs, defined=defined)
+    choice = model.info["model_choice"]
     save_model(model, args.output)
     t_end = time.perf_counter()
 
@@ -90,6 +98,7 @@ def run(args) -> int:
         "orders": args.orders,
         "structure": dataclasses.asdict(structure),
         "effects": list(model.effects),
+        "model_choice": choice,
         "training": {"samples": n_train, "stretches": n_segs, "Ts": ds.Ts,
                      "operating_point": {"u0": [float(v) for v in ds.u0], "y0": float(ds.y0)},
                      "warnings": ds.notes + list(model.info.get("warnings", [])) + plain,
@@ -108,6 +117,7 @@ def run(args) -> int:
     else:
         print(f"{args.output}: BJ {structure.nb}/{structure.nf}/{structure.nk} nc={structure.nc} nd={structure.nd}"
               f" on {n_train * ds.Ts / 60:.1f} min ({n_segs} stretches), {t_end - t_start:.1f} s")
+        print(ModelChoice.from_json(choice).line(ds.output_unit))
         print(format_table([(args.output, metrics)], ds.output_unit))
         for w in ds.notes + plain:
             print(f"warning: {w}", file=sys.stderr)

@@ -9,6 +9,7 @@ from fuelid.commands.identify import ORDERS_HELP
 from fuelid.errors import FuelidError
 from fuelid.ident.effects import reference_torque
 from fuelid.ident.live import check_online, fuel_scale, input_scales, prior_estimator
+from fuelid.ident.modeldata import model_data
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parse_orders
 from fuelid.ident.rpem import RPEM, scaled_P0
@@ -46,30 +47,32 @@ def run(args) -> int:
     structure = Structure(**parse_orders(args.orders or "paper")) if args.orders or not prior else prior.structure
     if prior is not None and prior.structure != structure:
         raise FuelidError(f"--orders {args.orders} differ from the prior's structure {prior.structure}")
-    check_online(structure, prior.effects if prior is not None else (), args.prior)
+    check_online(structure, prior.effects if prior is not None else (), args.prior, recorded=True)
     if args.forgetting is not None and not 0.0 < args.forgetting <= 1.0:
         raise FuelidError(f"--forgetting must be in (0, 1], got {args.forgetting}")
 
     ds = build(args, args.inputs)
-    if prior is not None and (tuple(prior.input_units) != tuple(ds.input_units) or prior.output_unit != ds.output_unit):
-        raise FuelidError(f"prior units {list(prior.input_units)} -> {prior.output_unit} do not match the data's "
+    if prior is not None and (tuple(prior.input_units[:2]) != tuple(ds.input_units) or prior.output_unit != ds.output_unit):
+        raise FuelidError(f"prior units {list(prior.input_units[:2])} -> {prior.output_unit} do not match the data's "
                           f"{list(ds.input_units)} -> {ds.output_unit}")
     if prior is not None and abs(prior.Ts - ds.Ts) > 1e-9:
         raise FuelidError(f"prior Ts = {prior.Ts} s but the data are resampled to {ds.Ts} s (use --ts {prior.Ts})")
     est = make_estimator(args, structure, ds, prior)
+    # an engine model's map is fixed (the prior's): its inputs are computed from speed and torque like the others
+    u, y = model_data(prior, ds) if prior is not None and prior.effects else (ds.u, ds.y)
 
     # one restart per jump of the time axis (engine off, rotated files): the filter states are not continuous
     breaks = np.flatnonzero(np.diff(ds.t) > 1.5 * ds.Ts) + 1
     pieces = [p for part in np.split(np.arange(len(ds)), breaks) for p in np.array_split(part, -(-len(part) // CHUNK))]
     counts = np.zeros(5, int)
-    est.update(np.empty((0, 2)), np.empty(0))  # load the compiled loop before timing (seconds on a first run)
+    est.update(np.empty((0, u.shape[1])), np.empty(0))  # load the compiled loop before timing (seconds on a first run)
     t_est = 0.0
     with progress(total=len(ds), desc="online", unit="sample") as bar:
         for idx in pieces:
             if idx[0] in breaks:
                 est.reset()
             t0 = time.perf_counter()
-            trace = est.update(ds.u[idx], ds.y[idx], ds.valid[idx])
+            trace = est.update(u[idx], y[idx], ds.valid[idx] & np.isfinite(u[idx]).all(axis=1))
             t_est += time.perf_counter() - t0
             counts += np.bincount(trace.status + 1, minlength=5)
             bar.update(len(idx))
@@ -77,6 +80,11 @@ def run(args) -> int:
     model = est.model(files=list(map(str, args.inputs)))
     model = dataclasses.replace(model, input_names=ds.input_names, input_units=ds.input_units,
                                 output_name=ds.output_name, output_unit=ds.output_unit, training=ds.summary())
+    if prior is not None and prior.effects:
+        model = dataclasses.replace(model, input_names=prior.input_names, input_units=prior.input_units,
+                                    effects=prior.effects, info={**model.info, **{
+                                        k: prior.info[k] for k in ("effect_parameters", "effect_definitions")
+                                        if k in prior.info}})
     metrics = evaluate(model, ds)
     model = dataclasses.replace(model, validation=metrics)
     save_model(model, args.output)

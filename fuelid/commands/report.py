@@ -2,6 +2,8 @@
 import json
 from pathlib import Path
 
+import numpy as np
+
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
 from fuelid.commands.diagnose import add_workers_argument
 from fuelid.errors import FuelidError
@@ -10,6 +12,7 @@ from fuelid.ident.modelfile import load_model
 from fuelid.ident.report import write_report
 from fuelid.logger.mcap_log import read_metadata
 from fuelid.paths import readable_file
+from fuelid.sim.vecto import read_engine
 
 
 def add_arguments(p):
@@ -58,6 +61,36 @@ def saved_diagnosis(path: str, model_path: str, data_paths: list[str]) -> dict:
     return diagnosis
 
 
+def truth_beside(path: str) -> dict | None:
+    """The simulator's truth file (`fuelid simulate`'s X.truth.json) of recording `path`: X.truth.json beside it for
+    X.mcap, X.log.gz or X.log; None when there is none or it is unreadable."""
+    p = Path(path)
+    stem = p.name
+    for suffix in (".mcap", ".log.gz", ".log"):
+        if stem.endswith(suffix):
+            stem = stem[: -len(suffix)]
+            break
+    try:
+        return json.loads((p.parent / f"{stem}.truth.json").read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def true_engine_map(data_paths, torque_unit: str):
+    """The true steady-state fuel map (n [rpm], T [torque_unit]) → fuel [L/h] of the VECTO engine the simulator ran
+    the recordings with (the engine its truth file names, the same in all), over the torque the bus reports (the
+    indicated torque; the map is charted over the flywheel torque, indicated minus friction, friction = minus the
+    motoring torque; the reference torque the largest full-load torque: sim.mapfuel); None when they are not
+    simulated with one."""
+    truths = [truth_beside(p) for p in data_paths]
+    engines = {(t.get("config") or {}).get("engine") for t in truths if t and t.get("fuel_truth", {}).get("name") == "map"}
+    if len(engines) != 1 or None in engines or None in truths:
+        return None
+    engine = read_engine(engines.pop())
+    scale = engine.max_torque_nm / 100.0 if torque_unit == "%" else 1.0
+    return lambda n, T: engine.fuel_g_h(n, np.asarray(T) * scale + engine.motoring(n)) / (1000.0 * engine.fuel_density_kg_l)
+
+
 def run(args) -> int:
     model_paths = [p for p in args.inputs if p.endswith(".json")]
     data_paths = [p for p in args.inputs if not p.endswith(".json")]
@@ -78,6 +111,6 @@ def run(args) -> int:
     out = write_report(args.output, model, ds, diagnosis=diagnosis, label=Path(model_paths[0]).name,
                        after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],
                        title=args.title, truck=truck_name(data_paths), files=data_paths,
-                       max_points=args.max_points)
+                       max_points=args.max_points, true_map=true_engine_map(data_paths, model.input_units[1]))
     print(f"{out}: {out.stat().st_size / 1e6:.1f} MB; {verdict}")
     return 0

@@ -46,6 +46,7 @@ import numpy as np
 
 from fuelid.errors import InputError
 from fuelid.dbc import FMS_DBC
+from fuelid.ident.enginemap import EngineMap, fit_map
 
 RPM_TO_RAD_S = 2.0 * np.pi / 60.0
 
@@ -87,17 +88,22 @@ class Effect:
     source: str = ""  # where an effect defined outside the catalogue comes from: its file or plug-in
     definition: dict | None = field(default=None, compare=False, repr=False)  # its effect-file table
     zero: bool = True  # x = 0 means no effect (a deficit, a state); False for a bus signal's raw value (0 °C is arbitrary)
-    # a raw bus signal that scales the fuel is centred, x − x_ref: ds → x_ref [signal unit] when not given (`centred`)
+    # a parameter the regressors depend on, fitted on the data when not given: ds → its JSON-ready value (a raw bus
+    # signal that scales the fuel is centred, x − x_ref: x_ref [signal unit], `centred`; the engine's map)
     reference: Callable | None = field(default=None, compare=False, repr=False)
+    # (effect, parameter) → the effect with that parameter (default `centred`)
+    bind: Callable | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass
 class Regressors:
-    """Columns x (N × k) of one effect on the dataset grid with a name and a unit per column."""
+    """Columns x (N × k) of one effect on the dataset grid with a name and a unit per column; orders (nb, nf, nk)
+    per column when they differ from the effect's own (Effect.orders)."""
 
     x: np.ndarray
     names: tuple[str, ...]
     units: tuple[str, ...]
+    orders: tuple[tuple[int, int, int], ...] | None = None
 
 
 # ---- helpers over dataset arrays ------------------------------------------------------------------------
@@ -187,32 +193,65 @@ def _power(ds):
 
 
 def _map_scales(ds) -> tuple[float, str, float, str]:
-    """(speed scale, its unit, torque scale, its unit) of the engine-map columns: krpm and kNm (100 % of reference
-    torque when the model's torque is in %), so every column is of order one."""
+    """(speed scale, its unit, torque scale, its unit) of the map's columns: krpm and kNm (100 % of reference torque
+    when the model's torque is in %), so every column is of order one."""
     return (1000.0, "krpm") + ((1000.0, "kNm") if ds.input_units[1] == "Nm" else (100.0, "100 %"))
 
 
-def _engine_map(ds):
-    """The engine's own fuelling beyond a plane in speed and torque, over its operating point:
-    its static curvature, a quadratic surface in the deviations ñ, T̃ (`deviations`, scaled by `_map_scales`) —
-    ñ·T̃, ñ², T̃² (the plane itself is the model's own gains) — and, when the engine reports it, its relative load
-    L = T / T_max(n) [1] (EEC2 SPN 92: the load against the full-load curve, where a map's efficiency is charted);
-    and its transient fuelling, the extra fuel while the torque builds up faster than the turbocharger's boost:
-    the torque's rise r = max(dT/dt, 0) and r·T̃ (the surcharge grows with the load), whose memory the term's FIR
-    taps (`orders`) carry."""
-    n, T = deviations(ds)
-    sn, un, sT, uT = _map_scales(ds)
-    n, T = n / sn, T / sT
-    load = _signal(ds, "EEC2.EngPercentLoadAtCurrentSpeed")
-    cols, names, units = [n * T, n * n, T * T], ["speed x torque", "speed^2", "torque^2"], \
-        [f"{un}.{uT}", f"{un}2", f"{uT}2"]
-    if load is not None:
-        cols, names, units = cols + [load / 100.0], names + ["relative load"], units + ["1"]
+MAP_ALIGN_LAGS = 5  # [samples] the static map's start aligns the fuel to the torque within this many samples
+
+
+def static_engine_map(ds) -> dict:
+    """The engine map's start (ident.enginemap.fit_map, as its `to_dict`): the static P-spline of the fuel over the
+    valid samples' speed and torque, the fuel advanced by the lag (0 … MAP_ALIGN_LAGS samples) at which it
+    correlates best with the torque (the fuel's response lags its demand), within each valid stretch; the plane about
+    the dataset's operating point."""
+    segs = [s for s in ds.segments() if s.stop - s.start > MAP_ALIGN_LAGS]
+    if not segs:
+        raise InputError("engine map: no valid stretch of the data is long enough")
+
+    def pairs(k):
+        n = np.concatenate([ds.u[s.start: s.stop - k, 0] for s in segs])
+        T = np.concatenate([ds.u[s.start: s.stop - k, 1] for s in segs])
+        y = np.concatenate([ds.y[s.start + k: s.stop] for s in segs])
+        return n, T, y
+
+    def corr(k):
+        _, T, y = pairs(k)
+        ok = np.isfinite(T) & np.isfinite(y)
+        return np.corrcoef(T[ok], y[ok])[0, 1]
+
+    lag = max(range(MAP_ALIGN_LAGS + 1), key=corr)
+    n, T, y = pairs(lag)
+    return fit_map(n, T, y, tuple(map(float, ds.u0)), float(ds.y0), (*ds.input_units, ds.output_unit)).to_dict()
+
+
+def _engine_map(ds, fitted: dict | None = None):
+    """The engine's own fuelling beyond the model's plane in speed and torque: the static map's part beyond its
+    plane, x_map = m(n, T) [fuel unit] (ident.enginemap; `fitted` its to_dict, fitted on ds by `static_engine_map`
+    when not given), through one transfer function of unit static gain (ident.hammerstein); and its transient
+    fuelling, the extra fuel while the torque builds up faster than the turbocharger's boost: the torque's rise
+    r = max(dT/dt, 0) and r·f/f_scale (the surcharge grows with the fuel the map gives, f = s(n, T))."""
+    emap = EngineMap.from_dict(fitted if fitted is not None else static_engine_map(ds))
+    n, T = ds.u[:, 0], ds.u[:, 1]
+    _, _, sT, uT = _map_scales(ds)
     # held: np.gradient would spread a sample missing between trips to its neighbours
-    rise = np.maximum(rate(held(ds.u[:, 1]), ds.t), 0.0) / sT
-    cols, names, units = cols + [rise, rise * T], names + ["torque rise", "torque rise x torque"], \
-        units + [f"{uT}/s", f"{uT}2/s"]
-    return Regressors(np.column_stack(cols), tuple(names), tuple(units))
+    rise = np.maximum(rate(held(T), ds.t), 0.0) / sT
+    # x_map: B/F with a direct term and one pole, the fuel's response to the map being about that of the torque's
+    # own path at low order; the transient columns: a first-order lag, the turbocharger's spool-up (a PT1)
+    s = emap(n, T)
+    return Regressors(np.column_stack([emap.beyond_plane(n, T, s), rise, rise * s / emap.fuel_scale]),
+                      ("map beyond the plane", "torque rise", "torque rise x map fuel"),
+                      (ds.output_unit, f"{uT}/s", f"{uT}/s"), orders=(MAP_ORDERS, RISE_ORDERS, RISE_ORDERS))
+
+
+MAP_ORDERS = (2, 1, 0)  # (nb, nf, nk) of the map input: B_m/F_m normalised to G_m(1) = 1 (ident.hammerstein)
+RISE_ORDERS = (1, 1, 0)  # of the torque-rise columns: a first-order lag
+
+
+def _bind_engine_map(effect, fitted: dict):
+    """engine_map with its map given (the model's, from model.info["effect_parameters"]["engine_map"])."""
+    return replace(effect, build=functools.partial(_engine_map, fitted=fitted), reference=None)
 
 
 def _pedal_released(ds) -> np.ndarray | None:
@@ -367,15 +406,16 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "Fuel follows power P = ω T and the efficiency map, not a plane in speed and torque; the product "
            "term is the first missing term of the map.",
            ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque"), (190, 513), "nonlinearity", _power, orders=(2, 1, 0)),
-    Effect("engine_map", "engine fuel map (speed × torque curvature, transient fuelling)",
+    Effect("engine_map", "engine fuel map (the engine's own static map, transient fuelling)",
            "A real engine's fuel map is curved: its efficiency varies over speed and torque, so fuel is not a "
            "plane in them; and while the torque builds up the turbocharger lags and the engine burns more per "
-           "unit of torque than its steady map says (VECTO's WHTC correction). The map term is a quadratic "
-           "surface of the model's own inputs (ñ·T̃, ñ², T̃²) and the torque's rise (r, r·T̃), each through a "
-           "five-tap FIR (1.5 s at Ts = 0.3 s: a turbocharger's spool-up); the diagnosis tests it first, as a "
-           "property of the engine, before looking for hidden effects.",
-           ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque", "EEC2.EngPercentLoadAtCurrentSpeed"), (190, 513, 92),
-           "nonlinearity", _engine_map, orders=(5, 0, 0), lags=(0,)),  # FIR: a pole per column made the minima erratic
+           "unit of torque than its steady map says (VECTO's WHTC correction). The map term is the engine's static "
+           "map beyond a plane, a smooth monotone surface over speed and torque (ident.enginemap) through one "
+           "transfer function of unit gain, identified jointly with the model's dynamics (ident.hammerstein), and "
+           "the torque's rise (r, r·f) through a first-order lag.",
+           ("EEC1.EngSpeed", "EEC1.ActualEngPercentTorque"), (190, 513),
+           "nonlinearity", _engine_map, orders=MAP_ORDERS, lags=(0,), reference=static_engine_map,
+           bind=_bind_engine_map),
     Effect("idle_fuelling", "idle fuelling",
            "At idle (vehicle stopped, pedal released) the idle governor fuels to hold speed against friction "
            "and auxiliaries, a different regime from driving.",
@@ -508,14 +548,30 @@ def _generic_build(signal: str, form: str, values=(), torque: str | None = None,
     return build
 
 
-def share_beyond_inputs(ds, signal: str) -> float:
-    """The share [1] of bus signal `signal`'s variance that the static map of the model's inputs leaves: 1 − R² of
-    its values regressed by least squares on 1, ñ, T̃ and the engine-map columns (`_engine_map`), over the valid
-    samples where it is known; 0 when it is constant there. A desired engine speed that is the engine speed but in
-    neutral leaves a fraction of a %: whatever it explains, speed and torque could."""
+def _quadratic_surface(ds) -> np.ndarray:
+    """Columns of a static quadratic map of speed and torque beyond a plane, over the operating point: ñ·T̃, ñ², T̃²
+    (krpm and kNm, or 100 %), the relative load L = T / T_max(n) (EEC2 SPN 92) when logged, and the torque's rise r
+    = max(dT/dt, 0) and r·T̃."""
     n, T = deviations(ds)
     sn, _, sT, _ = _map_scales(ds)
-    basis = np.column_stack([np.ones_like(n), n / sn, T / sT, _engine_map(ds).x])
+    n, T = n / sn, T / sT
+    cols = [n * T, n * n, T * T]
+    load = _signal(ds, "EEC2.EngPercentLoadAtCurrentSpeed")
+    if load is not None:
+        cols.append(load / 100.0)
+    rise = np.maximum(rate(held(ds.u[:, 1]), ds.t), 0.0) / sT
+    return np.column_stack(cols + [rise, rise * T])
+
+
+def share_beyond_inputs(ds, signal: str) -> float:
+    """The share [1] of bus signal `signal`'s variance that a static map of the model's inputs leaves: 1 − R² of
+    its values regressed by least squares on 1, ñ, T̃ and a quadratic map beyond them (`_quadratic_surface`), over
+    the valid samples where it is known; 0 when it is constant there. A desired engine speed that is the engine
+    speed but in neutral leaves a fraction of a %: whatever it explains, speed and torque could. (A low-order
+    surface on purpose: a signal that drifts over the trip is not explained by chance by a rich one.)"""
+    n, T = deviations(ds)
+    sn, _, sT, _ = _map_scales(ds)
+    basis = np.column_stack([np.ones_like(n), n / sn, T / sT, _quadratic_surface(ds)])
     x = ds.extra[signal]
     ok = ds.valid & np.isfinite(x) & np.isfinite(basis).all(axis=1)
     xc = x[ok] - x[ok].mean()

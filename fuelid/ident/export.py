@@ -14,6 +14,15 @@ y = y0 + sim(sys, u − u0). The parameter covariance is written as the matrix `
 fuelid's order (a, b per input, f per input, c, d), not set on the idpoly: setcov expects the toolbox's own
 parameter order and free/fixed bookkeeping.
 
+An engine model (ident.hammerstein) adds its Hammerstein block, as MATLAB's `idnlhw` users know one: the static
+nonlinearity in front of the linear model. Its map s(n, T) [fuel unit] is written twice: as the tensor-product
+B-spline (knot vectors `map_speed_knots`, `map_torque_knots`, coefficients `map_coefficients`, for the Curve Fitting
+Toolbox's `spmak`/`fnval`), and as its values `map_fuel` on a MAP_GRID × MAP_GRID grid (`map_speed`, `map_torque`)
+for a `griddedInterpolant` (clamped outside the grid; fuelid continues linearly above the torque range), with
+the data's coverage on that grid (`map_covered`), the plane (`map_plane`) and the cut torque; the script defines
+`engine_inputs(n, T)`, the map's three input columns (the map beyond its plane, the torque rise r and r·s/f_scale)
+that follow engine speed and torque in u.
+
 Numbers are written with Python's shortest round-trip repr, which MATLAB reads back to the same double.
 """
 from __future__ import annotations
@@ -22,7 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
+from fuelid.ident.enginemap import CUT_TORQUE
+from fuelid.ident.hammerstein import engine_map_of
 from fuelid.ident.polymodel import PolyModel, parameter_names
+
+MAP_GRID = 25  # grid points per axis of the engine map's values
 
 
 def noise_variance(model: PolyModel) -> float | None:
@@ -84,7 +97,60 @@ def matlab_script(model: PolyModel, source: str = "") -> str:
         lines.append(f"P = [{rows}];  % covariance of theta (order of theta_names)")
     else:
         lines.append("P = [];  % covariance not known")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _hammerstein_lines(model)) + "\n"
+
+
+def map_grid(model: PolyModel) -> dict | None:
+    """The engine map's values on a MAP_GRID × MAP_GRID grid over its knot box (speed first), its coverage there and
+    its spline; None for a model without an engine map."""
+    emap = engine_map_of(model)
+    if emap is None:
+        return None
+    n = np.linspace(*emap.speed_range, MAP_GRID)
+    T = np.linspace(*emap.torque_range, MAP_GRID)
+    gn, gt = np.meshgrid(n, T, indexing="ij")
+    return {"map_speed": n, "map_torque": T, "map_fuel": emap(gn, gt), "map_covered": emap.covered(gn, gt),
+            "map_speed_knots": emap.speed_knots, "map_torque_knots": emap.torque_knots,
+            "map_coefficients": emap.coef, "map_plane": np.asarray(emap.plane), "map_operating_point":
+            np.asarray(emap.operating_point), "map_fuel_scale": emap.fuel_scale, "map_cut_torque": CUT_TORQUE}
+
+
+def _matrix(a) -> str:
+    return "[" + ";\n    ".join(" ".join(_num(v) for v in r) for r in np.atleast_2d(np.asarray(a, float))) + "]"
+
+
+def _hammerstein_lines(model: PolyModel) -> list[str]:
+    """The engine map block of the script (module docstring), [] for a model without one."""
+    g = map_grid(model)
+    if g is None:
+        return []
+    emap = engine_map_of(model)
+    units = f"[{_printable(emap.speed_unit)}] x [{_printable(emap.torque_unit)}] -> [{_printable(emap.fuel_unit)}]"
+    scale = 1000.0 if emap.torque_unit == "Nm" else 100.0
+    return [
+        "% --- Hammerstein block (idnlhw's input nonlinearity): the engine's static fuel map s(n, T), " + units,
+        "% as a tensor-product cubic B-spline (Curve Fitting Toolbox: sp = spmak({map_speed_knots, map_torque_knots},"
+        " map_coefficients))",
+        f"map_speed_knots = {_row(g['map_speed_knots'])};",
+        f"map_torque_knots = {_row(g['map_torque_knots'])};",
+        f"map_coefficients = {_matrix(g['map_coefficients'])};",
+        "% and its values on a grid (speed along rows), with the identification data's coverage there",
+        f"map_speed = {_row(g['map_speed'])};",
+        f"map_torque = {_row(g['map_torque'])};",
+        f"map_fuel = {_matrix(g['map_fuel'])};",
+        f"map_covered = logical({_matrix(g['map_covered'])});",
+        f"map_plane = {_row(g['map_plane'])};  % [p0 pn pT]: the plane the model's speed and torque paths carry",
+        f"map_operating_point = {_row(g['map_operating_point'])};  % [n0 T0] of the plane",
+        f"map_fuel_scale = {_num(g['map_fuel_scale'])};  % the transient column's scale [{_printable(emap.fuel_unit)}]",
+        f"map_cut_torque = {_num(g['map_cut_torque'])};  % at or below this torque the fuel is cut: s = 0",
+        "map = griddedInterpolant({map_speed, map_torque}, map_fuel, 'spline', 'nearest');",
+        "map_s = @(n, T) (T > map_cut_torque) .* max(map(n, T), 0);",
+        "% the engine map's input columns, u = [n, T, engine_inputs(n, T), ...] (column vectors, Ts apart):",
+        "engine_inputs = @(n, T) [map_s(n, T) - (map_plane(1) + map_plane(2) * (n - map_operating_point(1)) "
+        "+ map_plane(3) * (T - map_operating_point(2))), ...",
+        f"    max(gradient(T, Ts), 0) / {_num(scale)}, max(gradient(T, Ts), 0) / {_num(scale)} .* map_s(n, T) "
+        "/ map_fuel_scale];",
+    ]
 
 
 def _cell_array(arrays) -> np.ndarray:
@@ -106,6 +172,7 @@ def mat_variables(model: PolyModel) -> dict:
         "OutputName": model.output_name, "OutputUnit": model.output_unit,
         "theta": model.theta, "theta_names": np.array(parameter_names(model.structure), dtype=object),
         "P": np.zeros((0, 0)) if model.covariance is None else model.covariance,
+        **(map_grid(model) or {}),
     }
 
 

@@ -36,6 +36,7 @@ import numpy as np
 from fuelid.errors import FuelidError
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.fueldelay import shift_signal, sweep_fuel_shift
+from fuelid.ident.hammerstein import JOINT_ROUNDS, MAP_EFFECT, joint_fit
 from fuelid.ident.modeldata import EffectInputs, apply_effects, at_operating_point
 from fuelid.ident.pem import LMResult, pem, pem_with_search
 from fuelid.ident.polymodel import PolyModel, Structure, simulate
@@ -154,8 +155,8 @@ def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
 
 def effect_inputs(ds, effects, structure: Structure, defined=()) -> EffectInputs:
     """apply_effects for a fit of `structure` (speed, torque inputs) with `effects` (built-in, or among `defined`,
-    effects the engineer defined); a fuel delay asked for without its value is estimated by `estimate_fuel_delay`
-    on the structure with the other effects' inputs."""
+    effects the engineer defined); a fuel delay asked for without its value is
+    estimated by `estimate_fuel_delay` on the structure with the other effects' inputs."""
     def sweep(others: EffectInputs) -> float:
         return estimate_fuel_delay(ds, np.hstack([ds.u, others.u]), others.extend(structure))["best_s"]
 
@@ -172,7 +173,8 @@ def training_segments(ds, u, y, min_s: float) -> list[slice]:
 
 def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float = MIN_SEGMENT_S, files=(),
                    init: PolyModel | None = None, defined=(), base: PolyModel | None = None,
-                   memo: FitMemo | None = None) -> PolyModel:
+                   memo: FitMemo | None = None, initialisation: bool = True,
+                   joint_rounds: int = JOINT_ROUNDS) -> PolyModel:
     """The PolyModel of `structure` (speed, torque inputs) plus `effects` ("ID" or "ID=VALUE") identified on
     dataset ds, with names, units, training summary (`files` recorded) and validation metrics filled in.
 
@@ -184,6 +186,10 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     definitions of those it uses (info["effect_definitions"]), so it runs without their file.
     info["starts"] records the loss V and simulation RMS error each start reached, which was kept, and the stages.
     memo: PEM fits of earlier calls on these data, served instead of fitted again (`FitMemo`; the same model).
+    initialisation: False leaves out the start from the ARX / Steiglitz–McBride
+    initialisation when `base` is given (the engine model from the linear one: only the starts from init and base).
+    With the engine_map effect the map and the dynamics are then refined jointly (ident.hammerstein.joint_fit, at
+    most joint_rounds rounds).
     Raises FuelidError for an unusable effect, too little valid data, or a failed estimation."""
     fx = effect_inputs(ds, effects, structure, defined)
     u, y = np.hstack([ds.u, fx.u]), fx.y
@@ -196,6 +202,8 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
     given = init if init is not None and init.structure == extended else None
     starts = {"initialisation" if given is None else "given model": given}
+    if given is None and not initialisation and base is not None and fx.u.shape[1]:
+        starts = {}
     fit = memo.pem if memo is not None else pem
     with warnings.catch_warnings():  # pem records its warnings in model.info
         warnings.simplefilter("ignore", UserWarning)
@@ -220,6 +228,10 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
               **effect_definitions(fx.effects, defined)},
         training={**ds.summary(), "files": list(map(str, files)),
                   "identification_samples": int(n_train), "identification_stretches": len(segs)})
+    if MAP_EFFECT in fx.effects:  # the engine's map and the dynamics jointly (ident.hammerstein)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            model = joint_fit(model, ds, segs, keep=kept_fit, fit=fit, rounds=joint_rounds)
     model = dataclasses.replace(model, validation=evaluate(model, ds))
     model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
                                                 n_train - len(segs) * extended.n_start)

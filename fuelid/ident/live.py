@@ -122,15 +122,24 @@ def fuel_scale(y0: float) -> float:
     return y0 if y0 > 0 else 1.0
 
 
-def check_online(structure: Structure, effects=(), source: str | None = None) -> None:
+RECORDED_EFFECTS = {"engine_map": 3}  # effects `fuelid online` runs over recorded files: id -> its input columns
+
+
+def check_online(structure: Structure, effects=(), source: str | None = None, recorded: bool = False) -> None:
     """FuelidError unless the online estimators can run a model of this structure and these effects: BJ/OE orders
-    (na = 0) of engine speed and torque, no effect inputs; source (a file name) starts the message."""
+    (na = 0) of engine speed and torque, no effect inputs; over recorded files (`recorded`, `fuelid online`) also
+    the engine model, its map fixed and its inputs computed from speed and torque like the others
+    (RECORDED_EFFECTS; the daemon's estimator has speed and torque only); source (a file name) starts the message."""
     where = f"{source}: " if source else ""
-    if structure.na or structure.n_inputs != 2:
+    unsupported = [e for e in effects if not (recorded and e in RECORDED_EFFECTS)]
+    if unsupported:
+        raise FuelidError(f"{where}the model includes effects {unsupported}; the online estimator has speed and "
+                          "torque only" + ("" if recorded else " (`fuelid online` over recorded files also runs "
+                                                              "an engine model; in the daemon give a linear model, "
+                                                              "`fuelid identify --model linear`)"))
+    extra = sum(RECORDED_EFFECTS[e] for e in effects)
+    if structure.na or structure.n_inputs != 2 + extra:
         raise FuelidError(f"{where}the online estimator takes BJ/OE orders for engine speed and torque (na = 0)")
-    if effects:
-        raise FuelidError(f"{where}the model includes effects {list(effects)}; the online estimator has speed and "
-                          "torque only")
 
 
 def prior_estimator(model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,

@@ -48,7 +48,8 @@ def apply_effects(ds, ids, parameters: dict | None = None,
     """Extra inputs and shifted fuel for the effects `ids` ("ID" or "ID=VALUE") on dataset ds.
 
     parameters: {"fuel_delay": τ [s]} the fuel advance, {"scales:SIG": x_ref} the level a raw bus signal that
-    scales the fuel is centred on (default its median on ds: ident.effects.centred); when fuel_delay is asked for without τ, τ [s] is
+    scales the fuel is centred on (default its median on ds: ident.effects.centred), {"engine_map": the engine's
+    map (ident.enginemap.EngineMap.to_dict; default its static fit on ds, ident.effects.static_engine_map)}; when fuel_delay is asked for without τ, τ [s] is
     estimate_shift(the EffectInputs of the other effects, fuel not shifted), e.g. ident.identify's sweep with
     the model (required then). defined: effects the engineer defined (ident.effectfile) the ids may name.
     Raises ValueError for an unknown id or an effect whose signals are not logged.
@@ -61,9 +62,12 @@ def apply_effects(ds, ids, parameters: dict | None = None,
         eid, value = parse_effect(raw)
         effect = get_effect(eid, ds, defined)
         used.append(effect.id)
-        if effect.reference is not None:  # a raw bus signal scaling the fuel: centred alike on every data set
-            parameters[effect.id] = value if value is not None else parameters.get(effect.id, effect.reference(ds))
-            effect = centred(effect, parameters[effect.id])
+        if effect.reference is not None:  # a parameter kept with the model: every data set built alike
+            if value is not None:
+                parameters[effect.id] = value
+            elif effect.id not in parameters:
+                parameters[effect.id] = effect.reference(ds)
+            effect = (effect.bind or centred)(effect, parameters[effect.id])
         if effect.enters == "shift":
             widths.append(0)
             shift_id = effect.id
@@ -76,7 +80,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
         widths.append(reg.x.shape[1])
         names += [f"{effect.id}: {n}" for n in reg.names]
         units += list(reg.units)
-        orders += [effect.orders] * reg.x.shape[1]
+        orders += list(reg.orders) if reg.orders is not None else [effect.orders] * reg.x.shape[1]
     u = np.hstack(cols) if cols else np.zeros((len(y), 0))
     if shift == "sweep":
         if estimate_shift is None:

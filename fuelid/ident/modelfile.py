@@ -11,6 +11,12 @@
 
 B arrays carry the nk leading zeros. Floats are written with Python's shortest round-trip repr, so
 load_model(save_model(m)) gives back every coefficient bit for bit.
+
+An engine model (ident.hammerstein) lists the effect "engine_map" first in "effects"; its map travels in
+info.effect_parameters.engine_map (ident.enginemap.EngineMap.to_dict: knots, coefficients, plane, coverage counts,
+units), from which ident.modeldata.model_data rebuilds its input columns on any dataset. info.model_choice records
+which model `fuelid identify` kept and why (ident.modelchoice.ModelChoice.to_json), info.joint the loss V over the
+joint identification's rounds.
 """
 from __future__ import annotations
 

@@ -10,6 +10,8 @@ and the fleet service call them. The page shows, for a model on a dataset (ident
 - the simulation error ŷ_sim − y with the worst stretches marked and labelled by their driving context;
 - the whiteness plots with the paper's 99 % bounds (Fig. 7 of seed paper 000): r_e(h) and r_eu(h);
 - the error over the engine speed × torque plane (bias and RMS heat maps);
+- for an engine model (ident.hammerstein), its identified steady-state map over speed × torque where the
+  identification data cover it, beside the true map when the data come from the simulator with a VECTO engine;
 - with AFTER models (the same data, effects added): their metrics side by side, their curves overlaid, and
   "RMS error fell from X to Y L/h; cycle fuel error from A % to B %".
 
@@ -36,6 +38,7 @@ import numpy as np
 from fuelid import __version__
 from fuelid.ident.diagnosis import Diagnosis, diagnose
 from fuelid.ident.diagnosis.candidate import ENGINE_MAP
+from fuelid.ident.hammerstein import engine_map_of, steady_state_map
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.validation import WHITENESS_MEANING, autocorr_test, crosscorr_test, metrics
 from fuelid.logger.decode import signal_units
@@ -280,6 +283,39 @@ def error_map_figure(emap: dict, output_unit: str, which: str = "mean_error") ->
                                                f"engine torque [{t_unit}]", 420)}
 
 
+MAP_GRID = 40  # points per axis of the engine-map figures
+
+
+def engine_map_figures(model, true_map=None) -> list[tuple[str, dict]]:
+    """The engine model's steady-state map f(n, T) [output unit] (ident.hammerstein.steady_state_map) as a heat map
+    with contours over its region (speed [rpm] × torque [the model's unit]), cells without identification data
+    (ident.enginemap.EngineMap.covered) left blank; beside it `true_map(n, T)` [output unit] on the same grid (the
+    simulator's engine, when the data come from it; blank where the identified map has no data too, so the two
+    compare where they can). [] for a model without an engine map."""
+    emap = engine_map_of(model)
+    if emap is None:
+        return []
+    n = np.linspace(*emap.speed_range, MAP_GRID)
+    T = np.linspace(*emap.torque_range, MAP_GRID)
+    gn, gt = np.meshgrid(n, T)  # rows: torque, columns: speed
+    covered = emap.covered(gn, gt)
+    unit, t_unit = pretty_unit(model.output_unit), pretty_unit(emap.torque_unit)
+    maps = [("engine_map", "Identified engine map (steady state)", steady_state_map(model, gn, gt))]
+    if true_map is not None:
+        maps.append(("true_map", "True engine map (simulator)", np.asarray(true_map(gn, gt), float)))
+    top = max(float(np.nanmax(np.where(covered, z, np.nan))) for _, _, z in maps)
+    figs = []
+    for name, title, z in maps:
+        trace = {"type": "contour", "x": n, "y": T, "z": np.where(covered, z, np.nan), "zmin": 0.0, "zmax": top,
+                 "colorscale": "Viridis", "contours": {"coloring": "heatmap", "showlabels": True},
+                 "colorbar": {"title": {"text": f"fuel [{unit}]", "side": "right"}},
+                 "hovertemplate": f"%{{x:.0f}} rpm, %{{y:.0f}} {t_unit}<br>%{{z:.2f}} {unit}<extra></extra>"}
+        figs.append((name, {"data": [trace], "layout": _layout(f"{title}; blank: no identification data",
+                                                                "engine speed [rpm]", f"engine torque [{t_unit}]",
+                                                                420)}))
+    return figs
+
+
 def _plot(fig: dict, div_id: str) -> str:
     # plotly takes about a second to import: loaded only when a report is drawn
     import plotly.graph_objects as go  # validates every property name and value
@@ -416,14 +452,16 @@ font-size:.9em} .grid{display:grid;grid-template-columns:1fr 1fr;gap:10px} .grid
 
 def render_report(model, ds, diagnosis: dict | None = None, after=(), *, label: str | None = None,
                   title: str | None = None, truck: str | None = None, files=(), max_points: int = MAX_POINTS,
-                  top: int = 12) -> str:
+                  top: int = 12, true_map=None) -> str:
     """The report of `model` (ident.polymodel.PolyModel) on dataset ds as one HTML page (module docstring).
 
     diagnosis: ident.diagnosis.diagnose(model, ds) when already computed (else it is computed here; its model run
     is reused), or a saved `fuelid diagnose --json` result (the model is run again); after:
     (label, PolyModel) pairs of models refitted with effects added, compared on the same data; label: the
     model's own (e.g. its file name; default "before" beside AFTER models, else "model"); truck, files:
-    for the header; max_points: the decimation budget per time-series trace; top: candidates shown unfolded.
+    for the header; max_points: the decimation budget per time-series trace; top: candidates shown unfolded;
+    true_map: the engine's true steady-state map (n [rpm], T [torque unit]) → fuel [output unit], drawn beside an
+    engine model's identified one (`engine_map_figures`).
     Raises ValueError (from the diagnosis) when no valid segment is long enough; FuelidError on unit mismatch.
     """
     import plotly.offline  # heavy: loaded only when a report is drawn (see _plot)
@@ -469,7 +507,14 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, label: 
     effect_figs = [(f"effect{k}", fig) for k, c in enumerate(confirmed)
                    if (fig := effect_signal_figure(ds, curves[0], c, max_points)) is not None]
     figs += effect_figs
+    map_figs = engine_map_figures(model, true_map)
+    figs += map_figs
     plots = {name: _plot(fig, f"fig-{name}") for name, fig in figs}
+    map_section = "" if not map_figs else f"""<h3>The engine map (part of the model)</h3>
+<p class="note">The model's steady state f(n, T) = y0 + G_n(1)(n − n0) + G_T(1)(T − T0) + m(n, T): the plane its
+speed and torque paths carry and the engine map beyond it (docs/explanation/engine-model.md), over the region of
+the identification data.</p>
+<div class="grid">{"".join(plots[name] for name, _ in map_figs)}</div>"""
 
     header_rows = [["truck", _esc(truck or "unknown")],
                    ["data", _esc(", ".join(map(str, files)) or "(dataset given directly)")],
@@ -508,6 +553,7 @@ and are not tested).</p>
 <div class="grid">{plots["autocorr"]}{"".join(plots[f"crosscorr{j}"] for j in range(len(model.input_names[:2])))}</div>
 <h3>Error over engine speed × torque</h3>
 <div class="grid">{plots["map_bias"]}{plots["map_rms"]}</div>
+{map_section}
 <h2>Which effect is missing</h2>
 <p class="note">{_esc(test.get("method", ""))}; family-wise α = {_esc(test.get("alpha", ""))},
 {_esc(test.get("candidates_tested", ""))} candidates tested on {_esc(test.get("samples", ""))} samples.</p>

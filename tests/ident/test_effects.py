@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from fuelid.ident import effects as fx
+from fuelid.ident.enginemap import EngineMap
 from fuelid.ident.modeldata import apply_effects
 from tests.ident import hidden
 
@@ -98,21 +99,27 @@ def test_regressors_units_and_physics():
     assert fx.EFFECTS["dpf_regeneration"].build(ds) is None
 
 
-def test_engine_map_is_a_quadratic_surface_the_relative_load_and_the_torque_rise():
-    """engine_map: ñ·T̃, ñ², T̃² in krpm and kNm (deviations from the operating point), the relative load (EEC2 SPN
-    92, as a fraction) when the engine reports it, and the transient fuelling's torque rise r = max(dT/dt, 0)
-    [kNm/s] and r·T̃."""
+def test_engine_map_is_the_maps_part_beyond_its_plane_and_the_torque_rise():
+    """engine_map: x_map = m(n, T), the static map fitted on the data beyond its plane (ident.enginemap), and the
+    transient fuelling's torque rise r = max(dT/dt, 0) [kNm/s] and r·s(n, T)/f_scale; x_map through B/F with one pole,
+    the rise columns through a first-order lag; a map given (a model's) is the one used."""
     ds = hidden.make(None, n=2000)
-    n, T = (ds.u - ds.u0).T / 1000.0
     rise = np.maximum(np.gradient(ds.u[:, 1], ds.t), 0.0) / 1000.0
     reg = fx.EFFECTS["engine_map"].build(ds)
-    assert reg.units == ("krpm.kNm", "krpm2", "kNm2", "kNm/s", "kNm2/s") and reg.names[0] == "speed x torque"
-    assert np.allclose(reg.x, np.column_stack([n * T, n * n, T * T, rise, rise * T]))
-    assert (reg.x[:, 3] >= 0).all() and (reg.x[:, 3] > 0).any()
-    ds.extra["EEC2.EngPercentLoadAtCurrentSpeed"] = np.clip(ds.u[:, 1] / 20.0, 0, 100)
-    reg = fx.EFFECTS["engine_map"].build(ds)
-    assert reg.names[3] == "relative load" and reg.units[3] == "1"
-    assert np.allclose(reg.x[:, 3], np.clip(ds.u[:, 1] / 20.0, 0, 100) / 100.0)
+    assert reg.units == ("L/h", "kNm/s", "kNm/s") and reg.names[0] == "map beyond the plane"
+    assert reg.orders == (fx.MAP_ORDERS, fx.RISE_ORDERS, fx.RISE_ORDERS)
+    emap = EngineMap.from_dict(fx.static_engine_map(ds))
+    n, T = ds.u.T
+    assert np.allclose(reg.x, np.column_stack([emap.beyond_plane(n, T), rise, rise * emap(n, T) / emap.fuel_scale]))
+    # beyond the plane: no speed- or torque-linear part over the data it was fitted on (all but the few samples the
+    # fuel's alignment leaves out); its level above the fuel at the operating point
+    P = np.column_stack([np.ones_like(n), n - n.mean(), T - T.mean()])
+    coef = np.linalg.lstsq(P, reg.x[:, 0], rcond=None)[0]
+    assert np.abs(coef[1:] * [n.std(), T.std()]).max() < 1e-2 * reg.x[:, 0].std()
+    assert emap.plane[0] == ds.y0
+    flat = emap.with_coefficients(np.zeros(emap.coef.size), (0.0, 0.0, 0.0)).to_dict()
+    given = fx.EFFECTS["engine_map"].bind(fx.EFFECTS["engine_map"], flat).build(ds)
+    assert np.allclose(given.x[:, [0, 2]], 0.0) and np.allclose(given.x[:, 1], rise)
 
 
 def test_held_fills_gaps_with_the_last_value():

@@ -76,3 +76,27 @@ def test_matlab_script_reproduces_the_simulation(fitted):
         assert f"'InputName', {{'{model.input_names[0]}'" in text
     assert "'torque ''net'''" in matlab_script(fitted)
     assert f"NoiseVariance = {fitted.info['noise_variance']!r};" in matlab_script(fitted)
+
+
+def test_an_engine_model_exports_its_map_as_a_hammerstein_block(tmp_path):
+    """The engine model's map in the script (B-spline knots and coefficients for spmak, values on a grid for
+    griddedInterpolant, coverage, plane, the input columns as a function of n and T) and in the .mat file."""
+    from fuelid.ident.export import MAP_GRID, map_grid
+    from fuelid.ident.hammerstein import engine_map_of
+    from fuelid.ident.identify import identify_model
+    from tests.ident import engine_data
+    from tests.ident.hidden import STRUCTURE
+
+    model = identify_model(engine_data.trip(k=1.0, n=4000), STRUCTURE, ["engine_map"])
+    text = matlab_script(model)
+    for name in ("map_speed_knots", "map_coefficients", "map_fuel", "map_covered", "map_plane", "griddedInterpolant",
+                 "engine_inputs = @(n, T)"):
+        assert name in text, name
+    g = map_grid(model)
+    emap = engine_map_of(model)
+    gn, gt = np.meshgrid(g["map_speed"], g["map_torque"], indexing="ij")
+    assert g["map_fuel"].shape == (MAP_GRID, MAP_GRID) and np.allclose(g["map_fuel"], emap(gn, gt))
+    write_mat(model, tmp_path / "m.mat")
+    mat = loadmat(tmp_path / "m.mat")
+    assert np.allclose(mat["map_fuel"], g["map_fuel"]) and mat["map_coefficients"].shape == emap.coef.shape
+    assert map_grid(identify_model(engine_data.trip(k=0.0, n=4000), STRUCTURE)) is None

@@ -214,3 +214,18 @@ def test_header_and_self_contained(case):
     assert not [u for u in links if re.match(r"\s*(https?:)?//", u, re.I)], links
     assert "<script src" not in page and "<link" not in page
     assert "plotly.js v" in page  # the library itself is inlined
+
+
+def test_an_engine_model_s_map_is_drawn_where_the_data_cover_it_beside_the_true_one():
+    from fuelid.ident.identify import identify_model
+    from tests.ident import engine_data
+
+    model = identify_model(engine_data.trip(k=1.0, n=4000), hidden.STRUCTURE, ["engine_map"])
+    figs = dict(rp.engine_map_figures(model, true_map=engine_data.steady_state))
+    assert set(figs) == {"engine_map", "true_map"}
+    z, truth = (np.array(figs[k]["data"][0]["z"], float) for k in ("engine_map", "true_map"))
+    blank = np.isnan(z)
+    assert blank.any() and not blank.all() and np.array_equal(blank, np.isnan(truth))  # compared where covered
+    assert np.sqrt(np.nanmean((z - truth) ** 2)) < 0.5  # L/h; the map spans about 50 L/h
+    assert rp.engine_map_figures(identify_model(engine_data.trip(k=0.0, n=4000), hidden.STRUCTURE)) == []
+    assert "contour" in figs["engine_map"]["data"][0]["type"] and "rpm" in figs["engine_map"]["layout"]["xaxis"]["title"]["text"]

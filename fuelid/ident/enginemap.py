@@ -1,0 +1,296 @@
+"""The engine's static fuel map f(n, T): a smooth surface over engine speed n [rpm] × torque T [the model's torque
+unit, N·m or %], in the fuel unit [L/h or kg/h] — the nonlinear block of the engine model (ident.hammerstein).
+
+The surface is a tensor-product cubic B-spline (P-spline, Eilers & Marx 1996),
+
+    s(n, T) = Σ_i Σ_j c_ij B_i(n) C_j(T),
+
+on equally spaced knots over the data's operating region [n_lo, n_hi] × [T_lo, T_hi] (`SEGMENTS` intervals per axis,
+the knots extended three intervals beyond each end, so the basis reproduces every plane exactly), with the
+second-difference penalty
+
+    λ (‖Δ²_n c‖² + ‖Δ²_T c‖²)          (Δ² along the speed index i, resp. the torque index j)
+
+which leaves a plane (indeed any a + b n + c T + d n T) unpenalised and bends the rest towards one where the data are
+thin. λ is chosen by generalised cross-validation (`gcv_smoothing`: GCV(λ) = N RSS / (N − tr H_λ)², H_λ the hat
+matrix of the unconstrained penalised fit; Craven & Wahba 1979), then the coefficients are fitted by penalised least
+squares under the constraints (`penalised_fit`, scipy.optimize.lsq_linear):
+
+- monotone in torque: c_i,j+1 ≥ c_i,j (more torque never takes less fuel; every combustion engine's map is so, and a
+  B-spline with non-decreasing coefficients is non-decreasing);
+- no negative fuel: c_i,0 ≥ 0 (with the above, every c ≥ 0, and s ≥ 0 since B-splines are non-negative and sum to 1).
+
+Both are bounds on z = (c_i,0, c_i,j − c_i,j−1), c = M z (per speed index a cumulative sum along torque).
+
+Outside the region (`basis`): speed is clamped to [n_lo, n_hi]; torque below T_lo is clamped to T_lo, above T_hi the
+surface continues linearly along torque with its slope at T_hi (non-negative, so still monotone); at or below zero
+torque (`CUT_TORQUE`: motoring, the injection cut) the fuel is 0.
+
+The model's input is the map's part beyond a plane, m(n, T) = s(n, T) − (p_0 + p_n (n − n0) + p_T (T − T0))
+(`beyond_plane`): p_0 the model's fuel at its operating point (n0, T0) (the data's idle fuel y0), p_n, p_T the
+slopes of the least-squares plane of s over the identification data, so m has no speed- or torque-linear component
+there, which is what the model's own speed and torque paths carry. Its level is kept: the model's plane passes
+through (n0, T0, y0), and where the map lies above or below that plane on average is the map's.
+
+The validity region is the data's coverage: sample counts on a COVERAGE_BINS × COVERAGE_BINS grid over the knot box
+(`covered`: at least COVERAGE_MIN samples in the cell).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import BSpline
+from scipy.linalg import cholesky, solve, solve_triangular
+from scipy.optimize import lsq_linear
+
+from fuelid.blas import in_one_blas_thread, one_blas_thread
+from fuelid.errors import InputError
+
+DEGREE = 3  # cubic
+SEGMENTS = 6  # knot intervals per axis: 9 × 9 coefficients
+CUT_TORQUE = 0.0  # at or below this torque [model unit] the injection is cut: no fuel
+COVERAGE_BINS = 12
+COVERAGE_MIN = 10  # samples in a coverage cell for it to count as covered
+SMOOTHING_GRID = np.logspace(-6, 3, 19)  # λ tried by GCV, relative to tr(ΦᵀΦ)/tr(P)
+MIN_SAMPLES = 200
+
+
+def knots(lo: float, hi: float, segments: int = SEGMENTS) -> np.ndarray:
+    """Equally spaced knots with `segments` intervals over [lo, hi], extended DEGREE intervals beyond each end."""
+    if not hi > lo:
+        hi = lo + 1.0
+    h = (hi - lo) / segments
+    return lo + h * np.arange(-DEGREE, segments + DEGREE + 1)
+
+
+def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """B-spline basis values (N × K) at x, clamped into the knots' base interval [t[DEGREE], t[-DEGREE-1]]."""
+    lo, hi = t[DEGREE], t[-DEGREE - 1]
+    return BSpline.design_matrix(np.clip(x, lo, hi), t, DEGREE).toarray()
+
+
+def _axis_slope(t: np.ndarray, x: float) -> np.ndarray:
+    """d/dx of each B-spline basis function at x (K)."""
+    k = len(t) - DEGREE - 1
+    return BSpline(t, np.eye(k), DEGREE).derivative()(x)
+
+
+def second_differences(k: int) -> np.ndarray:
+    """Δ² (k − 2 × k)."""
+    return np.diff(np.eye(k), n=2, axis=0)
+
+
+def penalty(kn: int, kt: int) -> np.ndarray:
+    """R with ‖R c‖² = ‖Δ²_n C‖² + ‖Δ²_T C‖² for c = C.ravel() (C kn × kt, speed index first)."""
+    return np.vstack([np.kron(second_differences(kn), np.eye(kt)), np.kron(np.eye(kn), second_differences(kt))])
+
+
+def monotone_transform(kn: int, kt: int) -> np.ndarray:
+    """M with c = M z, z = (c_i,0, c_i,j − c_i,j−1) per speed index i: z ≥ 0 ⇔ non-negative and monotone in torque."""
+    return np.kron(np.eye(kn), np.tril(np.ones((kt, kt))))
+
+
+@dataclass
+class EngineMap:
+    """A fitted static fuel map (module docstring). speed_knots [rpm], torque_knots [torque unit] the knot vectors,
+    coef (kn × kt) [fuel unit]; plane (p_0 [fuel unit], p_n [fuel unit/rpm], p_T [fuel unit/torque unit]) about the
+    operating point (n0 [rpm], T0 [torque unit]); fuel_scale [fuel unit] a typical fuel level (the transient columns'
+    scale); smoothing λ [1] relative to tr(ΦᵀΦ)/tr(RᵀR); coverage (COVERAGE_BINS × COVERAGE_BINS) sample counts over
+    the knot box, speed first."""
+
+    speed_knots: np.ndarray
+    torque_knots: np.ndarray
+    coef: np.ndarray
+    plane: tuple[float, float, float]
+    operating_point: tuple[float, float]
+    fuel_scale: float
+    smoothing: float
+    coverage: np.ndarray
+    speed_unit: str = "rpm"
+    torque_unit: str = "%"
+    fuel_unit: str = "L/h"
+
+    def __post_init__(self):
+        self.speed_knots = np.asarray(self.speed_knots, float)
+        self.torque_knots = np.asarray(self.torque_knots, float)
+        self.coef = np.asarray(self.coef, float).reshape(len(self.speed_knots) - DEGREE - 1,
+                                                         len(self.torque_knots) - DEGREE - 1)
+        self.coverage = np.asarray(self.coverage, float)
+        self.plane = tuple(float(v) for v in self.plane)
+        self.operating_point = tuple(float(v) for v in self.operating_point)
+
+    @property
+    def speed_range(self) -> tuple[float, float]:
+        """[n_lo, n_hi] [rpm], the knot box along speed."""
+        return float(self.speed_knots[DEGREE]), float(self.speed_knots[-DEGREE - 1])
+
+    @property
+    def torque_range(self) -> tuple[float, float]:
+        """[T_lo, T_hi] [torque unit], the knot box along torque."""
+        return float(self.torque_knots[DEGREE]), float(self.torque_knots[-DEGREE - 1])
+
+    def _axes(self, n, T) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(B_i(n) N × kn, C_j(T) N × kt, fuelled N): the axes' basis values with the extrapolation of the module
+        docstring (speed clamped, torque clamped below T_lo, linear above T_hi) and whether T > CUT_TORQUE."""
+        n, T = np.broadcast_arrays(np.asarray(n, float).ravel(), np.asarray(T, float).ravel())
+        bn = _axis(self.speed_knots, np.nan_to_num(n))
+        bt = _axis(self.torque_knots, np.nan_to_num(T))
+        t_hi = self.torque_range[1]
+        above = T > t_hi
+        if above.any():
+            bt[above] += (T[above] - t_hi)[:, None] * _axis_slope(self.torque_knots, t_hi)[None, :]
+        return bn, bt, T > CUT_TORQUE  # NaN torque: not fuelled
+
+    def basis(self, n, T) -> np.ndarray:
+        """Φ (N × kn·kt): s(n, T) = Φ c (c = coef.ravel(), speed index first), rows at T ≤ CUT_TORQUE zero."""
+        bn, bt, fuelled = self._axes(n, T)
+        phi = (bn[:, :, None] * bt[:, None, :]).reshape(len(bn), -1)
+        phi[~fuelled] = 0.0
+        return phi
+
+    def __call__(self, n, T) -> np.ndarray:
+        """s(n, T) [fuel unit] at speeds n [rpm] and torques T [torque unit] (arrays of one shape; 0 where T is
+        NaN)."""
+        shape = np.broadcast(np.asarray(n), np.asarray(T)).shape
+        bn, bt, fuelled = self._axes(n, T)
+        return np.where(fuelled, ((bn @ self.coef) * bt).sum(axis=1), 0.0).reshape(shape)
+
+    def plane_at(self, n, T) -> np.ndarray:
+        """p_0 + p_n (n − n0) + p_T (T − T0) [fuel unit]."""
+        p0, pn, pT = self.plane
+        n0, T0 = self.operating_point
+        return p0 + pn * (np.asarray(n, float) - n0) + pT * (np.asarray(T, float) - T0)
+
+    def beyond_plane(self, n, T, s: np.ndarray | None = None) -> np.ndarray:
+        """m(n, T) = s(n, T) − plane [fuel unit]: the model's map input (s: the map's values there, when known)."""
+        return (self(n, T) if s is None else s) - self.plane_at(n, T)
+
+    def covered(self, n, T) -> np.ndarray:
+        """Whether (n, T) lies in a coverage cell with at least COVERAGE_MIN identification samples."""
+        n, T = np.asarray(n, float), np.asarray(T, float)
+        i, j = self._cells(n, T)
+        inside = (i >= 0) & (i < COVERAGE_BINS) & (j >= 0) & (j < COVERAGE_BINS)
+        out = np.zeros(np.broadcast(n, T).shape, bool)
+        out[inside] = self.coverage[i[inside], j[inside]] >= COVERAGE_MIN
+        return out
+
+    def _cells(self, n, T):
+        (n_lo, n_hi), (t_lo, t_hi) = self.speed_range, self.torque_range
+        i = np.floor((n - n_lo) / (n_hi - n_lo) * COVERAGE_BINS)
+        j = np.floor((T - t_lo) / (t_hi - t_lo) * COVERAGE_BINS)
+        i = np.where(n == n_hi, COVERAGE_BINS - 1, i)
+        j = np.where(T == t_hi, COVERAGE_BINS - 1, j)
+        i, j = np.broadcast_arrays(np.nan_to_num(i, nan=-1).astype(int), np.nan_to_num(j, nan=-1).astype(int))
+        return i, j
+
+    def with_coefficients(self, coef, plane, smoothing: float | None = None) -> EngineMap:
+        """This map with other coefficients (kn·kt) and plane (and smoothing λ, when given)."""
+        return EngineMap(self.speed_knots, self.torque_knots, np.asarray(coef, float), plane, self.operating_point,
+                         self.fuel_scale, self.smoothing if smoothing is None else smoothing, self.coverage,
+                         self.speed_unit, self.torque_unit, self.fuel_unit)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the knots, coefficients (speed index first), plane, coverage and units."""
+        return {"kind": "tensor-product cubic B-spline (P-spline)", "degree": DEGREE,
+                "units": {"speed": self.speed_unit, "torque": self.torque_unit, "fuel": self.fuel_unit},
+                "speed_knots": self.speed_knots.tolist(), "torque_knots": self.torque_knots.tolist(),
+                "coefficients": self.coef.tolist(),
+                "plane": {"p0": self.plane[0], "per_speed": self.plane[1], "per_torque": self.plane[2]},
+                "operating_point": {"speed": self.operating_point[0], "torque": self.operating_point[1]},
+                "fuel_scale": self.fuel_scale, "smoothing": self.smoothing,
+                "cut_torque": CUT_TORQUE,
+                "coverage": {"bins": COVERAGE_BINS, "min_samples": COVERAGE_MIN, "counts": self.coverage.tolist()}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> EngineMap:
+        """The map of a `to_dict` content; InputError when it is not one."""
+        try:
+            return cls(d["speed_knots"], d["torque_knots"], d["coefficients"],
+                       (d["plane"]["p0"], d["plane"]["per_speed"], d["plane"]["per_torque"]),
+                       (d["operating_point"]["speed"], d["operating_point"]["torque"]), float(d["fuel_scale"]),
+                       float(d["smoothing"]), d["coverage"]["counts"], d["units"]["speed"], d["units"]["torque"],
+                       d["units"]["fuel"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"malformed engine map: {exc}") from None
+
+
+def plane_slopes(phi: np.ndarray, n: np.ndarray, T: np.ndarray, op) -> np.ndarray:
+    """Π (2 × K): the slopes (p_n, p_T) of the least-squares plane a + p_n (n − n0) + p_T (T − T0) of Σ_k c_k φ_k
+    over the samples (n, T) are Π c (op = (n0, T0))."""
+    P = np.column_stack([np.ones_like(n), (n - op[0]) / 1000.0, (T - op[1]) / 1000.0])  # columns of order one
+    with one_blas_thread():
+        return 1e-3 * solve(P.T @ P, P.T @ phi, assume_a="pos")[1:]
+
+
+def gcv_smoothing(G: np.ndarray, g: np.ndarray, yy: float, N: int, P: np.ndarray) -> float:
+    """λ [relative to tr(ΦᵀΦ)/tr(RᵀR)] of SMOOTHING_GRID minimising GCV(λ) = N RSS_λ / (N − tr H_λ)² of the
+    unconstrained fit c_λ = (G + λ' P)⁻¹ g, given G = ΦᵀΦ, g = Φᵀy, yy = yᵀy, N samples and P = RᵀR;
+    tr H_λ = tr((G + λ' P)⁻¹ G) (K × K)."""
+    scale = np.trace(G) / np.trace(P)
+    ridge = 1e-10 * np.trace(G) * np.eye(len(G))
+    best = (np.inf, SMOOTHING_GRID[0])
+    for lam in SMOOTHING_GRID:
+        A = G + lam * scale * P + ridge
+        c = solve(A, g, assume_a="pos")
+        rss = yy - 2 * c @ g + c @ G @ c
+        dof = np.trace(solve(A, G, assume_a="pos"))
+        score = N * max(rss, 0.0) / max(N - dof, 1.0) ** 2
+        if score < best[0]:
+            best = (score, lam)
+    return float(best[1])
+
+
+@in_one_blas_thread  # N × K products: BLAS threads cost more than they save (fuelid.blas)
+def penalised_fit(phi: np.ndarray, y: np.ndarray, kn: int, kt: int, smoothing: float | None = None,
+                  monotone: bool = True, lower: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """c = argmin ‖y − Φ c‖² + λ' ‖R c‖² (R: `penalty`, λ' = λ tr(ΦᵀΦ)/tr(RᵀR), λ by `gcv_smoothing` when not given),
+    monotone: under z = M⁻¹ c ≥ lower (default 0: non-negative, monotone in torque; `monotone_transform`).
+
+    The criterion is c'(G + λ'P)c − 2c'g + yᵀy (G = ΦᵀΦ, g = Φᵀy, P = RᵀR): with the Cholesky factor
+    G + λ'P = L Lᵀ it is ‖Lᵀ c − L⁻¹ g‖² + const, a K × K bounded least-squares problem for scipy.optimize.lsq_linear
+    (K = kn·kt; the penalty keeps G + λ'P well conditioned: its null space, the bilinear surfaces, is determined
+    by any data not on one line). Returns (c, λ)."""
+    R = penalty(kn, kt)
+    G, g, P = phi.T @ phi, phi.T @ y, R.T @ R
+    return penalised_gram_fit(G, g, float(y @ y), len(y), kn, kt, smoothing, monotone, lower)
+
+
+def penalised_gram_fit(G, g, yy: float, N: int, kn: int, kt: int, smoothing: float | None = None,
+                       monotone: bool = True, lower: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """`penalised_fit` from G = ΦᵀΦ, g = Φᵀy, yy = yᵀy and the number of samples N."""
+    R = penalty(kn, kt)
+    P = R.T @ R
+    lam = gcv_smoothing(G, g, yy, N, P) if smoothing is None else smoothing
+    A = G + lam * np.trace(G) / np.trace(P) * P + 1e-10 * np.trace(G) * np.eye(len(G))
+    L = cholesky(A, lower=True)
+    M = monotone_transform(kn, kt) if monotone else np.eye(kn * kt)
+    b = solve_triangular(L, g, lower=True)
+    if not monotone:
+        return solve_triangular(L.T, b, lower=False), lam
+    lb = np.zeros(kn * kt) if lower is None else lower
+    z = lsq_linear(L.T @ M, b, bounds=(lb, np.inf), method="bvls").x
+    return M @ z, lam
+
+
+def fit_map(n, T, y, op, y0: float, units=("rpm", "%", "L/h"), smoothing: float | None = None) -> EngineMap:
+    """The static map of fuel y [fuel unit] over speed n [rpm] and torque T [torque unit] (finite samples of the
+    three arrays): knots over their range (torque from max(min T, CUT_TORQUE)), coefficients by `penalised_fit`
+    (non-negative, monotone in torque; λ by GCV when not given), the plane through (op = (n0, T0), y0) with the slopes
+    of the least-squares plane over these samples, their coverage. InputError with fewer than MIN_SAMPLES samples above the cut torque."""
+    n, T, y = (np.asarray(a, float).ravel() for a in (n, T, y))
+    ok = np.isfinite(n) & np.isfinite(T) & np.isfinite(y)
+    n, T, y = n[ok], T[ok], y[ok]
+    fuelled = T > CUT_TORQUE
+    if fuelled.sum() < MIN_SAMPLES:
+        raise InputError(f"engine map: {int(fuelled.sum())} samples with torque above {CUT_TORQUE:g} "
+                         f"{units[1]}, at least {MIN_SAMPLES} needed")
+    tn, tt = knots(n.min(), n.max()), knots(max(T[fuelled].min(), CUT_TORQUE), T.max())
+    shell = EngineMap(tn, tt, np.zeros((len(tn) - DEGREE - 1) * (len(tt) - DEGREE - 1)), (0, 0, 0), op, 1.0, 0.0,
+                      np.zeros((COVERAGE_BINS, COVERAGE_BINS)), *units)
+    phi = shell.basis(n, T)
+    kn, kt = shell.coef.shape
+    c, lam = penalised_fit(phi[fuelled], y[fuelled], kn, kt, smoothing)
+    counts = np.histogram2d(n, T, bins=COVERAGE_BINS, range=[shell.speed_range, shell.torque_range])[0]
+    plane = (y0, *(plane_slopes(phi, n, T, op) @ c))
+    return EngineMap(tn, tt, c, plane, op, float(np.percentile(y, 95)) or 1.0, lam, counts, *units)

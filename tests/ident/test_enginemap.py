@@ -1,0 +1,81 @@
+import json
+
+import numpy as np
+import pytest
+
+from fuelid.errors import InputError
+from fuelid.ident.enginemap import CUT_TORQUE, EngineMap, fit_map
+
+
+def surface(n, T):
+    """A smooth fuel map [L/h], monotone in torque: 2 + 0.03 T + 6 ((T − 600)/1000)² + 2 ((n − 1200)/600)² T/1700."""
+    return 2.0 + 0.03 * T + 6.0 * ((T - 600.0) / 1000.0) ** 2 + 2.0 * ((n - 1200.0) / 600.0) ** 2 * (T / 1700.0)
+
+
+def samples(size=6000, seed=0, noise=0.3):
+    rng = np.random.default_rng(seed)
+    n, T = rng.uniform(600, 1900, size), rng.uniform(20, 1700, size)
+    return n, T, surface(n, T) + rng.normal(0, noise, size)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    n, T, y = samples()
+    return fit_map(n, T, y, (600.0, 112.0), 2.0, ("rpm", "Nm", "L/h"))
+
+
+def test_a_known_surface_is_recovered_within_a_tenth_of_the_noise(fitted):
+    gn, gt = np.meshgrid(np.linspace(650, 1850, 25), np.linspace(50, 1650, 25))
+    err = fitted(gn, gt) - surface(gn, gt)
+    assert np.sqrt(np.mean(err ** 2)) < 0.1  # noise 0.3 L/h on each of 6000 samples
+    assert fitted.covered(gn, gt).all() and not fitted.covered(3000.0, 800.0)
+
+
+def test_the_map_is_monotone_in_torque_and_never_negative_even_where_the_data_say_otherwise():
+    n, T, y = samples(noise=3.0, seed=1)  # noise 3 L/h: an unconstrained fit would wiggle down somewhere
+    emap = fit_map(n, T, y, (600.0, 112.0), 2.0, ("rpm", "Nm", "L/h"))
+    gn, gt = np.meshgrid(np.linspace(400, 2500, 40), np.linspace(-100, 2500, 200), indexing="ij")
+    f = emap(gn, gt)
+    assert (np.diff(f, axis=1) >= -1e-9).all()
+    assert (f >= 0).all()
+
+
+def test_outside_its_region_speed_is_clamped_and_torque_continues_linearly_above(fitted):
+    (n_lo, n_hi), (t_lo, t_hi) = fitted.speed_range, fitted.torque_range
+    T = np.array([300.0, 900.0])
+    assert np.allclose(fitted(np.full(2, n_hi + 500), T), fitted(np.full(2, n_hi), T))
+    assert np.allclose(fitted(np.full(2, n_lo - 300), T), fitted(np.full(2, n_lo), T))
+    above = fitted(np.full(3, 1200.0), t_hi + np.array([100.0, 200.0, 300.0]))
+    slope = np.diff(above) / 100.0
+    assert np.allclose(slope[0], slope[1]) and slope[0] > 0
+    assert np.isclose(fitted(1200.0, t_lo / 2), fitted(1200.0, t_lo))  # clamped between the cut and T_lo
+
+
+def test_at_or_below_zero_torque_the_fuel_is_cut(fitted):
+    assert np.all(fitted(np.full(3, 1200.0), np.array([CUT_TORQUE, -50.0, -500.0])) == 0.0)
+    assert fitted(1200.0, 50.0) > 0
+    assert np.all(fitted.basis([1200.0, 1300.0], [-10.0, np.nan]) == 0.0)
+
+
+def test_the_map_beyond_its_plane_has_no_slope_over_its_data_and_its_level_above_the_operating_fuel(fitted):
+    n, T, _ = samples()
+    m = fitted.beyond_plane(n, T)
+    P = np.column_stack([np.ones_like(n), n, T])
+    coef = np.linalg.lstsq(P, m, rcond=None)[0]
+    assert np.abs(coef[1:] * [n.std(), T.std()]).max() < 1e-6 * m.std()
+    assert np.allclose(fitted(n, T) - m, fitted.plane_at(n, T)) and fitted.plane_at(600.0, 112.0) == 2.0
+
+
+def test_to_dict_and_back_gives_the_same_map_with_its_units(fitted):
+    d = json.loads(json.dumps(fitted.to_dict()))
+    assert d["units"] == {"speed": "rpm", "torque": "Nm", "fuel": "L/h"}
+    again = EngineMap.from_dict(d)
+    n, T, _ = samples(size=100, seed=5)
+    assert np.array_equal(again(n, T), fitted(n, T)) and np.array_equal(again.covered(n, T), fitted.covered(n, T))
+    with pytest.raises(InputError, match="malformed engine map"):
+        EngineMap.from_dict({"speed_knots": [1, 2]})
+
+
+def test_too_few_fuelled_samples_is_an_input_error():
+    with pytest.raises(InputError, match="at least"):
+        fit_map(np.full(50, 1000.0), np.linspace(1, 100, 50), np.ones(50), (600.0, 0.0), 1.0)
