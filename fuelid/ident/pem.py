@@ -91,8 +91,9 @@ r(f) = P⊥(f) y, P⊥ = I − Φ Φ⁺. Kaufman's Jacobian keeps the term of �
 
     ψ_f,i,k = −∂r/∂f_i,k ≈ −P⊥ x_i(t − k)/F_i,   x_i = B̂_i/F_i u_i,
 
-and LM steps on f as above. The FIR inputs' columns do not depend on f: their QR is made once and the other
-columns are projected against it. A well-started LM is left alone (the same iterates); one still going after
+and LM steps on f as above. Neither Φ nor P⊥ is formed: P⊥ M = Q₂ R₂₂ for the QR factorisation
+[Φ M] = Q [[R₁₁, R₁₂], [0, R₂₂]], so one chunked QR of [Φ −G y] (G the lagged x_i/F_i) gives the triangular factor
+of [Ψ r] the LM step needs, and one of [Φ y] gives b̂ and ‖r‖: O(m N) memory, as the LM's. A well-started LM is left alone (the same iterates); one still going after
 OE_LM_ITERATIONS continues by projection from where it is, whose first b̂ already lowers V (the least-squares b
 at the same F). Written here because scipy.optimize.least_squares has no variable projection and no per-input
 filters; its LM would need Φ⁺'s derivative by finite differences.
@@ -202,18 +203,17 @@ class _Lagged(NamedTuple):
         return out
 
 
-def _regressors(blocks, n: int, starts=(0,)) -> np.ndarray:
-    """The d × N matrix whose rows are sig(t − l), zero before the start of t's segment, for each (sig, lags)
-    block in turn (segments begin at `starts`): `_Lagged`, whole and transposed (C-contiguous rows)."""
-    return _Lagged(blocks, n, tuple(starts))[:].T
-
-
 def _least_squares(phi: _Lagged, target: np.ndarray, used) -> np.ndarray:
-    """θ minimising Σ_{t used} (target(t) − φ(t)ᵀθ)², φ(t)ᵀ the rows of Φ = phi (used: `_used`): by the QR
-    factorisation [Φ target] = Q [[R, z], [0, ρ]] (`_triangular_factor`, chunk by chunk), then R S⁻¹ (S the column
-    norms) η = z by scipy.linalg.lstsq (an SVD: robust to rank deficiency) and θ = S⁻¹ η."""
-    d = phi.shape[1]
-    Rbar = _triangular_factor(phi, target, used)
+    """θ minimising Σ_{t used} (target(t) − φ(t)ᵀθ)², φ(t)ᵀ the rows of Φ = phi (used: `_used`): `_solution` of the
+    triangular factor of [Φ target] (`_triangular_factor`, chunk by chunk)."""
+    return _solution(_triangular_factor(phi, target, used))
+
+
+def _solution(Rbar: np.ndarray) -> np.ndarray:
+    """The least-squares θ of Φ θ ≈ target from the triangular factor R̄ = [[R, z], [0, ρ]] of [Φ target]
+    (`_triangular_factor`): R S⁻¹ (S the column norms) η = z by scipy.linalg.lstsq (an SVD: robust to rank
+    deficiency) and θ = S⁻¹ η."""
+    d = Rbar.shape[1] - 1
     scale = np.linalg.norm(Rbar[:d, :d], axis=0)
     scale[scale == 0] = 1.0
     return lstsq(Rbar[:d, :d] / scale, Rbar[:d, d], check_finite=False)[0] / scale
@@ -350,10 +350,14 @@ class _Linearised(NamedTuple):
 
 
 def _linearised(psi, eps: np.ndarray, used) -> _Linearised:
-    """`_Linearised` of Ψ, ε over the used samples: R and z from the QR of [Ψ ε] (`_triangular_factor`), never
-    ΨᵀΨ (whose condition number is the square of Ψ's)."""
-    d = psi.shape[1]
-    Rbar = _triangular_factor(psi, eps, used)
+    """`_Linearised` of Ψ, ε over the used samples: from the QR of [Ψ ε] (`_triangular_factor`, then
+    `_linearised_factor`), never ΨᵀΨ (whose condition number is the square of Ψ's)."""
+    return _linearised_factor(_triangular_factor(psi, eps, used))
+
+
+def _linearised_factor(Rbar: np.ndarray) -> _Linearised:
+    """`_Linearised` from the triangular factor R̄ = [[R, z], [0, ρ]] of [Ψ ε]."""
+    d = Rbar.shape[1] - 1
     R, z = Rbar[:d, :d], Rbar[:d, d]
     scale = np.linalg.norm(R, axis=0)
     scale[scale == 0] = 1.0
@@ -571,16 +575,13 @@ def _noise_model(w, nc: int, nd: int, *, starts=(0,), max_iter: int, tol: float)
 
 
 class _Projection(NamedTuple):
-    """Variable projection at one set of F_i (`_output_error_by_projection`): the B/F inputs' lagged v_i = u_i/F_i
-    as rows Φ_F (d_F × N), Q R = P_0⊥ Φ_Fᵀ over the used samples (P_0⊥ removes the FIR inputs' columns),
-    c = Qᵀ y⊥ (y⊥ = P_0⊥ y), the residual r = y⊥ − Q c and V = ½ rᵀr."""
+    """Variable projection at one set of F_i (`_output_error_by_projection`): the regressor signals v_i (u_i/F_i
+    for a B/F input, u_i for an FIR one), the triangular factor R̄ = [[R, z], [0, ρ]] of [Φ(f) y] over the used
+    samples (Φ(f) = [v_i(t − l)], `_triangular_factor`: chunk by chunk) and V = ½ ρ², ρ = ‖P⊥(f) y‖."""
 
     F: dict
-    rows: np.ndarray
-    Q: np.ndarray
-    R: np.ndarray
-    c: np.ndarray
-    r: np.ndarray
+    v: dict
+    Rbar: np.ndarray
     V: float
 
 
@@ -590,48 +591,46 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
     of θ (module docstring): LM over f alone, b = b̂(f) by least squares. Stops when the Gauss–Newton decrement is
     ≤ tol · V, when V was flat (as `levenberg_marquardt`), when it fell by less than λ̂/2 over the last
     PROJECTION_WINDOW iterations (what one standard error is worth: a valley too flat to matter), when no damping
-    lowers V, or after max_iter iterations."""
+    lowers V, or after max_iter iterations.
+
+    Never forms Φ or P⊥: with the QR factorisation [Φ M] = Q [[R₁₁, R₁₂], [0, R₂₂]] of Φ beside any columns M,
+    P⊥ M = Q₂ R₂₂, so R₂₂ is the triangular factor of P⊥ M. The LM's [Ψ r] = P⊥ [−G y] (G the lagged x_i/F_i,
+    Kaufman's Jacobian) is therefore factored by one chunked QR of [Φ −G y] (`_triangular_factor`): memory
+    O(m N) for the filtered signals whatever the number of columns."""
     used = _used(y.size, starts, s.n_start)
+    n_used = y[used].size
     each = _filter_each(starts)
     rational = [i for i in range(s.n_inputs) if s.nf[i]]
-    fir = [i for i in range(s.n_inputs) if not s.nf[i]]
-    lags = {i: range(s.nk[i], s.nk[i] + s.nb[i]) for i in range(s.n_inputs)}
-    Q0, R0 = np.linalg.qr(_regressors([(u[:, i], lags[i]) for i in fir], y.size, starts)[:, used].T)
+    d = sum(s.nb)  # the columns of Φ: every input's b
 
-    def fir_removed(X):
-        return X - Q0 @ (Q0.T @ X)
-
-    y_perp = fir_removed(y[used])
+    def lagged(v: dict, extra=()) -> _Lagged:
+        return _Lagged([(v[i], range(s.nk[i], s.nk[i] + s.nb[i])) for i in range(s.n_inputs)] + list(extra),
+                       y.size, tuple(starts))
 
     def projection(F: dict) -> _Projection:
-        v = each([([1.0], F[i], u[:, i]) for i in rational])
-        rows = _regressors([(vi, lags[i]) for i, vi in zip(rational, v)], y.size, starts)
-        Q, R = np.linalg.qr(fir_removed(rows[:, used].T))
-        c = Q.T @ y_perp
-        r = y_perp - Q @ c
-        return _Projection(F, rows, Q, R, c, r, 0.5 * float(r @ r))
+        v = dict(enumerate(u.T)) | dict(zip(rational, each([([1.0], F[i], u[:, i]) for i in rational])))
+        Rbar = _triangular_factor(lagged(v), y, used)
+        return _Projection(F, v, Rbar, 0.5 * float(Rbar[d, d]) ** 2)
 
-    def b_rational(p: _Projection) -> dict:
-        b = lstsq(p.R, p.c, check_finite=False)[0]
-        return dict(zip(rational, _split(b, [s.nb[i] for i in rational])))
+    def b_hat(p: _Projection) -> list:
+        return _split(_solution(p.Rbar), s.nb)
 
-    def jacobian(p: _Projection) -> np.ndarray:
-        b = b_rational(p)
+    def linearised(p: _Projection) -> _Linearised:
+        b = b_hat(p)
         x = each([(np.r_[np.zeros(s.nk[i]), b[i]], p.F[i], u[:, i]) for i in rational])
         xf = each([([1.0], p.F[i], xi) for i, xi in zip(rational, x)])
-        G = fir_removed(_regressors([(xi, range(1, s.nf[i] + 1)) for i, xi in zip(rational, xf)], y.size,
-                                    starts)[:, used].T)
-        return -(G - p.Q @ (p.Q.T @ G))
+        G = [(-xi, range(1, s.nf[i] + 1)) for i, xi in zip(rational, xf)]
+        return _linearised_factor(_triangular_factor(lagged(p.v, G), y, used)[d:, d:])
 
     def with_f(f: np.ndarray) -> dict:
         return {i: stabilize(np.r_[1.0, fi]) for i, fi in zip(rational, _split(f, [s.nf[i] for i in rational]))}
 
     f = np.asarray(theta, float)[sum(s.nb):]
     p = projection(with_f(f))
-    mu, flat, dof, history = 1e-4, 0, max(y_perp.size - s.n_params, 1), [p.V]
+    mu, flat, dof, history = 1e-4, 0, max(n_used - s.n_params, 1), [p.V]
     iterations = 0
     while iterations < max_iter:
-        lin = _linearised(jacobian(p), p.r, slice(None))
+        lin = linearised(p)
         decrement = _decrement(lin)
         window = history[-1 - PROJECTION_WINDOW] - p.V if len(history) > PROJECTION_WINDOW else np.inf
         if decrement <= tol * p.V or (flat >= FLAT_ITERATIONS and decrement <= p.V / dof) or window < p.V / dof:
@@ -645,12 +644,7 @@ def _output_error_by_projection(theta, s: Structure, u, y, *, starts=(0,), max_i
         p, mu = taken, max(damping, DAMPING_FLOOR)
         history.append(p.V)
         iterations += 1
-    b = b_rational(p)
-    if fir:  # the FIR inputs' b by least squares on what the others leave
-        b_rest = p.rows[:, used].T @ np.concatenate([b[i] for i in rational])
-        b_fir = lstsq(R0, Q0.T @ (y[used] - b_rest), check_finite=False)[0]
-        b.update(zip(fir, _split(b_fir, [s.nb[i] for i in fir])))
-    return np.concatenate([b[i] for i in range(s.n_inputs)] + [p.F[i][1:] for i in rational]), iterations
+    return np.concatenate(b_hat(p) + [p.F[i][1:] for i in rational]), iterations
 
 
 def _input_model(u, y, s: Structure, *, starts=(0,), max_iter: int, tol: float):
