@@ -742,6 +742,7 @@ def build_dataset(
         damaged = [] if skip_damaged else None
         sig = _read(sources, ts_ns, damaged, in_order=False)
     chosen, used = _choose(sig, source_preference)
+    del sig  # the other source addresses' samples: only the chosen ones are gridded
     if fuel == "auto":
         fuel = "flowmeter" if FUEL_SIGNALS["flowmeter"][0] in chosen else "lfe1"
     fuel_name, fuel_unit = FUEL_SIGNALS[fuel]
@@ -763,15 +764,18 @@ def build_dataset(
     k_rows = np.unique((occupied[:, None] + np.arange(span)).ravel())
     k_rows = k_rows[k_rows <= occupied[-1]]  # nothing held past the end of the data
 
-    def grid(name, hold_s=max_gap_s):
-        return _resample(chosen[name], k_rows, k0, ts_ns, int(hold_s * 1e9), name in AVERAGED)
+    def grid(name, hold_s=max_gap_s):  # each signal's binned samples are let go once it is on the grid
+        return _resample(chosen.pop(name), k_rows, k0, ts_ns, int(hold_s * 1e9), name in AVERAGED)
 
     notes = [f"skipped {d}" for d in damaged or ()]
     for note in notes:
         warnings.warn(note, stacklevel=2)
+    ref_torque = chosen[REF_TORQUE].median_value() if REF_TORQUE in chosen else None
+    if idle_rpm is None:
+        idle_rpm = chosen[IDLE_SPEED].median_value() if IDLE_SPEED in chosen else 600.0
     speed, pct, y = grid(SPEED), grid(TORQUE_PCT), grid(fuel_name)
-    if REF_TORQUE in chosen:
-        torque, torque_unit = pct * chosen[REF_TORQUE].median_value() / 100.0, "Nm"
+    if ref_torque is not None:
+        torque, torque_unit = pct * ref_torque / 100.0, "Nm"
     else:
         torque, torque_unit = pct, "%"
         notes.append("EC1 (engine reference torque) never arrived: torque kept in % of reference torque")
@@ -780,14 +784,11 @@ def build_dataset(
     valid = np.isfinite(u).all(axis=1) & np.isfinite(y)
 
     extra = {}
-    for name, s in chosen.items():
-        if name in (SPEED, TORQUE_PCT, fuel_name):
-            continue
+    for name in list(chosen):
+        s = chosen[name]
         period = s.median_step() * 1e-9 if s.n > 1 else 0.0
         extra[name] = grid(name, max(max_gap_s, 3 * period))
 
-    if idle_rpm is None:
-        idle_rpm = chosen[IDLE_SPEED].median_value() if IDLE_SPEED in chosen else 600.0
     idle = valid & (np.abs(speed - idle_rpm) <= idle_tol_rpm)
     if VEHICLE_SPEED in extra:
         idle &= extra[VEHICLE_SPEED] < 2.0
