@@ -6,7 +6,8 @@ with the effects the diagnosis recommends, in one process, for 1.5 h files of th
 
     python benchmarks/bench_job_memory.py --hours 3 12 24 72
 
-Each size runs in a fresh process (peak RSS only grows; Linux: /proc); prints peak RSS [MB] after each phase and CPU [s].
+Each size runs in a fresh process (peak RSS only grows; Linux: /proc) with the allocator settings of a Dask worker
+(WORKER_ENV); prints peak RSS [MB] after each phase and CPU [s].
 """
 from __future__ import annotations
 
@@ -30,6 +31,11 @@ from fuelid.ident.polymodel import Structure, parse_orders
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))
 from bench_dataset import converted_trip, long_recording  # noqa: E402
+
+
+# glibc returns freed heap memory to the system as a Dask worker's does (its nanny sets this before the worker
+# starts: distributed's `nanny.pre-spawn-environ`), so that the peaks are a fleet job's
+WORKER_ENV = {"MALLOC_TRIM_THRESHOLD_": "65536"}
 
 
 def peak_rss_mb() -> float:
@@ -73,7 +79,7 @@ def main() -> None:
     for hours in args.hours:
         n = max(1, round(hours / 1.5))
         out = subprocess.run([sys.executable, __file__, "--child", *files[:n]], capture_output=True, text=True,
-                             check=True, env=dict(os.environ, FUELID_DATASET_CACHE="0"), cwd=REPO)
+                             check=True, env=dict(os.environ, FUELID_DATASET_CACHE="0", **WORKER_ENV), cwd=REPO)
         r = json.loads(out.stdout.strip().splitlines()[-1])
         rss = " / ".join(f"{v[0]:6.0f}" for v in r["phases"].values())
         cpu = " / ".join(f"{v[1]:5.1f}" for v in r["phases"].values())

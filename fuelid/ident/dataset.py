@@ -457,9 +457,28 @@ def _median(values: np.ndarray, counts: np.ndarray) -> float:
     return float(np.median(values[np.searchsorted(cum, middle, side="right")]))
 
 
-def _narrow(x: np.ndarray) -> np.ndarray:
-    """Non-negative integers x as int32 when they fit (they do, but for a tiny Ts or a huge one)."""
-    return x.astype(np.int32) if not len(x) or x.max() < 2**31 else x
+class _Column:
+    """A 1-D array that grows at its end: one buffer whose capacity doubles when full (the capacity not yet written
+    is not resident), so that a signal's bins take a few large allocations, not one small one per chunk of the
+    recording. Non-negative integers are kept as int32 while they fit (they do, but for a tiny Ts or a huge one),
+    then as int64."""
+
+    def __init__(self, dtype):
+        self._a, self.n = np.empty(0, dtype), 0
+
+    def append(self, x: np.ndarray) -> None:
+        if self._a.dtype == np.int32 and len(x) and x.max() >= 2**31:
+            self._a = self._a.astype(np.int64)
+        end = self.n + len(x)
+        if end > len(self._a):
+            grown = np.empty(max(end, 2 * len(self._a), 1024), self._a.dtype)
+            grown[: self.n] = self._a[: self.n]
+            self._a = grown
+        self._a[self.n : end] = x
+        self.n = end
+
+    def values(self) -> np.ndarray:
+        return self._a[: self.n]
 
 
 class _Binned:
@@ -470,7 +489,10 @@ class _Binned:
     def __init__(self, arrival: tuple[int, int], ts_ns: int, mean: bool, values: bool):
         self.arrival, self._ts, self._mean = arrival, ts_ns, mean
         self.n, self.t_min, self.t_last = 0, None, None
-        self._blocks: list[tuple] = []
+        # per bin with samples: its step from the first bin, its last sample's offset [ns] in the bin and value, and
+        # for averaged signals the count and sum of its samples
+        self._steps_k, self._offsets, self._last_v = _Column(np.int32), _Column(np.int32), _Column(float)
+        self._counts, self._sums = (_Column(np.int32), _Column(float)) if mean else (None, None)
         self._k_first: int | None = None
         self._tail = (np.zeros(0, np.int64), np.zeros(0))  # the samples of the newest bin, still open
         self._steps: dict[int, int] = {}
@@ -507,8 +529,10 @@ class _Binned:
         counts = (last - first + 1) if self._mean else None
         sums = np.bincount(np.repeat(np.arange(len(first)), counts), weights=v) if self._mean else None
         steps, offsets = k[first] - self._k_first, t[last] - k[last] * self._ts
-        self._blocks.append((_narrow(steps), _narrow(offsets), v[last],
-                             None if counts is None else _narrow(counts), sums))
+        for column, x in ((self._steps_k, steps), (self._offsets, offsets), (self._last_v, v[last]),
+                          (self._counts, counts), (self._sums, sums)):
+            if column is not None:
+                column.append(x)
 
     def finish(self) -> None:
         """Bin the samples of the last bin too."""
@@ -518,16 +542,16 @@ class _Binned:
 
     def bins(self) -> np.ndarray:
         """The bins k that have samples, increasing."""
-        return self._k_first + np.concatenate([b[0] for b in self._blocks]).astype(np.int64)
+        return self._k_first + self._steps_k.values().astype(np.int64)
 
     def last(self) -> tuple[np.ndarray, np.ndarray]:
         """Per bin with samples: the time [ns] and value of its last sample."""
         k = self.bins()
-        return k * self._ts + np.concatenate([b[1] for b in self._blocks]), np.concatenate([b[2] for b in self._blocks])
+        return k * self._ts + self._offsets.values(), self._last_v.values()
 
     def means(self) -> np.ndarray:
         """Per bin with samples: the mean of its samples (averaged signals only)."""
-        return np.concatenate([b[4] for b in self._blocks]) / np.concatenate([b[3] for b in self._blocks]).astype(np.int64)
+        return self._sums.values() / self._counts.values().astype(np.int64)
 
     def median_step(self) -> float:
         """Median time between consecutive samples [ns]."""
