@@ -93,9 +93,9 @@ r(f) = P⊥(f) y, P⊥ = I − Φ Φ⁺. Kaufman's Jacobian keeps the term of �
 
 and LM steps on f as above. Neither Φ nor P⊥ is formed: P⊥ M = Q₂ R₂₂ for the QR factorisation
 [Φ M] = Q [[R₁₁, R₁₂], [0, R₂₂]], so one chunked QR of [Φ −G y] (G the lagged x_i/F_i) gives the triangular factor
-of [Ψ r] the LM step needs, and one of [Φ y] gives b̂ and ‖r‖: O(m N) memory, as the LM's. A well-started LM is left alone (the same iterates); one still going after
-OE_LM_ITERATIONS continues by projection from where it is, whose first b̂ already lowers V (the least-squares b
-at the same F). Written here because scipy.optimize.least_squares has no variable projection and no per-input
+of [Ψ r] the LM step needs, and one of [Φ y] gives b̂ and ‖r‖: O(m N) memory, as the LM's. A well-started LM is
+left alone (the same iterates); one still going after OE_LM_ITERATIONS continues by projection from where it is,
+whose first b̂ already lowers V (the least-squares b at the same F). Written here because scipy.optimize.least_squares has no variable projection and no per-input
 filters; its LM would need Φ⁺'s derivative by finite differences.
 """
 from __future__ import annotations
