@@ -9,7 +9,7 @@ from fuelid.ident.diagnosis.candidate import MAP_EFFECT, Candidate, EngineMap, M
 from fuelid.ident.diagnosis.settings import Settings
 from fuelid.ident.modelrun import ModelRun
 
-ADD = "add them with `fuelid identify --effects-from DIAGNOSIS.json`"
+ADD = "`fuelid identify --effects-from DIAGNOSIS.json` adds what is recommended"
 
 
 def _gain(c: Candidate | EngineMap) -> str:
@@ -56,9 +56,8 @@ def verdict(candidates: list[Candidate], m: EngineMap, settings: Settings) -> st
     parts = [map_sentence(m)] if m.status is MapStatus.ADVISED else []
     if rec:
         parts.append("missing effect" + "s" * (len(rec) > 1) + " recommended: "
-                     + "; ".join(f"{c.spec or c.effect} ({_gain(c)})" for c in rec) + f" — {ADD}")
-    if named:
-        parts.append("named, not recommended: " + "; ".join(f"{c.effect} ({c.reason.value})" for c in named))
+                     + "; ".join(f"add {c.spec or c.effect} ({_gain(c)})" for c in rec) + f" — {ADD}")
+    parts += [f"{c.effect} is named by the screening but not recommended: {c.reason.value}" for c in named]
     if not rec and m.status is not MapStatus.ADVISED:
         parts.append(f"no missing effect recommended: none lowers the held-out simulation error by more than "
                      f"{settings.margin_se:g} standard errors and {settings.min_drop_percent:g} % "

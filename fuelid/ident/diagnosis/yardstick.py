@@ -83,8 +83,10 @@ class Scored:
 def _simulated(model: PolyModel, ds, fitted_on) -> tuple[np.ndarray, np.ndarray]:
     """(the model's fuel y, its simulation from rest on each valid segment of ds with the first n_start samples
     NaN). Its inputs are built as on `fitted_on` (ds with the fold's samples invalid): an effect whose columns
-    depend on the valid data (a generic state signal's states) then has the columns the fit had."""
-    u, y = model_data(model, fitted_on)
+    depend on the valid data (a generic state signal's states) then has the columns the fit had; its fuel (shifted
+    by a fuel delay within each segment) on ds."""
+    u = model_data(model, fitted_on)[0]
+    y = model_data(model, ds)[1]
     ysim = np.full(len(y), np.nan)
     n0 = model.structure.n_start
     for seg in ds.segments():
