@@ -110,7 +110,7 @@ def test_effects_table_numbers_are_the_diagnosis(case):
         assert row[8] == c["explanation"]
         assert all(str(spn) in row[2] for spn in c["spns"])
     top = table[1]
-    assert top[1].startswith("dpf_regeneration") and "3700" in top[2] and top[6] == "yes"  # the hidden effect
+    assert top[1].startswith("dpf_regeneration") and "3700" in top[2] and top[6] == "recommended"  # the hidden one
     assert diagnosis["verdict"] in page
 
 

@@ -7,7 +7,7 @@ from fuelid.ident.diagnosis.candidate import CURVATURE, Candidate, Status
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.render import STATUS_ORDER, Diagnosis
 from fuelid.ident.diagnosis.run import run_gradients
-from fuelid.ident.diagnosis.selection import candidate_effects, engine_map, select
+from fuelid.ident.diagnosis.selection import candidate_effects, select
 from fuelid.ident.diagnosis.settings import Settings
 from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, held_out_summary, make_folds, refits
 from fuelid.ident.modelrun import run_model
@@ -33,8 +33,7 @@ def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), 
     included = {fx.parse_effect(e)[0] for e in model.effects}
     rows = [Candidate(e, Status.ALREADY_IN_MODEL if e.id in included else Status.NOT_TESTABLE)
             for e in family if e.id not in CURVATURE]
-    emap, (search_model, search_run, search_base) = engine_map(model, ds, run, base, folds, settings)
-    accepted = select(rows, search_model, ds, search_run, search_base, folds, settings, effects)
+    accepted, emap = select(rows, model, ds, run, base, folds, settings, effects)
     order = {id(c): k for k, c in enumerate(accepted)}
     rows.sort(key=lambda c: (order.get(id(c), len(order)), STATUS_ORDER.index(c.status),
                              c.screening.log10_p if c.screening else 0.0))

@@ -1,16 +1,20 @@
-"""Forward selection with the one yardstick, and the engine map's status.
+"""Forward selection with the one yardstick; the engine map as a term of its own.
 
-The engine map first. Its curvature (effects engine_map, power_nonlinearity) is part of the engine model, never a
-hidden-effect candidate: when the base model has it, its status is IN_MODEL; otherwise engine_map is screened on its
-own (at alpha) and, when significant, built and held to the yardstick: ADVISED when it passes (the engine model is
-the advice, and the hidden effects are searched on the model with the map), NOT_NEEDED when not.
-
-Then rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
+Rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
 ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds smallest
-p-values, and held to the yardstick (ident.diagnosis.yardstick) against the base; the one with the largest mean
-paired gain among those that pass is RECOMMENDED and the base becomes the model refitted with it. A candidate that
-passed the screening in an earlier round and no longer does is EXPLAINED_BY the one accepted since. The search stops
-when nothing passes.
+p-values, and held to the yardstick (ident.diagnosis.yardstick) against the base; of those that pass, the one with
+the largest mean paired gain is accepted — RECOMMENDED — and the base becomes the model refitted with it. A candidate
+that passed the screening (significant and relevant) in an earlier round and no longer does is EXPLAINED_BY the one
+accepted since. The search stops when nothing passes.
+
+The engine's curvature (effects engine_map, power_nonlinearity) is part of the engine model, never a hidden-effect
+candidate: when the base model has it its status is IN_MODEL. Otherwise, in every round until it is accepted,
+engine_map is screened on its own (at alpha: a family of its own, outside the hidden effects' Holm) and, when
+significant and relevant, built and held to the same yardstick beside the candidates. When it passes it is accepted
+before any candidate of its round, being part of the engine model the hidden effects are searched on (a signal that
+speed and torque determine would otherwise stand in for the map); its status is ADVISED — the engine model is the
+advice. Re-tested every round, a map whose gain a large hidden effect (a regeneration) masked at first is found once
+that effect is accepted; never accepted, NOT_NEEDED.
 """
 from __future__ import annotations
 
@@ -53,55 +57,45 @@ def _refit(model: PolyModel, ds, spec: str, defined, settings: Settings):
     return refit, run_gradients(run_model(refit, ds))
 
 
-def engine_map(model: PolyModel, ds, run, base: Scored | None, folds: Folds, settings: Settings):
-    """(EngineMap, the base the hidden effects are searched on: (model, run, its Scored)) (module docstring)."""
-    if set(CURVATURE) & {fx.parse_effect(e)[0] for e in model.effects}:
-        return EngineMap(MapStatus.IN_MODEL), (model, run, base)
-    s = screen([fx.EFFECTS[MAP_EFFECT]], model, ds, run, settings.alpha)[MAP_EFFECT]
-    if s is None:
-        return EngineMap(MapStatus.NOT_TESTABLE), (model, run, base)
-    if not s.significant or s.explains_percent < settings.min_effect_percent or base is None:
-        return EngineMap(MapStatus.NOT_NEEDED, s), (model, run, base)
-    try:
-        scored = refits(list(base.models), ds, folds, [MAP_EFFECT], settings)
-        held = compare(base, scored, folds, settings)
-        if not held.passes:
-            return EngineMap(MapStatus.NOT_NEEDED, s, held), (model, run, base)
-        return EngineMap(MapStatus.ADVISED, s, held), (*_refit(model, ds, MAP_EFFECT, (), settings), scored)
-    except BUILD_ERRORS:
-        return EngineMap(MapStatus.NOT_NEEDED, s), (model, run, base)
-
-
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
-           settings: Settings, defined=()) -> list[Candidate]:
+           settings: Settings, defined=()) -> tuple[list[Candidate], EngineMap]:
     """Forward selection (module docstring) over `candidates` (their status set here) from `model` (run: its Run,
-    base: its fold refits, None when they failed); returns those recommended, in the order accepted."""
+    base: its fold refits, None when they failed); returns (those recommended in the order accepted, the engine
+    map's status)."""
     pool = [c for c in candidates if c.status is not Status.ALREADY_IN_MODEL]
+    in_model = bool(set(CURVATURE) & {fx.parse_effect(e)[0] for e in model.effects})
+    term = None if in_model else Candidate(fx.EFFECTS[MAP_EFFECT])  # the engine map, while not accepted
     accepted: list[Candidate] = []
     passed_before: set[str] = set()
     built: dict[str, Scored] = {}  # each candidate's fold models in this round
     for rnd in range(1, settings.max_rounds + 1):
         found = screen([c.definition for c in pool], model, ds, run, settings.alpha)
+        if term is not None:
+            found.update(screen([term.definition], model, ds, run, settings.alpha))
         eligible = []
-        for c in list(pool):
+        for c in list(pool) + ([term] if term is not None else []):
             c.screening, c.round = found[c.effect], rnd
-            if c.effect in passed_before and (c.screening is None or not c.screening.significant):
+            relevant = c.screening is not None and c.screening.significant \
+                and c.screening.explains_percent >= settings.min_effect_percent
+            if c.effect in passed_before and not relevant:
                 c.decide(Status.EXPLAINED_BY, explained_by=accepted[-1].effect)
-                pool.remove(c)
+                if c is not term:
+                    pool.remove(c)
             elif c.screening is None:
                 c.decide(Status.NOT_TESTABLE)
-                pool.remove(c)
+                if c is not term:
+                    pool.remove(c)
             elif not c.screening.significant:
                 c.decide(Status.NOT_SIGNIFICANT)
-            elif c.screening.explains_percent < settings.min_effect_percent:
+            elif not relevant:
                 c.decide(Status.TOO_SMALL)
             else:
                 passed_before.add(c.effect)
                 eligible.append(c)
-        eligible.sort(key=lambda c: c.screening.log10_p)
+        eligible.sort(key=lambda c: (c is not term, c.screening.log10_p))  # the map's build is not one of the budget
         passing = []
         for k, c in enumerate(eligible):
-            if k >= settings.max_builds or base is None:
+            if k >= settings.max_builds + (eligible[0] is term) or base is None:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NOT_BUILT if base is not None else Reason.BUILD_FAILED)
                 continue
             c.spec = _spec(c)
@@ -109,17 +103,17 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 built[c.effect] = refits(list(base.models), ds, folds, [c.spec], settings, defined)
             except BUILD_ERRORS:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
-                pool.remove(c)
+                if c is not term:
+                    pool.remove(c)
                 continue
             c.held_out = compare(base, built[c.effect], folds, settings)
             if c.held_out.passes:
                 passing.append(c)
-            else:
+            else:  # open: a later round's base (without what masked it) may show its gain
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
-                pool.remove(c)
         if not passing:
             break
-        best = max(passing, key=lambda c: c.held_out.mean_gain)
+        best = term if term in passing else max(passing, key=lambda c: c.held_out.mean_gain)
         try:
             model, run = _refit(model, ds, best.spec, defined, settings)
         except BUILD_ERRORS:
@@ -128,8 +122,23 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
         best.decide(Status.RECOMMENDED)
         base = built[best.effect]
         accepted.append(best)
-        pool.remove(best)
+        if best is term:
+            term = None
+        else:
+            pool.remove(best)
         for c in passing:
             if c is not best:  # re-screened on the new base next round, unless the rounds end here
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.SELECTION_STOPPED)
-    return accepted
+    return [c for c in accepted if c.effect != MAP_EFFECT], _map_status(in_model, accepted, term)
+
+
+def _map_status(in_model: bool, accepted: list[Candidate], term: Candidate | None) -> EngineMap:
+    """The engine map's status from its term: accepted (ADVISED, with the evidence it was accepted on), still open
+    (NOT_NEEDED, or NOT_TESTABLE when it could not be screened) or in the model."""
+    if in_model:
+        return EngineMap(MapStatus.IN_MODEL)
+    advised = next((c for c in accepted if c.effect == MAP_EFFECT), None)
+    if advised is not None:
+        return EngineMap(MapStatus.ADVISED, advised.screening, advised.held_out)
+    status = MapStatus.NOT_TESTABLE if term.screening is None else MapStatus.NOT_NEEDED
+    return EngineMap(status, term.screening, term.held_out)

@@ -21,12 +21,16 @@ class Settings:
     """Candidates built per round of forward selection (the screened ones with the smallest p-values): each build is
     one refit per fold, the diagnosis's cost."""
 
-    block_s: float = 60.0
+    block_s: float = 30.0
     """[s] Length of the scoring blocks: the held-out simulation error is summed per block, and the blocks are the
     pairs whose spread gives the margin."""
 
+    chunk_s: float = 120.0
+    """[s] Length of the stretches a fold leaves out on data of one trip (a whole number of scoring blocks, longer so
+    that the stretches fitted on between them are long beside the model's start-up)."""
+
     folds: int = 4
-    """Folds on data of one trip: fold k leaves out every block whose index is k modulo `folds` (interleaved, so each
+    """Folds on data of one trip: fold k leaves out every chunk whose index is k modulo `folds` (interleaved, so each
     fit sees every part of the trip). With several trips each trip is a fold instead."""
 
     trip_break_s: float = 600.0

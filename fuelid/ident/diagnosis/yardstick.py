@@ -2,8 +2,8 @@
 than the base model, by more than the spread of fits?
 
 Folds. With several trips (breaks of the log of at least trip_break_s: other files, other days) each trip is a fold;
-on one trip, fold k holds the blocks b ≡ k (mod folds) of block_s seconds (interleaved: every fit sees every part
-of the trip). For each fold the base model and the base model with the candidate are refitted by PEM on the other
+on one trip, fold k holds the chunks c ≡ k (mod folds) of chunk_s seconds (interleaved: every fit sees every part
+of the trip). Scoring blocks are block_s long. For each fold the base model and the base model with the candidate are refitted by PEM on the other
 folds' samples (ident.identify.refit_with_effects: the candidate's coefficients start at zero from the base refit,
 so the two fits are nested and paired) and simulated over the whole data from rest; the simulation errors on the
 held-out samples, after each segment's first n_start, are summed per block b:
@@ -65,7 +65,8 @@ def make_folds(ds, settings: Settings) -> Folds:
     trips = trip_masks(ds, settings.trip_break_s)
     if len(trips) >= 2:
         return Folds(tuple(trips), block, "trips")
-    held = tuple(ds.valid & (block % settings.folds == k) for k in range(settings.folds))
+    chunk = np.floor((ds.t - ds.t[0]) / settings.chunk_s).astype(int)
+    held = tuple(ds.valid & (chunk % settings.folds == k) for k in range(settings.folds))
     return Folds(held, block, "blocks")
 
 

@@ -16,7 +16,8 @@ def test_one_trip_is_folded_into_interleaved_blocks_and_several_trips_by_trip():
     held = np.array(folds.held)
     assert folds.kind == "blocks" and len(held) == S.folds
     assert (held.sum(axis=0) == ds.valid).all()  # every valid sample held out exactly once
-    assert len({b % S.folds for b in folds.block[held[1]]}) == 1
+    chunks = np.floor((ds.t - ds.t[0]) / S.chunk_s).astype(int)
+    assert len({c % S.folds for c in chunks[held[1]]}) == 1 and S.chunk_s % S.block_s == 0
     two = make_folds(joined(ds, hidden.make(None, n=3000, seed=2)), S)
     assert two.kind == "trips" and [h.sum() for h in two.held] == [3000, 3000]
 
