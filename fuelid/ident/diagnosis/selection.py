@@ -25,10 +25,11 @@ from fuelid.ident.diagnosis.candidate import CURVATURE, MAP_EFFECT, Candidate, E
 from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
-from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, compare, refits
-from fuelid.ident.identify import refit_with_effects
+from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, candidate_refits, compare
+from fuelid.ident.effectfile import effects_of_model
+from fuelid.ident.identify import FitMemo, identify_model
 from fuelid.ident.modelrun import run_model
-from fuelid.ident.polymodel import PolyModel
+from fuelid.ident.polymodel import PolyModel, Structure
 
 OPEN = (Status.NOT_SIGNIFICANT, Status.TOO_SMALL)  # statuses a later round may change
 
@@ -49,12 +50,23 @@ def _spec(c: Candidate) -> str:
     return f"{c.effect}={delay_estimate(c.screening):.2f}" if c.definition.enters == "shift" else c.effect
 
 
-def _refit(model: PolyModel, ds, spec: str, defined, settings: Settings):
-    """The model refitted on all of ds with `spec` added (warm start) and its diagnosis Run."""
+def _specs(model: PolyModel) -> list[str]:
+    """The model's own effects as identify_model takes them again: a shift with the value it was fitted with."""
+    params = model.info.get("effect_parameters") or {}
+    return [f"{e}={params[e]}" if e in params and e in fx.EFFECTS and fx.EFFECTS[e].enters == "shift" else e
+            for e in model.effects]
+
+
+def built(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
+    """The model `fuelid identify` builds on all of ds with the model's effects and `spec` (ident.identify.
+    identify_model: PEM from its initialisation and from the effects added in turn; the fits of earlier builds on
+    these data served by `memo`)."""
+    s = model.structure
+    structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        refit = refit_with_effects(model, ds, [spec], defined=defined, max_iter=settings.refit_max_iter)
-    return refit, run_gradients(run_model(refit, ds))
+        return identify_model(ds, structure, _specs(model) + [spec],
+                              defined=tuple(effects_of_model(model)) + tuple(defined), memo=memo)
 
 
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
@@ -67,7 +79,9 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     term = None if in_model else Candidate(fx.EFFECTS[MAP_EFFECT])  # the engine map, while not accepted
     accepted: list[Candidate] = []
     passed_before: set[str] = set()
-    built: dict[str, Scored] = {}  # each candidate's fold models in this round
+    full: dict[str, PolyModel] = {}  # each candidate's build on all the data, this round
+    scored: dict[str, Scored] = {}  # its refits without each fold
+    memo = FitMemo()  # the builds' PEM fits, shared: the base and the stages of the effects accepted recur
     for rnd in range(1, settings.max_rounds + 1):
         found = screen([c.definition for c in pool], model, ds, run, settings.alpha)
         if term is not None:
@@ -100,13 +114,14 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 continue
             c.spec = _spec(c)
             try:
-                built[c.effect] = refits(list(base.models), ds, folds, [c.spec], settings, defined)
+                full[c.effect] = built(model, ds, c.spec, defined, memo)
+                scored[c.effect] = candidate_refits(base, full[c.effect], c.spec, ds, folds, settings, defined)
             except BUILD_ERRORS:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
                 if c is not term:
                     pool.remove(c)
                 continue
-            c.held_out = compare(base, built[c.effect], folds, settings)
+            c.held_out = compare(base, scored[c.effect], folds, settings)
             if c.held_out.passes:
                 passing.append(c)
             else:  # open: a later round's base (without what masked it) may show its gain
@@ -115,12 +130,12 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             break
         best = term if term in passing else max(passing, key=lambda c: c.held_out.mean_gain)
         try:
-            model, run = _refit(model, ds, best.spec, defined, settings)
+            model, run = full[best.effect], run_gradients(run_model(full[best.effect], ds))
         except BUILD_ERRORS:
             best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
         best.decide(Status.RECOMMENDED)
-        base = built[best.effect]
+        base = scored[best.effect]
         accepted.append(best)
         if best is term:
             term = None
