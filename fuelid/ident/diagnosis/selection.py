@@ -25,7 +25,7 @@ from fuelid.ident.diagnosis.candidate import CURVATURE, MAP_EFFECT, Candidate, E
 from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
-from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, candidate_refits, compare
+from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, compare, refits
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.identify import FitMemo, identify_model
 from fuelid.ident.modelrun import run_model
@@ -60,7 +60,7 @@ def _specs(model: PolyModel) -> list[str]:
 def built(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
     """The model `fuelid identify` builds on all of ds with the model's effects and `spec` (ident.identify.
     identify_model: PEM from its initialisation and from the effects added in turn; the fits of earlier builds on
-    these data served by `memo`)."""
+    these data served by `memo`): the base of the next round once `spec` is accepted."""
     s = model.structure
     structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
     with warnings.catch_warnings():
@@ -79,7 +79,6 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     term = None if in_model else Candidate(fx.EFFECTS[MAP_EFFECT])  # the engine map, while not accepted
     accepted: list[Candidate] = []
     passed_before: set[str] = set()
-    full: dict[str, PolyModel] = {}  # each candidate's build on all the data, this round
     scored: dict[str, Scored] = {}  # its refits without each fold
     memo = FitMemo()  # the builds' PEM fits, shared: the base and the stages of the effects accepted recur
     for rnd in range(1, settings.max_rounds + 1):
@@ -114,8 +113,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 continue
             c.spec = _spec(c)
             try:
-                full[c.effect] = built(model, ds, c.spec, defined, memo)
-                scored[c.effect] = candidate_refits(base, full[c.effect], c.spec, ds, folds, settings, defined)
+                scored[c.effect] = refits(list(base.models), ds, folds, [c.spec], settings, defined)
             except BUILD_ERRORS:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
                 if c is not term:
@@ -130,7 +128,8 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             break
         best = term if term in passing else max(passing, key=lambda c: c.held_out.mean_gain)
         try:
-            model, run = full[best.effect], run_gradients(run_model(full[best.effect], ds))
+            model = built(model, ds, best.spec, defined, memo)
+            run = run_gradients(run_model(model, ds))
         except BUILD_ERRORS:
             best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break

@@ -3,12 +3,10 @@ than the base model, by more than the spread of fits?
 
 Folds. With several trips (breaks of the log of at least trip_break_s: other files, other days) each trip is a fold;
 on one trip, fold k holds the chunks c ≡ k (mod folds) of chunk_s seconds (interleaved: every fit sees every part
-of the trip). Scoring blocks are block_s long. The base model and the model `fuelid identify` builds with the
-candidate are fitted on every fold's training samples by PEM (ident.identify.refit_with_effects): the base from
-itself, the candidate from two starts as `fuelid identify` fits it — the fold's base with the candidate's
-coefficients at zero, and the model identify builds with it on all the data — one kept by identify's own rule on the
-training samples (`candidate_refits`); each is simulated over the whole data from rest; the simulation errors on the
-held-out samples, after each segment's first n_start, are summed per block b:
+of the trip). Scoring blocks are block_s long. For each fold the base model is refitted by PEM on the other folds'
+samples from itself, and the candidate's model from that fold base with the candidate's coefficients at zero
+(ident.identify.refit_with_effects: a warm start, so the two fits are nested and paired); both are simulated over
+the whole data from rest, and the simulation errors on the held-out samples, after each segment's first n_start, are summed per block b:
 
     d_b = (SSE_b(base) − SSE_b(with)) / n_b          [(output unit)²], one pair per block,
 
@@ -31,7 +29,7 @@ import numpy as np
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis.candidate import HeldOut
 from fuelid.ident.diagnosis.settings import Settings
-from fuelid.ident.identify import MIN_SEGMENT_S, kept_fit, refit_with_effects, simulation_rmse, training_segments
+from fuelid.ident.identify import MIN_SEGMENT_S, refit_with_effects
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.polymodel import PolyModel, simulate
 from fuelid.ident.validation import cycle_fuel_error, error_table
@@ -123,29 +121,6 @@ def refits(start, ds, folds: Folds, effects, settings: Settings, defined=()) -> 
         warnings.simplefilter("ignore", UserWarning)
         models = [refit_with_effects(m, training(ds, held), list(effects), defined=defined,
                                      max_iter=settings.refit_max_iter) for m, held in zip(starts, folds.held)]
-    return score(models, ds, folds)
-
-
-def _training_rmse(model: PolyModel, fit_on) -> float:
-    """RMS simulation error [output unit] of the model on the segments it was fitted on (ident.identify)."""
-    u, y = model_data(model, fit_on)
-    return simulation_rmse(model, u, y, training_segments(fit_on, u, y, MIN_SEGMENT_S))
-
-
-def candidate_refits(base: Scored, build: PolyModel, spec: str, ds, folds: Folds, settings: Settings,
-                     defined=()) -> Scored:
-    """Scored of the candidate's model on each fold, fitted as `fuelid identify` fits (two starts, one kept by
-    ident.identify.kept_fit on the training data alone): the fold's base model with `spec` added at zero, and the
-    build on all the data (`build`, which has it), each refitted by PEM on the fold's training samples. Raises
-    BUILD_ERRORS."""
-    models = []
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        for own, held in zip(base.models, folds.held):
-            fit_on = training(ds, held)
-            fits = [refit_with_effects(own, fit_on, [spec], defined=defined, max_iter=settings.refit_max_iter),
-                    refit_with_effects(build, fit_on, [], defined=defined, max_iter=settings.refit_max_iter)]
-            models.append(fits[kept_fit(fits, [_training_rmse(m, fit_on) for m in fits])])
     return score(models, ds, folds)
 
 
