@@ -3,7 +3,8 @@
 Rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
 ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds smallest
 p-values, and held to the yardstick (ident.diagnosis.yardstick) against the base; of those that pass, the one with
-the largest mean paired gain is accepted — RECOMMENDED — and the base becomes the model refitted with it. A candidate
+the largest mean paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a
+generic form of a bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
 that passed the screening (significant and relevant) in an earlier round and no longer does is EXPLAINED_BY the one
 accepted since. The search stops when nothing passes.
 
@@ -43,6 +44,12 @@ def candidate_effects(ds, defined=()) -> list[fx.Effect]:
             seen.add(e.id)
             out.append(e)
     return out
+
+
+def _generic(c: Candidate) -> bool:
+    """A generic form of a bus signal (ident.effects.generic_effects: ids FORM:MESSAGE.Signal), whose physics nobody
+    stated: of the candidates that pass in one round, a catalogued or engineer-defined one is accepted before it."""
+    return ":" in c.effect
 
 
 def _spec(c: Candidate) -> str:
@@ -126,7 +133,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
         if not passing:
             break
-        best = term if term in passing else max(passing, key=lambda c: c.held_out.mean_gain)
+        best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
         try:
             model = built(model, ds, best.spec, defined, memo)
             run = run_gradients(run_model(model, ds))

@@ -17,7 +17,7 @@ class Settings:
     """[%] Share of the simulation error a significant candidate's least-squares fit must explain to be built:
     smaller effects are detectable with many samples but not worth an input."""
 
-    max_builds: int = 4
+    max_builds: int = 3
     """Candidates built per round of forward selection (the screened ones with the smallest p-values): each build is
     one refit per fold, the diagnosis's cost."""
 
@@ -44,7 +44,7 @@ class Settings:
     """[%] Relative floor of the yardstick: the pooled held-out RMS simulation error must fall by at least this much
     (a real but negligible improvement is not worth an input)."""
 
-    refit_max_iter: int = 50
+    refit_max_iter: int = 20
     """Levenberg–Marquardt iterations of each refit (warm-started from the base model: few suffice)."""
 
     max_rounds: int = 6
