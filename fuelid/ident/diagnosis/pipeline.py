@@ -2,6 +2,7 @@
 selection, and the Diagnosis (ident.diagnosis.render)."""
 from __future__ import annotations
 
+from fuelid.blas import in_one_blas_thread
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import CURVATURE, Candidate, Status
 from fuelid.ident.diagnosis.failures import where_it_fails
@@ -15,6 +16,7 @@ from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import metrics
 
 
+@in_one_blas_thread  # narrow N × d products: BLAS threads cost more than they save (fuelid.blas)
 def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), candidates=None) -> Diagnosis:
     """The diagnosis of `model` on dataset ds (docs/explanation/diagnosis.md). effects: effects the engineer defined
     (ident.effectfile), tested beside the built-in ones; candidates: the effects to test instead of every one
