@@ -190,7 +190,7 @@ def main():
                     continue
                 rows.append((case, row))
                 print(f"  [{label}] {case['kind']:7s} {'+'.join(case['hidden']) or (case['routes_of'] or '-'):32s} "
-                      f"×{case['scale']:g} seed {seed}: found {row['found']!s:5s} recommended "
+                      f"×{case['scale']:g} seed {seed}: found {row['found'] if case['hidden'] else '-'!s:5s} recommended "
                       f"{','.join(row['missing']) or '-':40s} harmful {row.get('harmful')} share "
                       f"{row.get('share', float('nan')):.2f} agree {row['agree']} {row['seconds']:.1f} s", flush=True)
         report(label, rows)
