@@ -30,7 +30,7 @@ def loop(tmp_path_factory):
         ["identify", str(d / "trip.mcap"), "--orders", ORDERS, "--effect", "dpf_regeneration", "-o",
          str(d / "after.json")],
         ["report", str(d / "before.json"), str(d / "after.json"), str(d / "trip.mcap"), "-o", str(d / "report.html"),
-         "--title", "Urban trip", "--verify", "1"],
+         "--title", "Urban trip", "--builds", "1"],
     ]
     for argv in steps:
         assert main(argv) == 0, argv
@@ -50,7 +50,7 @@ def test_report_command_writes_one_offline_page(loop, capsys):
 
 def test_report_reuses_a_saved_diagnosis(loop, tmp_path, capsys):
     before, trip = str(loop / "before.json"), str(loop / "trip.mcap")
-    assert main(["diagnose", before, trip, "--verify", "1", "--json"]) == 0
+    assert main(["diagnose", before, trip, "--builds", "1", "--json"]) == 0
     saved = tmp_path / "diagnosis.json"
     saved.write_text(capsys.readouterr().out)
     page = tmp_path / "r.html"

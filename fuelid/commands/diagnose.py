@@ -1,85 +1,85 @@
-"""fuelid diagnose: where a fuel model fails on measurements, and which physical effect it is missing."""
-import os
-
+"""fuelid diagnose: where a fuel model fails on measurements, which physical effect it is missing, and whether adding
+it helps on data the fit did not see."""
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
-from fuelid.ident.diagnosis import diagnose
-from fuelid.ident.diagnosis.candidate import ENGINE_MAP
+from fuelid.errors import InputError
+from fuelid.ident.diagnosis import Settings, diagnose
 from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.hammerstein import map_summary
 from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
 
+DEFAULTS = Settings()
+
+
+def add_settings_arguments(p):
+    """The diagnosis's thresholds (ident.diagnosis.Settings) as options."""
+    p.add_argument("--alpha", type=float, default=DEFAULTS.alpha,
+                   help=f"family-wise false-alarm rate of the screening (Holm; default {DEFAULTS.alpha:g})")
+    p.add_argument("--margin", type=float, default=DEFAULTS.margin_se, metavar="K",
+                   help="a candidate is recommended when its mean paired per-block held-out gain exceeds K standard "
+                        f"errors (default {DEFAULTS.margin_se:g})")
+    p.add_argument("--min-drop", type=float, default=DEFAULTS.min_drop_percent, metavar="PERCENT",
+                   help="... and the held-out RMS simulation error falls by at least PERCENT "
+                        f"(default {DEFAULTS.min_drop_percent:g})")
+    p.add_argument("--min-effect", type=float, default=DEFAULTS.min_effect_percent, metavar="PERCENT",
+                   help="smallest share of the simulation error [%%] a significant candidate must explain to be built "
+                        f"(default {DEFAULTS.min_effect_percent:g})")
+    p.add_argument("--builds", type=int, default=DEFAULTS.max_builds, metavar="N",
+                   help=f"candidates built and held out per round (default {DEFAULTS.max_builds})")
+
+
+def settings_from(args) -> Settings:
+    """The Settings the options give; InputError for values outside their meaning."""
+    if not 0 < args.alpha < 1:
+        raise InputError(f"--alpha must be between 0 and 1, got {args.alpha:g}")
+    if args.margin < 0 or args.min_drop < 0 or args.min_effect < 0 or args.builds < 0:
+        raise InputError("--margin, --min-drop, --min-effect and --builds must not be negative")
+    return Settings(alpha=args.alpha, margin_se=args.margin, min_drop_percent=args.min_drop,
+                    min_effect_percent=args.min_effect, max_builds=args.builds)
+
 
 def add_arguments(p):
     p.add_argument("model", metavar="MODEL.json", help="model file (fuelid identify)")
-    p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings to diagnose it on")
-    p.add_argument("--alpha", type=float, default=0.05,
-                   help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
-    p.add_argument("--verify", type=int, default=10, metavar="N",
-                   help="verify up to N candidates that pass the tests: the held-out error drop of a linearised "
-                        "refit, scored on 60-s blocks left out of it (default 10; the fuel delay besides; 0 skips, "
-                        "and names effects on the tests alone, none recommended)")
-    p.add_argument("--min-drop", type=float, default=2.0, metavar="PERCENT",
-                   help="smallest fall of the held-out RMS error [%%] that confirms a verified effect (default 2)")
-    p.add_argument("--min-effect", type=float, default=1.0, metavar="PERCENT",
-                   help="smallest share of the simulation error [%%] an effect must explain to be named "
-                        "(default 1; smaller ones are detectable but not worth an input)")
+    p.add_argument("inputs", nargs="+", metavar="DATA.mcap",
+                   help="MCAP recordings to diagnose it on (several trips: each is held out in turn)")
+    add_settings_arguments(p)
     p.add_argument("--effects-file", action="append", default=[], metavar="EFFECTS.toml",
                    help="also test the effects defined in this file (docs/reference/formats.md; docs/effects-example.toml); "
                         "repeatable")
     p.add_argument("--top", type=int, default=8, metavar="N", help="candidates shown in the report (default 8)")
-    add_workers_argument(p)
     add_dataset_arguments(p)
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
 
 
-def add_workers_argument(p):
-    """--workers: the worker process the diagnosis builds the models `fuelid identify` would build in, ahead."""
-    default = 1 if (os.cpu_count() or 1) > 1 else 0
-    p.add_argument("--workers", type=int, choices=(0, 1), default=default,
-                   help="1: build the models `fuelid identify --effects-from` would build (on which what is "
-                        "recommended is checked) ahead, in a worker process, while the diagnosis goes on; 0: build "
-                        "each when needed, in this process; the same diagnosis either way (default 1 with two cores or "
-                        "more, else 0)")
-
-
-def plural(n: int, noun: str) -> str:
-    """'1 candidate', '2 candidates'."""
-    return f"{n} {noun}{'' if n == 1 else 's'}"
-
-
 def format_report(result: dict, top: int = 8) -> str:
-    """The short human-readable report."""
+    """The short human-readable report, laid out from the JSON (whose texts the diagnosis rendered)."""
     c = result["compare"]
     unit = c["unit"]
     w = result["where_it_fails"]["whiteness"]
     lines = [
         f"fit: simulation {c['fit_percent']['simulation']:.1f} %, 1-step prediction {c['fit_percent']['prediction']:.1f} %;"
         f" RMS error {c['rmse']['simulation']:.2f} {unit} (simulation)",
-        f"cycle fuel error: mean {c['cycle_fuel_error_percent']['mean']:+.2f} %, "
-        f"RMS {c['cycle_fuel_error_percent']['rms']:.2f} %",
         "residual whiteness (99 %): " + ("pass" if w["autocorr_pass"] else "FAIL") + "; input cross-correlation: "
-        + ", ".join(f"{k} {'pass' if v else 'FAIL'}" for k, v in w["crosscorr_pass"].items())
-        + " (a pass: no dynamics of speed and torque left in the errors; not that nothing is missing)",
-        "worst stretches (minutes since the start of the data):",
+        + ", ".join(f"{k} {'pass' if v else 'FAIL'}" for k, v in w["crosscorr_pass"].items()),
     ]
+    if result["held_out"]:
+        lines.append(f"held-out RMS simulation error (refitted without each fold): {result['held_out']['rmse']:.3f} "
+                     f"{unit}")
+    lines.append("worst stretches (minutes since the start of the data):")
     for s in result["where_it_fails"]["worst_segments"][:3]:
         differs = f" — {', '.join(s['context'])}" if s["context"] else ""
         lines.append(f"  {s['t_start_min']:.2f}–{s['t_end_min']:.2f} min: RMS {s['rmse']:.2f} {unit}, "
                      f"bias {s['bias']:+.2f} {unit}, {s['speed_rpm']:.0f} rpm{differs}")
-    tested = result["test"]["candidates_tested"]
-    lines.append(f"candidate effects ({plural(tested, 'candidate')} tested, Holm α = {result['test']['alpha']:g}):")
-    shown = [r for r in result["candidates"] if r.get("testable")][:top]
+    lines.append(f"engine map: {result['engine_map']['status']} — {result['engine_map']['explanation']}")
+    shown = [r for r in result["candidates"] if r["testable"]][:top]
+    lines.append(f"candidate effects ({result['test']['candidates_tested']} tested, Holm α = "
+                 f"{result['test']['alpha']:g}):")
     width = max([len("effect"), *(len(r["effect"]) for r in shown)])
-    lines.append(f"  {'effect':{width}s} {'LM':>9s} {'p':>9s} {'explains':>9s} {'sig':>4s} {'RMS drop':>9s}")
+    lines.append(f"  {'effect':{width}s} {'p (Holm)':>9s} {'explains':>9s} {'held-out':>9s}  status")
     for r in shown:
-        drop = "" if r["rmse_drop_percent"] is None else f"{r['rmse_drop_percent']:.0f} %"
-        sig = "map" if r.get("role") == ENGINE_MAP else "yes" if r["significant"] else "no"
-        lines.append(f"  {r['effect']:{width}s} {r['statistic']:9.1f} {r['p_value']:9.1e} "
-                     f"{r['estimated_drop_percent']:7.1f} % {sig:>4s} {drop:>9s}")
-    if result.get("engine_map"):
-        lines.append(f"  (map: {result['engine_map']}, the engine map term — a property of the engine, tested first; "
-                     f"the missing effects are tested on the model with it)")
+        drop = "" if r["rmse_drop_percent"] is None else f"{-r['rmse_drop_percent']:+.1f} %"
+        lines.append(f"  {r['effect']:{width}s} {r['p_holm']:9.1e} {r['estimated_drop_percent']:7.1f} % {drop:>9s}"
+                     f"  {r['explanation']}")
     lines.append(result["verdict"])
     summary = result["model"].get("engine_map")
     if summary:
@@ -93,11 +93,11 @@ def format_report(result: dict, top: int = 8) -> str:
 
 
 def run(args) -> int:
+    settings = settings_from(args)
     effects = defined_effects(args.effects_file)  # a bad effect file fails before any work
     model = load_model(args.model)
     ds = build_for_models(args, args.inputs, [(args.model, model)])
-    result = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, min_effect_percent=args.min_effect,
-                      min_drop_percent=args.min_drop, effects=effects, workers=args.workers).to_json()
+    result = diagnose(model, ds, settings, effects=effects).to_json()
     result["data"]["files"] = list(map(str, args.inputs))
     result["model"]["file"] = args.model
     result["model"]["engine_map"] = map_summary(model)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
-from fuelid.ident.diagnosis import confirmed_effects
+from fuelid.ident.diagnosis import effects_to_add
 from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.identify import MIN_SEGMENT_S
 from fuelid.ident.modelchoice import ModelChoice, ModelKind, identify_chosen
@@ -37,7 +37,8 @@ def add_arguments(p):
                         "definitions; repeatable")
     p.add_argument("--effects-from", metavar="DIAGNOSIS.json",
                    help="also add every effect a saved `fuelid diagnose --json` result recommends (`recommended: true`; "
-                        "named but not recommended ones are left out)")
+                        "named but not recommended ones are left out), and the engine map when it advises the "
+                        "engine model")
     p.add_argument("--min-segment", type=float, default=MIN_SEGMENT_S, metavar="S",
                    help=f"leave out valid stretches shorter than this [s] (default {MIN_SEGMENT_S:g})")
     add_dataset_arguments(p)
@@ -59,12 +60,12 @@ def estimator_summary(info: dict) -> str | None:
 
 
 def significant_effects(path: str) -> list[str]:
-    """The effects a saved `fuelid diagnose --json` result recommends (ident.diagnosis.confirmed_effects: named as
-    missing and verified on held-out data, and on held-out trips when it had several; a result without that field
+    """The effects a saved `fuelid diagnose --json` result says to add (ident.diagnosis.effects_to_add: the engine
+    map when it advises the engine model, then the candidates with `recommended` true; a result without that field
     recommends none)."""
     try:
-        return confirmed_effects(json.loads(Path(path).read_text())["candidates"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return effects_to_add(json.loads(Path(path).read_text()))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise FuelidError(f"--effects-from {path}: not a `fuelid diagnose --json` result ({exc})") from exc
 
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
-from fuelid.commands.diagnose import add_workers_argument
+from fuelid.commands.diagnose import add_settings_arguments, settings_from
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis import diagnose
 from fuelid.ident.modelfile import load_model
@@ -21,17 +21,12 @@ def add_arguments(p):
                         "recordings: model files end in .json, anything else is a recording")
     p.add_argument("-o", "--output", required=True, metavar="REPORT.html", help="HTML file to write")
     p.add_argument("--title", metavar="T", help="page title (default: 'fuelid diagnosis report — TRUCK')")
-    p.add_argument("--alpha", type=float, default=0.05,
-                   help="family-wise false-alarm rate over all candidate effects (Holm; default 0.05)")
-    p.add_argument("--verify", type=int, default=10, metavar="N",
-                   help="verify up to N candidates that pass the tests by the held-out error drop of a "
-                        "linearised refit (default 10; 0 skips)")
+    add_settings_arguments(p)
     p.add_argument("--diagnosis", metavar="DIAGNOSIS.json",
                    help="use this saved `fuelid diagnose --json` result of MODEL on the same recordings instead of "
                         "diagnosing again")
     p.add_argument("--max-points", type=int, default=6000, metavar="N",
                    help="points per curve before min/max decimation (default 6000)")
-    add_workers_argument(p)
     add_dataset_arguments(p)
 
 
@@ -106,7 +101,7 @@ def run(args) -> int:
         diagnosis = saved_diagnosis(args.diagnosis, model_paths[0], data_paths)
         verdict = diagnosis["verdict"]
     else:
-        diagnosis = diagnose(model, ds, alpha=args.alpha, n_verify=args.verify, workers=args.workers)
+        diagnosis = diagnose(model, ds, settings_from(args))
         verdict = diagnosis.verdict
     out = write_report(args.output, model, ds, diagnosis=diagnosis, label=Path(model_paths[0]).name,
                        after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],

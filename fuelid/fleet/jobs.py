@@ -12,8 +12,8 @@ costs a job what DIAGNOSIS_HOURS of data cost, whatever the hours.
 
 Held-out evidence: the model is fitted on all the truck's data (the newest file included) and the diagnosis
 runs on (a sample of) the same data, because its score tests are by construction tests at the fitted model; what needs
-unseen data is measured by refits: diagnose verifies candidate effects by a linearised refit scored on each
-60-s block left out of the fit, and scores the model itself the same way (the diagnosis's `held_out`),
+unseen data is measured by refits: diagnose holds candidate effects to PEM refits scored on the blocks (or trips)
+each fold leaves out of the fit, and scores the model itself the same way (the diagnosis's `held_out`),
 reported as metrics["held_out"] next to the in-sample metrics.
 
 `JobRunner` runs jobs on a Dask LocalCluster of worker processes (the default: one single-threaded worker per
@@ -40,7 +40,7 @@ from threadpoolctl import threadpool_limits
 from fuelid.errors import FuelidError
 from fuelid.fleet import effectlist
 from fuelid.ident.dataset import Dataset, build_dataset
-from fuelid.ident.diagnosis import confirmed_effects, diagnose
+from fuelid.ident.diagnosis import diagnose, effects_to_add
 from fuelid.ident.identify import identify_model
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parse_orders
@@ -148,7 +148,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             found = diagnose(model, sample)
             lap("diagnose")
             diagnosis = found.to_json()
-            effects = confirmed_effects(diagnosis["candidates"])
+            effects = effects_to_add(diagnosis)
             stored = identify_model(ds, structure, effects, files=names, init=previous, base=model) if effects else model
             lap("identify with effects")
         except FuelidError as exc:

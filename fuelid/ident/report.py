@@ -37,7 +37,6 @@ import numpy as np
 
 from fuelid import __version__
 from fuelid.ident.diagnosis import Diagnosis, diagnose
-from fuelid.ident.diagnosis.candidate import ENGINE_MAP
 from fuelid.ident.hammerstein import engine_map_of, steady_state_map
 from fuelid.ident.modelrun import ModelRun, run_model
 from fuelid.ident.validation import WHITENESS_MEANING, autocorr_test, crosscorr_test, metrics
@@ -349,14 +348,13 @@ def _effect(c: dict) -> str:
 def effects_table(candidates: list[dict], top: int = 12) -> str:
     """The ranked candidates (diagnosis['candidates'], best first) with their evidence; the testable ones after
     `top` and the untestable ones folded away."""
-    head = ["#", "effect", "bus signals (SPN)", "LM statistic<br>(df)", "p-value", "Holm p", "significant",
+    head = ["#", "effect", "bus signals (SPN)", "LM statistic<br>(df)", "p-value", "Holm p", "status",
             "held-out<br>RMS drop [%]", "what it means"]
     rows = []
     testable = [c for c in candidates if c.get("testable", c.get("statistic") is not None)]
     for rank, c in enumerate(testable, 1):
-        sig = c.get("significant")
-        named = '<span class="yes">engine map</span>' if c.get("role") == ENGINE_MAP else \
-            '<span class="yes">yes</span>' if sig else "no"
+        status = _esc(c.get("status", "named" if c.get("significant") else ""))
+        named = f'<span class="yes">{status}</span>' if c.get("recommended") else status
         rows.append([str(rank), _effect(c),
                      _signals(c), f"{_fmt(c.get('statistic'), '.1f')} ({c.get('df', '–')})",
                      _fmt(c.get("p_value"), '.2e'), _fmt(c.get("p_holm"), '.2e'),
@@ -376,15 +374,13 @@ def effects_table(candidates: list[dict], top: int = 12) -> str:
     return out
 
 
-def engine_map_paragraph(candidates: list[dict]) -> str:
-    """The engine map term (ident.diagnosis.verdict, 0), said apart from the missing effects: a property of the
-    engine; empty when the diagnosis named none."""
-    term = next((c for c in candidates if c.get("role") == ENGINE_MAP), None)
-    if term is None:
+def engine_map_paragraph(diagnosis: dict) -> str:
+    """What the diagnosis says of the engine's own map (a property of the engine, not a missing effect); empty for a
+    saved result without it."""
+    m = diagnosis.get("engine_map")
+    if not isinstance(m, dict):
         return ""
-    return (f'<p class="note"><b>Engine map term</b> (a property of the engine, tested first; not a missing '
-            f'effect): {_name(term["effect"])} — {_esc(term.get("explanation", ""))}. The missing effects below '
-            f'are tested on the model with it.</p>')
+    return f'<p class="note"><b>Engine map</b> ({_esc(m["status"])}): {_esc(m.get("explanation", ""))}.</p>'
 
 
 def worst_table(worst: list[dict], ds) -> str:
@@ -503,7 +499,7 @@ def render_report(model, ds, diagnosis: dict | None = None, after=(), *, label: 
             + [(c.label, c.colour, e[1][j]) for c, e in zip(curves[1:], extra)], ds.Ts)))
     figs += [("map_bias", error_map_figure(fails["error_map"], unit, "mean_error")),
              ("map_rms", error_map_figure(fails["error_map"], unit, "rms_error"))]
-    confirmed = [c for c in diagnosis["candidates"] if c.get("significant")]
+    confirmed = [c for c in diagnosis["candidates"] if c.get("recommended")]
     effect_figs = [(f"effect{k}", fig) for k, c in enumerate(confirmed)
                    if (fig := effect_signal_figure(ds, curves[0], c, max_points)) is not None]
     figs += effect_figs
@@ -557,7 +553,7 @@ and are not tested).</p>
 <h2>Which effect is missing</h2>
 <p class="note">{_esc(test.get("method", ""))}; family-wise α = {_esc(test.get("alpha", ""))},
 {_esc(test.get("candidates_tested", ""))} candidates tested on {_esc(test.get("samples", ""))} samples.</p>
-{engine_map_paragraph(diagnosis["candidates"])}
+{engine_map_paragraph(diagnosis)}
 {effects_table(diagnosis["candidates"], top)}
 {"".join(plots[name] for name, _ in effect_figs)}
 """

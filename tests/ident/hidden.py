@@ -29,8 +29,8 @@ from scipy.ndimage import shift as spline_shift
 from scipy.signal import lfilter
 
 from fuelid.ident.dataset import Dataset
-from fuelid.ident.diagnosis.run import run_gradients
-from fuelid.ident.diagnosis.verification import held_out, held_out_scores
+from fuelid.ident.diagnosis.settings import Settings
+from fuelid.ident.diagnosis.yardstick import held_out_summary, make_folds, refits
 from fuelid.ident.identify import effect_definitions, effect_inputs
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
@@ -209,10 +209,10 @@ def identify(ds, structure: Structure = PAPER, effects=(), defined=()) -> PolyMo
 
 
 def held_out_rmse(model: PolyModel, ds) -> float:
-    """The model's RMS simulation error [output unit] on held-out blocks (ident.diagnosis's h-block scoring of the
-    model as it is, the reference of every verification)."""
-    run = run_gradients(run_model(model, ds))
-    return held_out_scores(held_out(model, run, np.zeros((run.r.size, 0))), ds)["rmse"]
+    """The model's RMS simulation error [output unit] on held-out folds, refitted without each (the diagnosis's
+    yardstick, ident.diagnosis.yardstick)."""
+    settings = Settings()
+    return held_out_summary(refits(model, ds, make_folds(ds, settings), [], settings), ds)["rmse"]
 
 
 def fitted(ds) -> PolyModel:

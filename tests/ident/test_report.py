@@ -35,7 +35,7 @@ def case():
     """(dataset, model, diagnosis, after model, page) for a 15-minute trip with two DPF regenerations."""
     ds = hidden.make("dpf_regeneration", n=3000, seed=2)
     model, after = fit(ds), fit(ds, ["dpf_regeneration"])
-    found = dg.diagnose(model, ds, n_verify=1)
+    found = dg.diagnose(model, ds)
     diagnosis = found.to_json()
     page = rp.render_report(model, ds, found, after=[("with DPF", after)], truck="TRUCK-42",
                             files=["trip.mcap"], top=5)
@@ -105,12 +105,12 @@ def test_effects_table_numbers_are_the_diagnosis(case):
         assert row[1].startswith(c["effect"])
         assert row[3] == f"{c['statistic']:.1f} ({c['df']})"
         assert row[4] == f"{c['p_value']:.2e}" and row[5] == f"{c['p_holm']:.2e}"
-        assert row[6] == ("yes" if c["significant"] else "no")
+        assert row[6] == c["status"]
         assert row[7] == ("–" if c["rmse_drop_percent"] is None else f"{c['rmse_drop_percent']:.1f}")
         assert row[8] == c["explanation"]
         assert all(str(spn) in row[2] for spn in c["spns"])
     top = table[1]
-    assert top[1].startswith("dpf_regeneration") and "3700" in top[2] and top[6] == "yes"  # the hidden effect
+    assert top[1].startswith("dpf_regeneration") and "3700" in top[2] and top[6] == "recommended"  # the hidden one
     assert diagnosis["verdict"] in page
 
 

@@ -1,28 +1,23 @@
-"""The diagnosis loop: compare a model with measurements, see where it fails, learn which physical effect is
-missing (ident.effects), and verify it by refitting.
+"""The diagnosis: where a model fails on measurements, which physical effect it is missing, and whether adding it
+helps on data the fit did not see (docs/explanation/diagnosis.md).
 
-The package follows the loop, each module using only those before it:
+The package follows the method, each module using only those before it:
 
-    statistics      the score tests, the AR whitener, Holm (plain arrays)
-    run             the model run the diagnosis tests (ident.modelrun) and its gradients
-    failures        where the model fails: whiteness, worst stretches, error map
-    verification    the linearised refit scored on held-out blocks
-    carryover       a generic bus signal's effect left out of each trip in turn, refitted by PEM
-    delay           the fuel-signal delay, tested and verified on seed 2's reference model
-    explanation     the sentence and the size of an effect
-    candidate       Candidate, a candidate effect as a typed record, and what its tests found
-    entries         how an effect enters the model (additive, scales the fuel, a torque, a shift): its columns, tests
-                    and verification, one class per kind
-    builds          the models `fuelid identify` would build on the data, built once each (ahead, in a worker), and the
-                    check of what is recommended on them
-    ranking         the candidates' tests, Holm, and a candidate's verification
-    recommendation  when a candidate is confirmed, named and recommended, and the sentences that say why not
-    selection       forward selection of every effect missing, re-testing the rest on the model refitted
-    verdict         the engine map term, then the hidden effects, checked on the builds: `diagnose` → Diagnosis
+    settings     every threshold with its meaning (Settings)
+    statistics   the score tests, the AR whitener, Holm (plain arrays)
+    run          the model run the screening tests (ident.modelrun) and its gradients
+    failures     where the model fails: whiteness, worst stretches, error map
+    candidate    the typed decisions: Status, Reason, MapStatus, the evidence, Candidate
+    screening    each candidate's columns as it enters the model, its two tests, Holm over the family
+    yardstick    folds of blocks or trips, the refits on each, the paired per-block held-out comparison
+    selection    the engine map's status, then forward selection with the yardstick
+    render       the explanations, the verdict and the JSON, from the typed decisions (Diagnosis)
+    pipeline     `diagnose`: the stages in order
 """
-from fuelid.ident.diagnosis.candidate import Candidate, confirmed_effects
-from fuelid.ident.diagnosis.ranking import rank_candidates
-from fuelid.ident.diagnosis.run import Run, run_gradients
-from fuelid.ident.diagnosis.verdict import Diagnosis, diagnose
+from fuelid.ident.diagnosis.candidate import Candidate, MapStatus, Reason, Status, confirmed_effects, effects_to_add
+from fuelid.ident.diagnosis.pipeline import diagnose
+from fuelid.ident.diagnosis.render import Diagnosis
+from fuelid.ident.diagnosis.settings import Settings
 
-__all__ = ["Candidate", "Diagnosis", "Run", "confirmed_effects", "diagnose", "rank_candidates", "run_gradients"]
+__all__ = ["Candidate", "Diagnosis", "MapStatus", "Reason", "Settings", "Status", "confirmed_effects", "diagnose",
+           "effects_to_add"]

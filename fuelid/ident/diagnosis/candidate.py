@@ -1,93 +1,147 @@
-"""A candidate effect of the diagnosis as a typed record: what its tests found (`Evidence`) and what the diagnosis
-says of it (`Candidate`, serialised by `to_json` as `fuelid diagnose --json` lists it)."""
+"""The decisions of the diagnosis as typed state: a candidate's `Status` (and its `Reason` when named but not
+recommended), its evidence (`Screening`, `HeldOut`) and the engine map's own `MapStatus`. Every text, the JSON and
+the report are rendered from these (ident.diagnosis.render), never the other way round."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
-import numpy as np
+import enum
+from dataclasses import asdict, dataclass
 
 from fuelid.ident import effects as fx
 
-JSON_FIELDS = ("effect", "spec", "name", "form", "signals", "spns", "statistic", "df", "p_value", "log10_p",
-               "testable", "tests", "estimated_drop_percent", "size", "explanation", "physics", "p_holm",
-               "test_significant", "significant", "recommended", "role", "rmse_drop_percent", "verification",
-               "conditional", "refit", "explained_by", "alternatives")
-UNTESTED_FIELDS = ("effect", "name", "form", "signals", "spns", "testable", "statistic", "df", "p_value",
-                   "significant", "test_significant", "estimated_drop_percent", "explanation", "rmse_drop_percent",
-                   "verification", "conditional", "explained_by")
+
+class Status(enum.Enum):
+    """What the diagnosis concludes of one candidate effect."""
+
+    RECOMMENDED = "recommended"  # screened, built, and the model with it lowers the held-out error beyond the margin
+    NAMED_NOT_RECOMMENDED = "named, not recommended"  # significant in the screening; not recommended (Reason)
+    EXPLAINED_BY = "explained by"  # passed the screening, not once another was accepted (explained_by)
+    NOT_SIGNIFICANT = "not significant"  # the screening does not reject "no such effect" (Holm at alpha)
+    TOO_SMALL = "too small"  # significant, but explains less than min_effect_percent of the simulation error
+    NOT_TESTABLE = "not testable"  # its bus signals are not in the data, or its columns are the model's own
+    ALREADY_IN_MODEL = "already in the model"
 
 
-@dataclass
-class Evidence:
-    """What an entry kind's test of an effect found (ident.diagnosis.entries): reg its regressors on the dataset
-    grid, x their lagged columns in the fuel domain stacked like Run.r, w = A x (x in the domain of w), tests
-    {name: ScoreTest}, left the fraction of the simulation error left after fitting them, coef the coefficients
-    the explanation starts from, ref the reference model of a fuel-signal delay (ident.diagnosis.delay.Reference)
-    or None."""
+class Reason(enum.Enum):
+    """Why a candidate named by the screening is not recommended."""
 
-    reg: fx.Regressors
-    x: np.ndarray
-    w: np.ndarray
-    tests: dict
-    left: float
-    coef: np.ndarray
-    ref: object = None
+    NO_HELD_OUT_GAIN = "the model built with it does not lower the held-out error beyond the margin"
+    BUILD_FAILED = "the model could not be identified with it"
+    NOT_BUILT = "more significant candidates used this round's builds"
+    SELECTION_STOPPED = "forward selection reached its round limit before re-testing it"
+
+
+class MapStatus(enum.Enum):
+    """The engine's own curvature (effects engine_map, power_nonlinearity): part of the engine model, never a
+    hidden-effect candidate."""
+
+    IN_MODEL = "in the model"  # the base model is the engine model (or has a curvature term)
+    ADVISED = "advised"  # base linear, and the engine model lowers the held-out error beyond the margin
+    NOT_NEEDED = "not needed"  # base linear; the curvature test or the yardstick does not call for the map
+    NOT_TESTABLE = "not testable"
+
+
+CURVATURE = ("engine_map", "power_nonlinearity")  # the engine's own map, never a hidden-effect candidate
+MAP_EFFECT = "engine_map"  # what the engine model adds to the linear one (`fuelid identify --effect engine_map`)
+
+
+@dataclass(frozen=True)
+class Screening:
+    """A candidate's screening (ident.diagnosis.screening): the larger LM statistic of its two score tests, its
+    degrees of freedom, the Bonferroni p-value over the two (log10 too: it does not underflow), Holm's adjusted
+    p-value in its round's family, whether Holm rejects, and the share [%] of the simulation error its
+    least-squares fit explains. coef: the coefficients of its columns (the fuel delay's τ is read from them)."""
+
+    statistic: float
+    df: int
+    p_value: float
+    log10_p: float
+    p_holm: float
+    significant: bool
+    explains_percent: float
+    coef: tuple = ()
+
+    def to_json(self) -> dict:
+        out = asdict(self)
+        out.pop("coef")
+        return out
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """The yardstick (ident.diagnosis.yardstick) of one model against the base: RMS held-out simulation error
+    [output unit] without and with, its drop [%], the per-block paired improvement's mean and standard error
+    [(output unit)²], the number of blocks, the folds ("blocks" or "trips"), and whether it passes (mean > k·SE
+    and drop ≥ the floor)."""
+
+    rmse_without: float
+    rmse_with: float
+    drop_percent: float
+    mean_gain: float
+    gain_se: float
+    n_blocks: int
+    folds: str
+    passes: bool
+
+    @property
+    def gain_in_se(self) -> float:
+        return self.mean_gain / self.gain_se if self.gain_se > 0 else float("inf") * (self.mean_gain > 0)
+
+    def to_json(self) -> dict:
+        return {**asdict(self), "gain_in_se": self.gain_in_se}
 
 
 @dataclass
 class Candidate:
-    """One candidate effect (ident.diagnosis.diagnose's docstring lists the fields). `tests` is None when its bus
-    signals are not in the data (then it serialises only the fields an untested candidate has); definition,
-    entry, reg, x, w (x in the domain of w, A x), X (its verified columns) and ref are the working data of the
-    diagnosis, never serialised."""
+    """One candidate effect and what the diagnosis concluded (status, reason, explained_by), with its evidence.
+    spec: what `fuelid identify --effect` takes (a fuel delay with its τ); round: the forward-selection round of its
+    last screening (1 the model as given)."""
 
-    effect: str
-    name: str
-    form: str
-    signals: list
-    spns: list
-    physics: str
-    explanation: str
-    spec: str | None = None
-    statistic: float | None = None
-    df: int = 0
-    p_value: float | None = None
-    log10_p: float = 0.0
-    testable: bool = False
-    tests: dict | None = None
-    estimated_drop_percent: float | None = None
-    size: dict | None = None
-    p_holm: float | None = None
-    test_significant: bool = False
-    significant: bool = False
-    recommended: bool = False
-    rmse_drop_percent: float | None = None
-    verification: dict | None = None
-    conditional: dict | None = None
-    refit: dict | None = None  # forward selection's PEM refit with it: RMS simulation error without/with, verified
+    definition: fx.Effect
+    status: Status = Status.NOT_TESTABLE
+    reason: Reason | None = None
     explained_by: str | None = None
-    alternatives: list = field(default_factory=list)  # rivals these data cannot tell it from (selection, 5)
-    role: str | None = None  # what a named candidate is: ENGINE_MAP (the engine's own curvature) or MISSING_EFFECT
-    definition: fx.Effect | None = field(default=None, repr=False)
-    entry: object = field(default=None, repr=False)
-    reg: fx.Regressors | None = field(default=None, repr=False)
-    x: np.ndarray | None = field(default=None, repr=False)
-    w: np.ndarray | None = field(default=None, repr=False)
-    X: np.ndarray | None = field(default=None, repr=False)
-    ref: object = field(default=None, repr=False)
+    screening: Screening | None = None
+    held_out: HeldOut | None = None
+    spec: str | None = None
+    round: int = 0
 
-    def to_json(self) -> dict:
-        """The candidate as `fuelid diagnose --json` lists it."""
-        return {k: getattr(self, k) for k in (JSON_FIELDS if self.tests is not None else UNTESTED_FIELDS)}
+    def decide(self, status: Status, reason: Reason | None = None, explained_by: str | None = None) -> None:
+        """Set the status, with its reason (NAMED_NOT_RECOMMENDED) or the candidate that explains it (EXPLAINED_BY)
+        and nothing else."""
+        self.status, self.reason, self.explained_by = status, reason, explained_by
+
+    @property
+    def effect(self) -> str:
+        return self.definition.id
+
+    @property
+    def recommended(self) -> bool:
+        return self.status is Status.RECOMMENDED
+
+    @property
+    def named(self) -> bool:
+        return self.status in (Status.RECOMMENDED, Status.NAMED_NOT_RECOMMENDED)
+
+
+@dataclass(frozen=True)
+class EngineMap:
+    """The engine map's status and, when tested, its evidence (as a candidate's)."""
+
+    status: MapStatus
+    screening: Screening | None = None
+    held_out: HeldOut | None = None
 
 
 def confirmed_effects(candidates: list[dict]) -> list[str]:
-    """The effects a diagnosis (its JSON `candidates`) recommends adding: named as missing and verified on
-    held-out data, and on held-out trips when it had several (`recommended`; a result without that field
-    recommends none), in the order found, as `fuelid identify --effect` and identify_model take them (a fuel
-    delay with the shift found: fuel_delay=0.36)."""
-    return [c.get("spec", c["effect"]) for c in candidates if c.get("recommended") is True]
+    """The effects a diagnosis (its JSON `candidates`) recommends adding, exactly those with `recommended` true, in
+    the order accepted, as `fuelid identify --effect` and identify_model take them (a fuel delay with its τ:
+    fuel_delay=0.36)."""
+    return [c.get("spec") or c.get("id") or c["effect"] for c in candidates if c.get("recommended") is True]
 
 
-ENGINE_MAP = "engine map"  # the role of the engine's own static curvature: a property of the engine (verdict, 0)
-MISSING_EFFECT = "missing effect"  # the role of a hidden effect the forward selection named
+def effects_to_add(result: dict) -> list[str]:
+    """What `fuelid identify --effects-from` adds for a saved `fuelid diagnose --json` result: the engine map first
+    when the diagnosis advises the engine model, then the recommended effects (`confirmed_effects`)."""
+    engine_map = result.get("engine_map")
+    advised = isinstance(engine_map, dict) and engine_map.get("status") == MapStatus.ADVISED.value
+    return [MAP_EFFECT] * advised + confirmed_effects(result["candidates"])

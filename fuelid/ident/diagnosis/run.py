@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fuelid.blas import one_blas_thread
 from fuelid.ident.diagnosis.statistics import NuisanceBasis, free_responses, nuisance_basis
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modelrun import ModelRun
@@ -22,8 +21,7 @@ class Run:
     (shifted) fuel, ysim its simulation on the tested segments (NaN elsewhere); segs those segments; after each
     one's first `warm` (= n_start) samples, stacked: e the prediction errors and Q a basis of their nuisance
     columns (test 1), r the errors w = A ỹ − Σ B_i/F_i ũ_i before the noise filter (the simulation errors when
-    A = 1) with the basis QG of their nuisance columns projected out (test 2); QG.dense is the part of QG the
-    held-out refit re-fits per block (without the initial states, QG.blocks, fitted on all the data). u and eps
+    A = 1) with the basis QG of their nuisance columns projected out (test 2). u and eps
     (the prediction errors on every segment, as ident.validation reads them for its whiteness verdict, so the
     diagnosis and the compare table never disagree on it) are the ModelRun's."""
 
@@ -54,8 +52,7 @@ class Run:
     def e_projected(self) -> np.ndarray:
         """M_Z ε: the prediction errors with their nuisance columns (Q) projected out, the same in every
         candidate's score test (ident.diagnosis.statistics.score_test)."""
-        with one_blas_thread():
-            return self.Q.project_out(self.e)
+        return self.Q.project_out(self.e)
 
     @property
     def index(self) -> np.ndarray:
@@ -88,8 +85,7 @@ def run_gradients(mrun: ModelRun) -> Run:
         ZGs.append(np.column_stack([psi_g, ones])[warm:])
         es.append(e[warm:])
         ws.append(w[warm:])
-    with one_blas_thread():
-        Q = nuisance_basis(np.vstack(Zs), ICs)
-        QG = nuisance_basis(np.vstack(ZGs), ICGs)
-        r = QG.project_out(np.concatenate(ws))
+    Q = nuisance_basis(np.vstack(Zs), ICs)
+    QG = nuisance_basis(np.vstack(ZGs), ICGs)
+    r = QG.project_out(np.concatenate(ws))
     return Run(mrun, y, mrun.on_tested(mrun.ysim), list(mrun.tested), warm, np.concatenate(es), Q, r, QG)

@@ -96,7 +96,7 @@ class NuisanceBasis:
     dense: np.ndarray
     blocks: tuple[np.ndarray, ...] = ()
 
-    @functools.cached_property  # read for every held-out block of block_cv
+    @functools.cached_property
     def bounds(self) -> list[tuple[int, int]]:
         """Rows (start, stop) of each block."""
         ends = np.cumsum([b.shape[0] for b in self.blocks], dtype=int)
@@ -109,16 +109,6 @@ class NuisanceBasis:
         for (a, b), Qs in zip(self.bounds, self.blocks):
             out[a:b] -= Qs @ (Qs.T @ X[a:b])
         return out
-
-    def rows(self, lo: int, hi: int) -> np.ndarray:
-        """Rows lo … hi − 1 of Q, without the columns of the blocks that are zero there."""
-        parts = [self.dense[lo:hi]]
-        for (a, b), Qs in zip(self.bounds, self.blocks):
-            if a < hi and b > lo:
-                part = np.zeros((hi - lo, Qs.shape[1]))
-                part[max(a, lo) - lo:min(b, hi) - lo] = Qs[max(a, lo) - a:min(b, hi) - a]
-                parts.append(part)
-        return np.column_stack(parts)
 
     def extended(self, X: np.ndarray, rank_tol: float = RANK_TOL) -> NuisanceBasis:
         """The basis of these nuisance columns and the columns of X (N × k). A column whose part outside the span

@@ -7,7 +7,7 @@ from tests.ident import hidden
 
 def test_where_it_fails_sections():
     ds = hidden.make("dpf_regeneration", n=4000, seed=2)
-    out = dg.diagnose(hidden.fitted(ds), ds, n_verify=0)
+    out = dg.diagnose(hidden.fitted(ds), ds, candidates=())
     worst = out.where_it_fails["worst_segments"]
     assert worst and "DPF active regeneration" in worst[0]["context"]
     emap = out.where_it_fails["error_map"]

@@ -1,0 +1,54 @@
+"""Every threshold of the diagnosis, with its meaning, in one frozen object (`Settings`)."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The diagnosis's thresholds (docs/explanation/diagnosis.md names each one in its equations)."""
+
+    alpha: float = 0.05
+    """Family-wise error rate of the screening: Holm's step-down over the hidden-effect candidates, and the level of
+    the engine-map test on its own. On a trip with nothing hidden, any recommendation needs a screening rejection
+    first, so the probability of recommending anything is at most alpha (asymptotically, as the score tests)."""
+
+    min_effect_percent: float = 1.0
+    """[%] Share of the simulation error a significant candidate's least-squares fit must explain to be built:
+    smaller effects are detectable with many samples but not worth an input."""
+
+    max_builds: int = 3
+    """Candidates built per round of forward selection (the screened ones with the smallest p-values): each build is
+    one refit per fold, the diagnosis's cost."""
+
+    block_s: float = 30.0
+    """[s] Length of the scoring blocks: the held-out simulation error is summed per block, and the blocks are the
+    pairs whose spread gives the margin."""
+
+    chunk_s: float = 120.0
+    """[s] Length of the stretches a fold leaves out on data of one trip (a whole number of scoring blocks, longer so
+    that the stretches fitted on between them are long beside the model's start-up)."""
+
+    folds: int = 4
+    """Folds on data of one trip: fold k leaves out every chunk whose index is k modulo `folds` (interleaved, so each
+    fit sees every part of the trip). With several trips each trip is a fold instead."""
+
+    trip_break_s: float = 600.0
+    """[s] A break of the log at least this long starts another trip (another file, another day)."""
+
+    margin_se: float = 2.0
+    """k of the yardstick: the mean of the per-block paired improvements (MSE without − MSE with) must exceed k
+    standard errors of that mean (their spread over the blocks: what the fits and the noise move)."""
+
+    min_drop_percent: float = 1.0
+    """[%] Relative floor of the yardstick: the pooled held-out RMS simulation error must fall by at least this much
+    (a real but negligible improvement is not worth an input)."""
+
+    refit_max_iter: int = 20
+    """Levenberg–Marquardt iterations of each refit (warm-started from the base model: few suffice)."""
+
+    max_rounds: int = 6
+    """Rounds of forward selection at most (one effect accepted per round)."""
+
+    def to_json(self) -> dict:
+        return asdict(self)

@@ -1,0 +1,152 @@
+"""The yardstick: does the model `fuelid identify` builds with a candidate simulate data it was not fitted on better
+than the base model, by more than the spread of fits?
+
+Folds. With several trips (breaks of the log of at least trip_break_s: other files, other days) each trip is a fold;
+on one trip, fold k holds the chunks c ≡ k (mod folds) of chunk_s seconds (interleaved: every fit sees every part
+of the trip). Scoring blocks are block_s long. For each fold the base model is refitted by PEM on the other folds'
+samples from itself, and the candidate's model from that fold base with the candidate's coefficients at zero
+(ident.identify.refit_with_effects: a warm start, so the two fits are nested and paired); both are simulated over
+the whole data from rest, and the simulation errors on the held-out samples, after each segment's first n_start, are summed per block b:
+
+    d_b = (SSE_b(base) − SSE_b(with)) / n_b          [(output unit)²], one pair per block,
+
+and the candidate passes when
+
+    d̄ > k · s_d / √B     and     100 (1 − RMSE_with / RMSE_without) ≥ min_drop_percent,
+
+B the blocks, s_d their standard deviation, k = margin_se, the RMSEs pooled over every held-out sample. The
+spread s_d holds both what the noise moves in a block and what the fits move (each block is scored by the fold
+fitted without it).
+"""
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from fuelid.errors import FuelidError
+from fuelid.ident.diagnosis.candidate import HeldOut
+from fuelid.ident.diagnosis.settings import Settings
+from fuelid.ident.identify import MIN_SEGMENT_S, refit_with_effects
+from fuelid.ident.modeldata import model_data
+from fuelid.ident.polymodel import PolyModel, simulate
+from fuelid.ident.validation import cycle_fuel_error, error_table
+
+BUILD_ERRORS = (FuelidError, ValueError, np.linalg.LinAlgError)  # a refit that fails: the candidate is not built
+
+
+def trip_masks(ds, break_s: float) -> list[np.ndarray]:
+    """A mask of ds's valid samples per trip: the valid samples split where the clock jumps by ≥ break_s [s]."""
+    idx = np.flatnonzero(ds.valid)
+    cuts = np.flatnonzero(np.diff(ds.t[idx]) >= break_s) + 1
+    masks = []
+    for part in np.split(idx, cuts):
+        m = np.zeros(len(ds.t), bool)
+        m[part] = True
+        masks.append(m)
+    return masks
+
+
+@dataclass(frozen=True)
+class Folds:
+    """held: per fold, the mask of the samples it leaves out; block: each sample's scoring block; kind: "trips" or
+    "blocks"."""
+
+    held: tuple
+    block: np.ndarray
+    kind: str
+
+
+def make_folds(ds, settings: Settings) -> Folds:
+    """The folds of ds (module docstring)."""
+    block = np.floor((ds.t - ds.t[0]) / settings.block_s).astype(int)
+    trips = trip_masks(ds, settings.trip_break_s)
+    if len(trips) >= 2:
+        return Folds(tuple(trips), block, "trips")
+    chunk = np.floor((ds.t - ds.t[0]) / settings.chunk_s).astype(int)
+    held = tuple(ds.valid & (chunk % settings.folds == k) for k in range(settings.folds))
+    return Folds(held, block, "blocks")
+
+
+@dataclass(frozen=True)
+class Scored:
+    """Fold models of one effect set and their held-out simulation: models (one per fold), ysim [output unit] each
+    sample's simulation by the fold that left it out (NaN where none did or within a segment's first n_start), y the
+    fuel those models are fitted to (shifted by a fuel delay's τ)."""
+
+    models: tuple
+    ysim: np.ndarray
+    y: np.ndarray
+
+
+def _simulated(model: PolyModel, ds, fitted_on) -> tuple[np.ndarray, np.ndarray]:
+    """(the model's fuel y, its simulation from rest on each valid segment of ds with the first n_start samples
+    NaN). Its inputs are built as on `fitted_on` (ds with the fold's samples invalid): an effect whose columns
+    depend on the valid data (a generic state signal's states) then has the columns the fit had; its fuel (shifted
+    by a fuel delay within each segment) on ds."""
+    u = model_data(model, fitted_on)[0]
+    y = model_data(model, ds)[1]
+    ysim = np.full(len(y), np.nan)
+    n0 = model.structure.n_start
+    for seg in ds.segments():
+        ysim[seg] = simulate(model, u[seg])
+        ysim[seg.start:seg.start + n0] = np.nan
+    return y, ysim
+
+
+def score(fold_models, ds, folds: Folds) -> Scored:
+    """Scored of the fold models (one per fold of `folds`)."""
+    ysim, y = np.full(len(ds.t), np.nan), np.full(len(ds.t), np.nan)
+    for model, held in zip(fold_models, folds.held):
+        yk, sk = _simulated(model, ds, dataclasses.replace(ds, valid=ds.valid & ~held))
+        ysim[held], y[held] = sk[held], yk[held]
+    return Scored(tuple(fold_models), ysim, y)
+
+
+def training(ds, held: np.ndarray):
+    """ds without the held-out samples; FuelidError when no stretch long enough to fit on is left."""
+    fit_on = dataclasses.replace(ds, valid=ds.valid & ~held)
+    if not fit_on.segments(MIN_SEGMENT_S):
+        raise FuelidError(f"no valid stretch of {MIN_SEGMENT_S:g} s is left to fit on beside a held-out fold")
+    return fit_on
+
+
+def refits(start, ds, folds: Folds, effects, settings: Settings, defined=()) -> Scored:
+    """Scored of the models refitted on each fold's training data with `effects` added ("ID" or "ID=VALUE"), each
+    warm-started from `start`: a model (the same for every fold) or one model per fold. Raises BUILD_ERRORS."""
+    starts = start if isinstance(start, (list, tuple)) else [start] * len(folds.held)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        models = [refit_with_effects(m, training(ds, held), list(effects), defined=defined,
+                                     max_iter=settings.refit_max_iter) for m, held in zip(starts, folds.held)]
+    return score(models, ds, folds)
+
+
+def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings) -> HeldOut:
+    """The yardstick of `with_` against `without` (module docstring), on the held-out samples both simulate; the
+    blocks holding at least half as many of them as the fullest block are the pairs."""
+    ok = np.isfinite(without.ysim) & np.isfinite(with_.ysim) & np.isfinite(without.y) & np.isfinite(with_.y)
+    b = folds.block[ok]
+    n = np.bincount(b, minlength=folds.block.max() + 1)
+    sse0, sse1 = (np.bincount(b, weights=(s.y[ok] - s.ysim[ok]) ** 2, minlength=n.size) for s in (without, with_))
+    keep = (n > 0) & (n >= 0.5 * n.max()) if n.size else n > 0
+    B = int(keep.sum())
+    if B < 2:
+        return HeldOut(float("nan"), float("nan"), 0.0, 0.0, float("inf"), B, folds.kind, False)
+    d = (sse0[keep] - sse1[keep]) / n[keep]
+    rmse0, rmse1 = (float(np.sqrt(s[keep].sum() / n[keep].sum())) for s in (sse0, sse1))
+    mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(B))
+    drop = 100.0 * (1.0 - rmse1 / rmse0)
+    passes = bool(mean > settings.margin_se * se and drop >= settings.min_drop_percent)
+    return HeldOut(rmse0, rmse1, drop, mean, se, B, folds.kind, passes)
+
+
+def held_out_summary(s: Scored, ds) -> dict:
+    """RMS held-out simulation error [output unit] and cycle fuel errors [%] (eq. 20: mean and RMS over the cycles) of
+    the fold models, as `fuelid diagnose --json` reports the base model's."""
+    ok = np.isfinite(s.ysim) & np.isfinite(s.y)
+    return {"rmse": float(np.sqrt(np.mean((s.ysim[ok] - s.y[ok]) ** 2))),
+            "cycle_fuel_error_percent": error_table(cycle_fuel_error(np.where(ok, s.y, np.nan), s.ysim, ds.cycle,
+                                                                     ds.Ts))}

@@ -1,0 +1,14 @@
+"""ident.diagnosis.candidate: what `fuelid identify --effects-from` reads from a saved result."""
+from fuelid.ident import diagnosis as dg
+
+
+def test_confirmed_effects_are_exactly_the_recommended_ones_in_order():
+    rows = [{"id": "a", "effect": "a", "spec": "a", "recommended": True},
+            {"id": "fuel_delay", "effect": "fuel_delay", "spec": "fuel_delay=0.40", "recommended": True},
+            {"id": "b", "effect": "b", "spec": "b", "recommended": False, "significant": True},
+            {"effect": "old"}]
+    assert dg.confirmed_effects(rows) == ["a", "fuel_delay=0.40"]
+    assert dg.effects_to_add({"candidates": rows, "engine_map": {"status": "advised"}}) == \
+        ["engine_map", "a", "fuel_delay=0.40"]
+    assert dg.effects_to_add({"candidates": rows, "engine_map": {"status": "not needed"}}) == ["a", "fuel_delay=0.40"]
+    assert dg.effects_to_add({"candidates": rows, "engine_map": "engine_map"}) == ["a", "fuel_delay=0.40"]

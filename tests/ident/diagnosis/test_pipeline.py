@@ -1,0 +1,137 @@
+"""ident.diagnosis end to end on small synthetic trips (tests.ident.hidden.make: a known Box-Jenkins truth with
+effects hidden in it): what is hidden is recommended, nothing is on clean trips — at the rate the procedure states —
+and the statuses, the JSON and `confirmed_effects` say the same."""
+import multiprocessing
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from fuelid.ident import diagnosis as dg
+from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis import MapStatus, Status
+from fuelid.ident.effectfile import read_effects_file
+from tests.ident import hidden
+from tests.ident.diagnosis.trips import joined
+
+EXAMPLE = Path(__file__).resolve().parents[3] / "docs" / "effects-example.toml"
+
+
+def diagnosed(effect, seed, n=4000, **kwargs):
+    ds = hidden.make(effect, n=n, seed=seed)
+    return ds, dg.diagnose(hidden.fitted(ds), ds, **kwargs)
+
+
+def recommended(d) -> list[str]:
+    return [c.effect for c in d.candidates if c.recommended]
+
+
+@pytest.mark.parametrize("effect, expected", [
+    ("dpf_regeneration", "dpf_regeneration"),  # scales the fuel while a state is on
+    ("cold_engine", "cold_engine"),  # extra fuel while the coolant warms up
+    ("unlisted", "state:XX.UnknownState"),  # a generic form on a decoded signal nobody listed
+])
+def test_a_hidden_effect_is_recommended_first_and_lowers_the_held_out_error(effect, expected):
+    _, d = diagnosed(effect, 11)
+    top = d.candidates[0]
+    assert recommended(d)[:1] == [expected] and top.status is Status.RECOMMENDED
+    assert top.held_out.passes and top.held_out.drop_percent > 10
+    out = d.to_json()
+    assert dg.confirmed_effects(out["candidates"]) == recommended(d) == out["missing_effects"]
+    assert out["candidates"][0]["id"] == expected and f"add {expected} (" in out["verdict"]
+
+
+def test_two_hidden_effects_are_both_recommended_by_forward_selection():
+    _, d = diagnosed(("dpf_regeneration", "cold_engine"), 12, n=5000)
+    assert set(recommended(d)[:2]) == {"dpf_regeneration", "cold_engine"}
+    assert [c.round for c in d.candidates[:2]] == [1, 2]
+
+
+def test_an_effect_the_engineer_defines_is_recommended():
+    defined = read_effects_file(EXAMPLE)
+    regen = next(e for e in defined if e.id == "regen_from_file")
+    ds = hidden.make("dpf_regeneration", n=4000, seed=13)
+    d = dg.diagnose(hidden.fitted(ds), ds, effects=defined, candidates=[regen, fx.EFFECTS["cold_engine"]])
+    assert recommended(d) == ["regen_from_file"]
+
+
+def test_with_several_trips_each_trip_is_held_out_in_turn():
+    ds = joined(*(hidden.make("dpf_regeneration", n=2500, seed=s) for s in (14, 15)))
+    d = dg.diagnose(hidden.fitted(ds), ds)
+    assert recommended(d)[:1] == ["dpf_regeneration"] and d.candidates[0].held_out.folds == "trips"
+
+
+def test_an_effect_in_the_model_is_not_a_candidate_again():
+    ds = hidden.make("dpf_regeneration", n=3000, seed=16)
+    model = hidden.identify(ds, hidden.STRUCTURE, ["dpf_regeneration"])
+    d = dg.diagnose(model, ds, candidates=[fx.EFFECTS["dpf_regeneration"], fx.EFFECTS["cold_engine"]])
+    assert {c.effect: c.status for c in d.candidates}["dpf_regeneration"] is Status.ALREADY_IN_MODEL
+    assert recommended(d) == []
+
+
+def test_the_engine_map_is_never_a_candidate_and_is_in_the_model_when_the_model_has_it():
+    ds = hidden.make(None, n=3000, seed=17)
+    d = dg.diagnose(hidden.fitted(ds), ds)
+    assert not {"engine_map", "power_nonlinearity"} & {c.effect for c in d.candidates}
+    with_map = dg.diagnose(hidden.identify(ds, hidden.STRUCTURE, ["engine_map"]), ds, candidates=())
+    assert with_map.engine_map.status is MapStatus.IN_MODEL and with_map.to_json()["engine_map"]["status"] == "in the model"
+
+
+ALPHA = 0.05
+CLEAN_TRIPS = 40
+
+
+def test_on_clean_trips_anything_is_recommended_no_more_often_than_alpha():
+    """The stated family-wise error rate: on trips with nothing hidden, the share with any recommendation is at most
+    alpha — checked as: the count is not above what Binomial(CLEAN_TRIPS, alpha) reaches with probability 0.99."""
+    hits = sum(bool(recommended(diagnosed(None, 1000 + s, n=2500)[1])) for s in range(CLEAN_TRIPS))
+    assert hits <= binom.ppf(0.99, CLEAN_TRIPS, ALPHA)
+
+
+def _children() -> list[int]:
+    """Process ids whose parent is this process."""
+    me, out = os.getpid(), []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == me:
+            out.append(int(pid))
+    return out
+
+
+def test_no_child_process_is_left_after_the_diagnosis_ends_or_is_interrupted(monkeypatch):
+    before = set(_children())
+    diagnosed("dpf_regeneration", 18, n=2500)
+    assert set(_children()) <= before and not multiprocessing.active_children()
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("fuelid.ident.diagnosis.selection.compare", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        diagnosed("dpf_regeneration", 18, n=2500)
+    assert set(_children()) <= before and not multiprocessing.active_children()
+
+
+def test_the_json_keeps_the_fields_its_readers_use():
+    ds, d = diagnosed("dpf_regeneration", 19, n=2500)
+    out = d.to_json()
+    assert {"model", "data", "compare", "held_out", "where_it_fails", "test", "engine_map", "candidates",
+            "verdict"} <= set(out)
+    assert out["held_out"]["rmse"] > 0 and np.isfinite(out["held_out"]["cycle_fuel_error_percent"]["rms"])
+    for c in out["candidates"]:
+        assert {"id", "effect", "spec", "recommended", "significant", "status", "explanation", "testable"} <= set(c)
+        assert c["recommended"] is (c["status"] == "recommended")
+
+
+def test_a_fuel_delay_is_estimated_from_its_screening_and_recommended_with_its_value():
+    ds = hidden.make("fuel_delay", n=4000, seed=3, delay_s=0.4)
+    d = dg.diagnose(hidden.fitted(ds), ds, candidates=[fx.EFFECTS["fuel_delay"], fx.EFFECTS["cold_engine"]])
+    delay = d.candidates[0]
+    assert delay.recommended and delay.spec.startswith("fuel_delay=")
+    assert float(delay.spec.split("=")[1]) == pytest.approx(0.4, abs=0.15)
+    assert dg.confirmed_effects(d.to_json()["candidates"]) == [delay.spec]

@@ -1,0 +1,54 @@
+"""ident.diagnosis.render: the words and the flags come from one typed status, so they cannot disagree — one case
+per status."""
+import pytest
+
+from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis import MapStatus, Reason, Settings, Status
+from fuelid.ident.diagnosis.candidate import Candidate, EngineMap, HeldOut, Screening
+from fuelid.ident.diagnosis.render import candidate_json, explanation, verdict
+
+SCREENED = Screening(40.0, 2, 1e-8, -8.0, 1e-6, True, 12.0)
+QUIET = Screening(1.0, 2, 0.6, -0.2, 1.0, False, 0.1)
+GAIN = HeldOut(1.0, 0.8, 20.0, 0.3, 0.05, 30, "blocks", True)
+NO_GAIN = HeldOut(1.0, 0.99, 1.0, 0.01, 0.05, 30, "blocks", False)
+
+CASES = [
+    (Status.RECOMMENDED, None, None, SCREENED, GAIN),
+    *[(Status.NAMED_NOT_RECOMMENDED, reason, None, SCREENED, NO_GAIN if reason is Reason.NO_HELD_OUT_GAIN else None)
+      for reason in Reason],
+    (Status.EXPLAINED_BY, None, "dpf_regeneration", QUIET, None),
+    (Status.NOT_SIGNIFICANT, None, None, QUIET, None),
+    (Status.TOO_SMALL, None, None, SCREENED, None),
+    (Status.NOT_TESTABLE, None, None, None, None),
+    (Status.ALREADY_IN_MODEL, None, None, None, None),
+]
+
+
+def test_every_status_has_a_case():
+    assert {c[0] for c in CASES} == set(Status)
+
+
+@pytest.mark.parametrize("status, reason, by, screening, held", CASES, ids=lambda v: getattr(v, "name", None))
+def test_the_verdict_and_the_flag_agree(status, reason, by, screening, held):
+    c = Candidate(fx.EFFECTS["cold_engine"], screening=screening, held_out=held, spec="cold_engine")
+    c.decide(status, reason, by)
+    row = candidate_json(c)
+    said = verdict([c], EngineMap(MapStatus.NOT_NEEDED), Settings())
+    recommends = "add cold_engine (" in said
+    assert row["recommended"] is recommends is (status is Status.RECOMMENDED)
+    assert ("cold_engine is named by the screening but not recommended" in said) is \
+        (status is Status.NAMED_NOT_RECOMMENDED)
+    assert ("no missing effect recommended" in said) is (status is not Status.RECOMMENDED)
+    assert row["status"] == status.value and explanation(c).startswith(status.value)
+    assert row["significant"] is (status in (Status.RECOMMENDED, Status.NAMED_NOT_RECOMMENDED))
+    if reason is not None:
+        assert reason.value in said and row["reason"] == reason.name.lower()
+    if by is not None:
+        assert row["explained_by"] == by and by in explanation(c)
+
+
+@pytest.mark.parametrize("status", list(MapStatus))
+def test_the_engine_map_is_advice_only_when_advised(status):
+    said = verdict([], EngineMap(status, SCREENED, GAIN), Settings())
+    assert ("identify the engine model" in said) is (status is MapStatus.ADVISED)
+    assert ("no missing effect recommended" in said) is (status is not MapStatus.ADVISED)

@@ -1,0 +1,45 @@
+"""ident.diagnosis.yardstick: folds, refits on each, and the paired per-block comparison with its margin."""
+import numpy as np
+import pytest
+
+from fuelid.ident.diagnosis import Settings
+from fuelid.ident.diagnosis.yardstick import compare, make_folds, refits
+from tests.ident import hidden
+from tests.ident.diagnosis.trips import joined
+
+S = Settings()
+
+
+def test_one_trip_is_folded_into_interleaved_blocks_and_several_trips_by_trip():
+    ds = hidden.make(None, n=3000, seed=1)
+    folds = make_folds(ds, S)
+    held = np.array(folds.held)
+    assert folds.kind == "blocks" and len(held) == S.folds
+    assert (held.sum(axis=0) == ds.valid).all()  # every valid sample held out exactly once
+    chunks = np.floor((ds.t - ds.t[0]) / S.chunk_s).astype(int)
+    assert len({c % S.folds for c in chunks[held[1]]}) == 1 and S.chunk_s % S.block_s == 0
+    two = make_folds(joined(ds, hidden.make(None, n=3000, seed=2)), S)
+    assert two.kind == "trips" and [h.sum() for h in two.held] == [3000, 3000]
+
+
+@pytest.fixture(scope="module")
+def regeneration():
+    ds = hidden.make("dpf_regeneration", n=4000, seed=3)
+    model = hidden.fitted(ds)
+    folds = make_folds(ds, S)
+    return ds, folds, refits(model, ds, folds, [], S)
+
+
+def test_the_true_effect_passes_the_margin_and_a_random_walk_does_not(regeneration):
+    ds, folds, base = regeneration
+    true = compare(base, refits(list(base.models), ds, folds, ["dpf_regeneration"], S), folds, S)
+    assert true.passes and true.drop_percent > 30 and true.mean_gain > S.margin_se * true.gain_se
+    assert true.n_blocks >= 15 and true.rmse_with < true.rmse_without
+    walk = compare(base, refits(list(base.models), ds, folds, ["level:XX.UnknownSignal"], S), folds, S)
+    assert not walk.passes and walk.drop_percent < 5
+
+
+def test_a_margin_no_fit_can_reach_rejects_even_the_true_effect(regeneration):
+    ds, folds, base = regeneration
+    strict = Settings(margin_se=1e6)
+    assert not compare(base, refits(list(base.models), ds, folds, ["dpf_regeneration"], strict), folds, strict).passes
