@@ -26,7 +26,7 @@ class Reason(enum.Enum):
 
     NO_HELD_OUT_GAIN = "the model built with it does not lower the held-out error beyond the margin"
     BUILD_FAILED = "the model could not be identified with it"
-    NOT_BUILT = "more significant candidates used this round's builds"
+    NOT_BUILT = "candidates that explain more used this round's builds"
     SELECTION_STOPPED = "forward selection reached its round limit before re-testing it"
 
 

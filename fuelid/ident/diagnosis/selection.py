@@ -1,8 +1,8 @@
 """Forward selection with the one yardstick; the engine map as a term of its own.
 
 Rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
-ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds smallest
-p-values, and held to the yardstick (ident.diagnosis.yardstick) against the base; of those that pass, the one with
+ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds that explain the
+largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the base; of those that pass, the one with
 the largest mean paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a
 generic form of a bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
 that passed the screening (significant and relevant) in an earlier round and no longer does is EXPLAINED_BY the one
@@ -112,7 +112,9 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             else:
                 passed_before.add(c.effect)
                 eligible.append(c)
-        eligible.sort(key=lambda c: (c is not term, c.screening.log10_p))  # the map's build is not one of the budget
+        # by the share of the simulation error each explains: on long data every p-value underflows toward 0, and the
+        # smallest ones go to signals that track the operating point, not to the largest effect
+        eligible.sort(key=lambda c: (c is not term, -c.screening.explains_percent, c.screening.log10_p))
         passing = []
         for k, c in enumerate(eligible):
             if k >= settings.max_builds + (eligible[0] is term) or base is None:

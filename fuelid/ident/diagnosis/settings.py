@@ -18,7 +18,8 @@ class Settings:
     smaller effects are detectable with many samples but not worth an input."""
 
     max_builds: int = 3
-    """Candidates built per round of forward selection (the screened ones with the smallest p-values): each build is
+    """Candidates built per round of forward selection (the screened ones that explain the largest share of
+    the simulation error): each build is
     one refit per fold, the diagnosis's cost."""
 
     block_s: float = 30.0
