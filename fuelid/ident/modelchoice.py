@@ -41,8 +41,9 @@ MIN_BLOCKS = 6
 MIN_BLOCK_S = 120.0  # [s]
 SE_FACTOR = 2.0
 MIN_IMPROVEMENT = 0.02  # [1] the engine model must simulate held-out blocks at least 2 % better on average
-CUT_EFFECT = "overrun_cutoff"
-ENGINE_EFFECTS = (MAP_EFFECT, CUT_EFFECT)  # the engine model's own blocks: its map and its injection cut (motoring)
+CUT_EFFECT, DELAY_EFFECT = "overrun_cutoff", "fuel_delay"
+ENGINE_EFFECTS = (MAP_EFFECT, CUT_EFFECT, DELAY_EFFECT)  # the engine model's own blocks: its map, its injection
+# cut (motoring) and the fuel signal's delay behind speed and torque (ident.effects)
 FOLD_ROUNDS = 2  # joint rounds of the fold fits' engine models (fewer than the final fit's: a conservative judge)
 
 
