@@ -122,8 +122,7 @@ def fuel_scale(y0: float) -> float:
     return y0 if y0 > 0 else 1.0
 
 
-RECORDED_EFFECTS = {"engine_map": 3, "overrun_cutoff": 3, "fuel_delay": 0}  # effects `fuelid online` runs over
-# recorded files (the engine model's, ident.modelchoice.ENGINE_EFFECTS): id -> its input columns
+RECORDED_EFFECTS = {"engine_map": 3}  # effects `fuelid online` runs over recorded files: id -> its input columns
 
 
 def check_online(structure: Structure, effects=(), source: str | None = None, recorded: bool = False) -> None:

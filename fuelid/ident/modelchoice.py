@@ -41,9 +41,6 @@ MIN_BLOCKS = 6
 MIN_BLOCK_S = 120.0  # [s]
 SE_FACTOR = 2.0
 MIN_IMPROVEMENT = 0.02  # [1] the engine model must simulate held-out blocks at least 2 % better on average
-CUT_EFFECT, DELAY_EFFECT = "overrun_cutoff", "fuel_delay"
-ENGINE_EFFECTS = (MAP_EFFECT, CUT_EFFECT, DELAY_EFFECT)  # the engine model's own blocks: its map, its injection
-# cut (motoring) and the fuel signal's delay behind speed and torque (ident.effects)
 FOLD_ROUNDS = 2  # joint rounds of the fold fits' engine models (fewer than the final fit's: a conservative judge)
 
 
@@ -146,14 +143,13 @@ def block_rmse(model: PolyModel, ds, mask: np.ndarray) -> float:
 
 def engine_model(ds, structure: Structure, effects, linear: PolyModel, *, min_segment_s: float, files=(),
                  defined=(), joint_rounds: int = JOINT_ROUNDS) -> PolyModel:
-    """The engine model (ENGINE_EFFECTS, then the linear model's other effects), its map started from the static
-    fit on ds: without other effects identified from `linear` (the linear model on the same samples: its dynamics,
-    the map's inputs at zero), with them as identify_model does (its initialisation and the effects added in turn);
-    then jointly with its map (ident.hammerstein, at most joint_rounds rounds)."""
-    others = [e for e in effects if e not in ENGINE_EFFECTS]
-    base = linear if not others else None
-    return identify_model(ds, structure, [*ENGINE_EFFECTS, *others], min_segment_s=min_segment_s, files=files,
-                          defined=defined, base=base, memo=FitMemo(), initialisation=bool(others),
+    """The engine model (engine_map, then the linear model's effects), its map started from the static fit on ds:
+    without other effects identified from `linear` (the linear model on the same samples: its dynamics, the map's
+    inputs at zero), with them as identify_model does (its initialisation and the effects added in turn); then
+    jointly with its map (ident.hammerstein, at most joint_rounds rounds)."""
+    base = linear if not effects else None
+    return identify_model(ds, structure, [MAP_EFFECT, *effects], min_segment_s=min_segment_s, files=files,
+                          defined=defined, base=base, memo=FitMemo(), initialisation=bool(effects),
                           joint_rounds=joint_rounds)
 
 
