@@ -50,6 +50,8 @@ LAZY_IMPORTS = {
     "fuelid.fleet.jobs": "Dask and the identification stack (numba, SciPy): on the workers, not the server",
     "fuelid.ident.rpem": "numba-compiled (seconds to load in the cab): with an estimator, not with ident.live",
     "fuelid.ident.kalman": "numba-compiled (as ident.rpem)",
+    "fuelid.ident.enginemap": "SciPy (the map's fit): ident.live loads it with an engine model only",
+    "fuelid.ident.effects": "SciPy and cantools (ident.enginemap, the DBC): ident.live loads it with an engine model only",
 }
 
 

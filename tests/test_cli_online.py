@@ -99,10 +99,7 @@ def test_bad_input_is_one_line(args, says, trip, scratch, tmp_path, capsys):
 def test_an_engine_model_runs_online_over_recorded_files_its_map_fixed(trip, tmp_path, capsys):
     """The engine model (its map an input like speed and torque, computed from them) as a prior: RPEM tracking the
     fuel gain and Kalman adapting every parameter run over the trip and keep its fit; the model written keeps the
-    map. The daemon's estimator (speed and torque only) refuses it, saying what to give instead."""
-    from fuelid.errors import FuelidError
-    from fuelid.ident.live import live_estimator
-
+    map."""
     prior = tmp_path / "engine.json"
     assert main(["identify", str(trip), "--model", "engine", "-o", str(prior)]) == 0
     fit = load_model(prior).validation["fit_percent"]["simulation"]
@@ -112,5 +109,3 @@ def test_an_engine_model_runs_online_over_recorded_files_its_map_fixed(trip, tmp
         online = load_model(tmp_path / "o.json")
         assert online.effects == ("engine_map",)
         assert online.info["effect_parameters"]["engine_map"] == load_model(prior).info["effect_parameters"]["engine_map"]
-    with pytest.raises(FuelidError, match="--model linear"):
-        live_estimator(model=prior)

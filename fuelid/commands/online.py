@@ -47,7 +47,7 @@ def run(args) -> int:
     structure = Structure(**parse_orders(args.orders or "paper")) if args.orders or not prior else prior.structure
     if prior is not None and prior.structure != structure:
         raise FuelidError(f"--orders {args.orders} differ from the prior's structure {prior.structure}")
-    check_online(structure, prior.effects if prior is not None else (), args.prior, recorded=True)
+    check_online(structure, prior.effects if prior is not None else (), args.prior)
     if args.forgetting is not None and not 0.0 < args.forgetting <= 1.0:
         raise FuelidError(f"--forgetting must be in (0, 1], got {args.forgetting}")
 

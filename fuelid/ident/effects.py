@@ -195,7 +195,7 @@ def _power(ds):
 def _map_scales(ds) -> tuple[float, str, float, str]:
     """(speed scale, its unit, torque scale, its unit) of the map's columns: krpm and kNm (100 % of reference torque
     when the model's torque is in %), so every column is of order one."""
-    return (1000.0, "krpm") + ((1000.0, "kNm") if ds.input_units[1] == "Nm" else (100.0, "100 %"))
+    return (1000.0, "krpm") + torque_scale(ds.input_units[1])
 
 
 MAP_ALIGN_LAGS = 5  # [samples] the static map's start aligns the fuel to the torque within this many samples
@@ -231,18 +231,46 @@ def _engine_map(ds, fitted: dict | None = None):
     plane, x_map = m(n, T) [fuel unit] (ident.enginemap; `fitted` its to_dict, fitted on ds by `static_engine_map`
     when not given), through one transfer function of unit static gain (ident.hammerstein); and its transient
     fuelling, the extra fuel while the torque builds up faster than the turbocharger's boost: the torque's rise
-    r = max(dT/dt, 0) and r·f/f_scale (the surcharge grows with the fuel the map gives, f = s(n, T))."""
+    r = max(dT/dt, 0) (`torque_rise`: a backward difference, causal) and r·f/f_scale (the surcharge grows with the
+    fuel the map gives, f = s(n, T))."""
     emap = EngineMap.from_dict(fitted if fitted is not None else static_engine_map(ds))
     n, T = ds.u[:, 0], ds.u[:, 1]
-    _, _, sT, uT = _map_scales(ds)
-    # held: np.gradient would spread a sample missing between trips to its neighbours
-    rise = np.maximum(rate(held(T), ds.t), 0.0) / sT
     # x_map: B/F with a direct term and one pole, the fuel's response to the map being about that of the torque's
     # own path at low order; the transient columns: a first-order lag, the turbocharger's spool-up (a PT1)
+    return Regressors(engine_map_columns(emap, n, T, torque_rise(T, ds.t, ds.input_units[1])),
+                      MAP_COLUMNS, map_column_units(ds.input_units[1], ds.output_unit),
+                      orders=(MAP_ORDERS, RISE_ORDERS, RISE_ORDERS))
+
+
+MAP_COLUMNS = ("map beyond the plane", "torque rise", "torque rise x map fuel")  # the engine map's input columns
+
+
+def map_column_units(torque_unit: str, fuel_unit: str) -> tuple[str, str, str]:
+    """The units of MAP_COLUMNS for a model's torque unit ('Nm' or '%') and fuel unit."""
+    return fuel_unit, f"{torque_scale(torque_unit)[1]}/s", f"{torque_scale(torque_unit)[1]}/s"
+
+
+def torque_scale(torque_unit: str) -> tuple[float, str]:
+    """The torque scale of the map's columns and its unit: kNm for a torque in N·m, 100 % for a torque in %."""
+    return (1000.0, "kNm") if torque_unit == "Nm" else (100.0, "100 %")
+
+
+def torque_rise(T, t, torque_unit: str) -> np.ndarray:
+    """The torque's rise r_k = max((T_k − T_{k−1}) / (t_k − t_{k−1}), 0) / scale [kNm/s or 100 %/s] of the torque T
+    held across missing samples (`held`), at sample times t [s]; r_0 = 0. A backward difference: causal, so the
+    online estimator computes the same column sample by sample (ident.live); the model's dynamics absorb its half
+    sample of delay against a central difference."""
+    T = held(T)
+    r = np.zeros_like(T)
+    r[1:] = np.diff(T) / np.diff(np.asarray(t, float))
+    return np.maximum(np.nan_to_num(r), 0.0) / torque_scale(torque_unit)[0]
+
+
+def engine_map_columns(emap: EngineMap, n, T, rise) -> np.ndarray:
+    """The engine map's input columns (N × 3, MAP_COLUMNS) at speeds n [rpm], torques T [torque unit] and torque
+    rises r (`torque_rise`): [m(n, T), r, r·s(n, T)/f_scale], m the map beyond its plane, s the map (ident.enginemap)."""
     s = emap(n, T)
-    return Regressors(np.column_stack([emap.beyond_plane(n, T, s), rise, rise * s / emap.fuel_scale]),
-                      ("map beyond the plane", "torque rise", "torque rise x map fuel"),
-                      (ds.output_unit, f"{uT}/s", f"{uT}/s"), orders=(MAP_ORDERS, RISE_ORDERS, RISE_ORDERS))
+    return np.column_stack([emap.beyond_plane(n, T, s), rise, rise * s / emap.fuel_scale])
 
 
 MAP_ORDERS = (2, 1, 0)  # (nb, nf, nk) of the map input: B_m/F_m normalised to G_m(1) = 1 (ident.hammerstein)

@@ -65,9 +65,26 @@ def knots(lo: float, hi: float, segments: int = SEGMENTS) -> np.ndarray:
 
 
 def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """B-spline basis values (N × K) at x, clamped into the knots' base interval [t[DEGREE], t[-DEGREE-1]]."""
-    lo, hi = t[DEGREE], t[-DEGREE - 1]
-    return BSpline.design_matrix(np.clip(x, lo, hi), t, DEGREE).toarray()
+    """B-spline basis values (N × K) at x, clamped into the knots' base interval [t[DEGREE], t[-DEGREE-1]].
+
+    On equally spaced knots (`knots`, spacing h) the cubic B-splines non-zero on the j-th interval of the base,
+    [t[3 + j], t[4 + j]], are B_j … B_j+3, at the position u = (x − t[3 + j])/h ∈ [0, 1] in it (de Boor 1978)
+
+        B_j = v³/6,  B_j+1 = (3u²(u − 2) + 4)/6,  B_j+2 = (3v²(v − 2) + 4)/6,  B_j+3 = u³/6,   v = 1 − u."""
+    x = np.asarray(x, float).ravel()
+    k = len(t) - DEGREE - 1
+    lo, hi, h = t[DEGREE], t[-DEGREE - 1], (t[-1] - t[0]) / (len(t) - 1)
+    pos = (np.clip(x, lo, hi) - lo) / h
+    j = np.minimum(pos.astype(int), k - DEGREE - 1)
+    u = pos - j
+    v = 1.0 - u
+    out = np.zeros((x.size, k))
+    rows = np.arange(x.size)
+    out[rows, j] = v * v * v / 6.0
+    out[rows, j + 1] = (3.0 * u * u * (u - 2.0) + 4.0) / 6.0
+    out[rows, j + 2] = (3.0 * v * v * (v - 2.0) + 4.0) / 6.0
+    out[rows, j + 3] = u * u * u / 6.0
+    return out
 
 
 def _axis_slope(t: np.ndarray, x: float) -> np.ndarray:

@@ -44,6 +44,7 @@ import dataclasses
 import numpy as np
 
 from fuelid.blas import one_blas_thread
+from fuelid.ident.effects import MAP_COLUMNS
 from fuelid.ident.enginemap import EngineMap, penalised_gram_fit, plane_slopes
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import model_data
@@ -51,8 +52,7 @@ from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, input_responses, residuals, simulate
 
 MAP_EFFECT = "engine_map"
-MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN = (f"{MAP_EFFECT}: {name}" for name in
-                                            ("map beyond the plane", "torque rise", "torque rise x map fuel"))
+MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN = (f"{MAP_EFFECT}: {name}" for name in MAP_COLUMNS)
 JOINT_ROUNDS = 4
 JOINT_MAX_ITER = 30  # PEM iterations in each round's step (b), warm-started from the round before
 FINAL_MAX_ITER = 100  # the kept round's step (b) continued to this limit when it stopped at JOINT_MAX_ITER

@@ -29,6 +29,14 @@ Every closed bin once the estimator runs gives records for the daemon to write (
                        ident.rpem.Trace (−1 no state, 0 no update, 1 updated, 2 shrunk step, 3 rejected)
     /ident/parameters  {t, names, theta, dc_gain, fuel_change_pct, fuel_change_ci95_pct, lam, trace_P, dtheta,
                         fit_prediction_pct, fit_simulation_pct, updates, noise_variance}   every parameters_every_s
+    /ident/engine_map  {t, map_fuel, map_beyond_plane, torque_rise, torque_rise_x_map_fuel, fuel_unit, rise_unit}
+                       an engine model's map inputs (below), every bin: the map's fuel s(n, T) and its part
+                       beyond the plane [fuel_unit], the torque rise r and r·s/f_scale [rise_unit: kNm/s or 100 %/s]
+
+An engine model (a prior with the `engine_map` effect: ident.hammerstein) runs with its map fixed: each bin's map
+inputs are computed from its speed and torque by the definition the offline model uses (ident.effects:
+`engine_map_columns`, the torque rise `torque_rise` a backward difference on the held torque, so it needs no later
+sample), and only the dynamics' parameters (or the common fuel gain) adapt.
 
 dc_gain G_i(1) = B_i(1)/F_i(1) [output unit per input unit]; fuel_change_pct how much the steady-state fuel
 at the mean operating point has moved since the prior, 100 (Σ_i G_i(1) ū_i / Σ_i G⁰_i(1) ū_i − 1) with ū the
@@ -71,8 +79,13 @@ PARAMETERS_SCHEMA = {"type": "object", "properties": {
     "lam": {"type": "number"}, "trace_P": {"type": "number"}, "dtheta": {"type": "number"},
     "fit_prediction_pct": {"type": ["number", "null"]}, "fit_simulation_pct": {"type": ["number", "null"]},
     "updates": {"type": "integer"}, "noise_variance": {"type": ["number", "null"]}}}
+ENGINE_MAP_SCHEMA = {"type": "object", "properties": {
+    "t": {"type": "number"}, "map_fuel": {"type": ["number", "null"]},
+    "map_beyond_plane": {"type": ["number", "null"]}, "torque_rise": {"type": ["number", "null"]},
+    "torque_rise_x_map_fuel": {"type": ["number", "null"]}, "fuel_unit": {"type": "string"},
+    "rise_unit": {"type": "string"}}}
 SCHEMAS = {"/ident/prediction": PREDICTION_SCHEMA, "/ident/residual": RESIDUAL_SCHEMA,
-           "/ident/parameters": PARAMETERS_SCHEMA}
+           "/ident/parameters": PARAMETERS_SCHEMA, "/ident/engine_map": ENGINE_MAP_SCHEMA}
 
 
 def _num(x):
@@ -122,22 +135,20 @@ def fuel_scale(y0: float) -> float:
     return y0 if y0 > 0 else 1.0
 
 
-RECORDED_EFFECTS = {"engine_map": 3}  # effects `fuelid online` runs over recorded files: id -> its input columns
+ONLINE_EFFECTS = {"engine_map": 3}  # effects the online estimators run: id -> its input columns
 
 
-def check_online(structure: Structure, effects=(), source: str | None = None, recorded: bool = False) -> None:
-    """FuelidError unless the online estimators can run a model of this structure and these effects: BJ/OE orders
-    (na = 0) of engine speed and torque, no effect inputs; over recorded files (`recorded`, `fuelid online`) also
-    the engine model, its map fixed and its inputs computed from speed and torque like the others
-    (RECORDED_EFFECTS; the daemon's estimator has speed and torque only); source (a file name) starts the message."""
+def check_online(structure: Structure, effects=(), source: str | None = None) -> None:
+    """FuelidError unless the online estimators (the daemon's, `fuelid online`) can run a model of this structure
+    and these effects: BJ/OE orders (na = 0) of engine speed and torque, and the engine model, its map fixed and its
+    inputs computed from speed and torque sample by sample (ONLINE_EFFECTS); no other effect inputs. source (a file
+    name) starts the message."""
     where = f"{source}: " if source else ""
-    unsupported = [e for e in effects if not (recorded and e in RECORDED_EFFECTS)]
+    unsupported = [e for e in effects if e not in ONLINE_EFFECTS]
     if unsupported:
         raise FuelidError(f"{where}the model includes effects {unsupported}; the online estimator has speed and "
-                          "torque only" + ("" if recorded else " (`fuelid online` over recorded files also runs "
-                                                              "an engine model; in the daemon give a linear model, "
-                                                              "`fuelid identify --model linear`)"))
-    extra = sum(RECORDED_EFFECTS[e] for e in effects)
+                          "torque only (and the engine map computed from them)")
+    extra = sum(ONLINE_EFFECTS[e] for e in effects)
     if structure.na or structure.n_inputs != 2 + extra:
         raise FuelidError(f"{where}the online estimator takes BJ/OE orders for engine speed and torque (na = 0)")
 
@@ -168,6 +179,8 @@ class LiveEstimator:
     fuel            'lfe1' (LFE1.EngFuelRate, L/h) or 'flowmeter' (flow_kg_h, kg/h)
     names           parameter names for /ident/parameters (default θ0, θ1, …)
     speed           the records arrive `speed` times faster than recorded (a sped-up replay)
+    engine_map      the engine model's map (ident.enginemap.EngineMap) whose inputs follow speed and torque
+                    (module docstring; `from_model` takes it from the model), or None
     idle_rpm, idle_tol_rpm, idle_min_s   the idle operating point from scratch [rpm], [rpm], [s]
     """
 
@@ -176,7 +189,8 @@ class LiveEstimator:
     def __init__(self, estimator=None, *, start=None, Ts: float | None = None, torque_unit: str = "Nm",
                  fuel: str = "lfe1", engine_sa: int = 0, names=None, snapshot_path=None,
                  snapshot_every_s: float = 600.0, parameters_every_s: float = 10.0, max_gap_s: float = 1.0,
-                 speed: float = 1.0, idle_rpm: float = 600.0, idle_tol_rpm: float = 50.0, idle_min_s: float = 3.0):
+                 speed: float = 1.0, idle_rpm: float = 600.0, idle_tol_rpm: float = 50.0, idle_min_s: float = 3.0,
+                 engine_map=None):
         if torque_unit not in ("Nm", "%") or fuel not in ("lfe1", "flowmeter"):
             raise ValueError("torque_unit must be 'Nm' or '%', fuel 'lfe1' or 'flowmeter'")
         if (estimator is None) == (start is None) or (start is not None and Ts is None):
@@ -206,6 +220,8 @@ class LiveEstimator:
         self._counts = np.zeros(3)
         self._last_data_t = -math.inf
         self._next_parameters = self._next_snapshot = None
+        self.engine_map = engine_map
+        self._torque_held = math.nan  # the last finite torque of this stretch (the torque rise's previous sample)
 
     @classmethod
     def from_model(cls, model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
@@ -218,8 +234,12 @@ class LiveEstimator:
         ident.kalman.ParameterKalman)."""
         est = prior_estimator(model, method=method, forgetting=forgetting, drift=drift, adapt=adapt)
         fuel = "flowmeter" if model.output_unit == "kg/h" else "lfe1"
+        emap = None
+        if "engine_map" in model.effects:  # SciPy (the map's splines) only for an engine model
+            from fuelid.ident.enginemap import EngineMap
+            emap = EngineMap.from_dict(model.info["effect_parameters"]["engine_map"])
         return cls(est, torque_unit=model.input_units[1] or "Nm", fuel=fuel,
-                   names=parameter_names(model.structure), **kwargs)
+                   names=parameter_names(model.structure), engine_map=emap, **kwargs)
 
     @classmethod
     def from_scratch(cls, structure, Ts: float = 0.3, *, forgetting: float | None = None, **kwargs):
@@ -235,7 +255,7 @@ class LiveEstimator:
     def prepare(self) -> None:
         """Load the estimator's compiled loop now (seconds on a first run), not with the first bin."""
         est = self.est or self._start(np.zeros(2), 0.0, np.ones(2))
-        est.update(np.empty((0, 2)), np.empty(0))
+        est.update(np.empty((0, est.structure.n_inputs)), np.empty(0))
 
     def feed(self, topic: str, t: float, record: dict) -> list[tuple[str, float, dict]]:
         """One decoded record received at t [s]; returns the /ident/* records of the bins it closed."""
@@ -267,6 +287,7 @@ class LiveEstimator:
         if self.est is not None:
             self.est.reset()
         self._idle_bins.clear()
+        self._torque_held = math.nan
 
     def _values(self, topic, record) -> list[tuple[int, float]]:
         """[(channel, value)] of a record: 0 speed [rpm], 1 torque [%], 2 fuel; EC1 sets the reference torque."""
@@ -297,15 +318,20 @@ class LiveEstimator:
         u = np.array([speed, torque])
         if self.est is None and not self._watch_idle(u, fuel):
             return []
+        t = (self._t0_ns + (k + 1) * self._step_ns) * 1e-9
+        out = []
+        if self.engine_map is not None:
+            map_inputs = self._map_inputs(speed, torque)
+            u = np.r_[u, map_inputs[1:]]
+            out.append(("/ident/engine_map", t, self._map_record(t, map_inputs)))
         trace = self.est.update(u[None, :], np.array([fuel]))
         if np.isfinite(u).all():
             self._du_sum = self._du_sum + (u - self.est.u0)
             self._du_n += 1
-        t = (self._t0_ns + (k + 1) * self._step_ns) * 1e-9
-        out = [("/ident/prediction", t, {"t": t, "predicted": _num(trace.yhat[0]), "simulated": _num(trace.ysim[0]),
-                                         "measured": _num(fuel), "unit": self.unit}),
-               ("/ident/residual", t, {"t": t, "eps": _num(trace.eps[0]), "status": int(trace.status[0]),
-                                       "unit": self.unit})]
+        out += [("/ident/prediction", t, {"t": t, "predicted": _num(trace.yhat[0]), "simulated": _num(trace.ysim[0]),
+                                          "measured": _num(fuel), "unit": self.unit}),
+                ("/ident/residual", t, {"t": t, "eps": _num(trace.eps[0]), "status": int(trace.status[0]),
+                                        "unit": self.unit})]
         if t >= self._next_parameters:
             self._next_parameters = t + self.parameters_every_s
             out.append(("/ident/parameters", t, self.parameters(t, float(trace.dtheta[0]))))
@@ -313,6 +339,25 @@ class LiveEstimator:
             self._next_snapshot = t + self.snapshot_every_s
             self.snapshot()
         return out
+
+    def _map_inputs(self, speed: float, torque: float) -> np.ndarray:
+        """[s(n, T), m(n, T), r, r·s/f_scale] of this bin: the map's fuel and its input columns (ident.effects'
+        engine_map_columns; the torque rise from the last finite torque of this stretch, Ts before)."""
+        from fuelid.ident.effects import engine_map_columns, torque_rise  # with the map (SciPy)
+
+        rise = torque_rise(np.array([self._torque_held, torque]), np.array([0.0, self.Ts]), self.torque_unit)[1:]
+        if math.isfinite(torque):
+            self._torque_held = torque
+        cols = engine_map_columns(self.engine_map, np.array([speed]), np.array([torque]), rise)[0]
+        return np.r_[cols[0] + self.engine_map.plane_at(speed, torque), cols]
+
+    def _map_record(self, t: float, x: np.ndarray) -> dict:
+        """The /ident/engine_map record of `_map_inputs` x."""
+        from fuelid.ident.effects import map_column_units
+
+        fuel_unit, rise_unit, _ = map_column_units(self.torque_unit, self.unit)
+        return {"t": t, "map_fuel": _num(x[0]), "map_beyond_plane": _num(x[1]), "torque_rise": _num(x[2]),
+                "torque_rise_x_map_fuel": _num(x[3]), "fuel_unit": fuel_unit, "rise_unit": rise_unit}
 
     def _watch_idle(self, u, fuel) -> bool:
         """From scratch: collect a lasting idle stretch; start the estimator at its mean. True once started."""
