@@ -1,7 +1,8 @@
 """Per-truck identification jobs and fleet-wide refits on Dask.
 
-`identify_truck` is one job: the truck's MCAP files → dataset (ident.dataset) → Box-Jenkins model by PEM through
-`fuelid identify`'s own code path (ident.identify.identify_model) → diagnosis (ident.diagnosis.diagnose) →
+`identify_truck` is one job: the truck's MCAP files → dataset (ident.dataset) → the model `fuelid identify` builds by
+default, through its own code path (ident.modelchoice.identify_chosen: the engine model, the engine's map under the
+paper's Box-Jenkins dynamics, when it simulates held-out blocks better, else the paper's linear model) → diagnosis (ident.diagnosis.diagnose) →
 model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
@@ -41,7 +42,8 @@ from fuelid.errors import FuelidError
 from fuelid.fleet import effectlist
 from fuelid.ident.dataset import Dataset, build_dataset
 from fuelid.ident.diagnosis import diagnose, effects_to_add
-from fuelid.ident.identify import identify_model
+from fuelid.ident.identify import MIN_SEGMENT_S
+from fuelid.ident.modelchoice import ModelKind, identify_chosen
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parse_orders
 from fuelid.ident.report import write_report
@@ -142,14 +144,17 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
                 ds = build_dataset(paths)
             lap("dataset")
             previous = load_model(previous_model) if previous_model else None
-            model = identify_model(ds, structure, files=names, init=previous)
+            # the model `fuelid identify` builds: the engine model when it simulates held-out blocks better
+            model = identify_chosen(ds, structure, min_segment_s=MIN_SEGMENT_S, files=names, init=previous)
             lap("identify")
             sample = diagnosis_sample(ds)
             found = diagnose(model, sample)
             lap("diagnose")
             diagnosis = found.to_json()
             effects = effects_to_add(diagnosis)
-            stored = identify_model(ds, structure, effects, files=names, init=previous, base=model) if effects else model
+            kind = ModelKind(model.info["model_choice"]["chosen"])
+            stored = identify_chosen(ds, structure, effects, kind=kind, min_segment_s=MIN_SEGMENT_S, files=names,
+                                     init=previous, base=model) if effects else model
             lap("identify with effects")
         except FuelidError as exc:
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None

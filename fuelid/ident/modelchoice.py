@@ -154,23 +154,24 @@ def engine_model(ds, structure: Structure, effects, linear: PolyModel, *, min_se
 
 
 def identify_chosen(ds, structure: Structure, effects=(), *, kind: ModelKind = ModelKind.AUTO,
-                    min_segment_s: float, files=(), defined=()) -> PolyModel:
+                    min_segment_s: float, files=(), defined=(), init: PolyModel | None = None,
+                    base: PolyModel | None = None) -> PolyModel:
     """The model `fuelid identify --model KIND` writes (module docstring), its info["model_choice"] the decision
     (`ModelChoice.to_json`). effects: the other effects asked for (engine_map among them asks for the engine model;
-    InputError with kind LINEAR)."""
+    InputError with kind LINEAR). init, base: as ident.identify.identify_model's, for the linear model on all of ds
+    (e.g. a truck's previous model to start from; ignored when of another structure)."""
     if MAP_EFFECT in effects:
         if kind is ModelKind.LINEAR:
             raise InputError("--effect engine_map asks for the engine model, --model linear for the linear one")
         kind = ModelKind.ENGINE
     effects = [e for e in effects if e != MAP_EFFECT]
     fit = dict(min_segment_s=min_segment_s, files=files, defined=defined)
+    linear = identify_model(ds, structure, effects, init=init, base=base, **fit)
     if kind is ModelKind.LINEAR:
-        return _chosen(identify_model(ds, structure, effects, **fit), ModelChoice(kind, kind, Reason.ASKED))
+        return _chosen(linear, ModelChoice(kind, kind, Reason.ASKED))
     if kind is ModelKind.ENGINE:
-        linear = identify_model(ds, structure, effects, **fit)
         return _chosen(engine_model(ds, structure, effects, linear, **fit), ModelChoice(kind, kind, Reason.ASKED))
     masks = blocks(ds, min_segment_s)
-    linear = identify_model(ds, structure, effects, **fit)
     if not masks:
         return _chosen(linear, ModelChoice(ModelKind.LINEAR, kind, Reason.TOO_SHORT))
     fitted_on = _on(ds, np.any(masks[0::2], axis=0))

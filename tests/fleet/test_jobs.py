@@ -144,3 +144,26 @@ def test_the_diagnosis_sample_is_whole_cycles_evenly_spaced_and_bounded():
     assert len(sample.t) == 6 * 6000 and np.array_equal(sample.extra["ET1.EngCoolantTemp"], sample.t)
     assert len(sample.segments()) == 6  # the gaps between the cycles split the data
     assert diagnosis_sample(ds, hours=12.0) is ds
+
+
+def test_a_truck_with_a_curved_map_gets_the_engine_model_and_its_steady_fuel_is_the_measured_one(tmp_path):
+    """A truck with a VECTO engine map: the job builds the model `fuelid identify` builds by default, the engine
+    model (its held-out choice), and the fleet's steady-state fuel at the default reference points (fleet.drift)
+    is within 15 % of the fuel measured within 100 rpm and 150 N·m of each (3.6, 0.5 and 6.4 % on this trip)."""
+    from fuelid.fleet.drift import DEFAULT_POINTS, steady_fuel
+    from fuelid.ident.dataset import build_dataset
+    from fuelid.sim.trip import TripConfig, simulate, write
+
+    log, mcap = tmp_path / "map.log.gz", tmp_path / "map.mcap"
+    write(simulate(TripConfig(truth="map", duration_s=1800, seed=1)), log)
+    assert main(["convert", str(log), "-o", str(mcap), "--json"]) == 0
+    res = identify_truck("map", [str(mcap)], str(tmp_path / "job"))
+    model = load_model(res["model_path"])
+    assert model.effects[0] == "engine_map" and model.info["model_choice"]["chosen"] == "engine"
+    ds = build_dataset([str(mcap)])
+    steady = steady_fuel(model, DEFAULT_POINTS).per_point
+    for point, fuel in zip(DEFAULT_POINTS, steady):
+        near = ds.valid & (np.abs(ds.u[:, 0] - point.speed_rpm) < 100) & (np.abs(ds.u[:, 1] - point.torque) < 150)
+        assert near.sum() > 50, point
+        measured = np.nanmean(ds.y[near])
+        assert abs(fuel / measured - 1) < 0.15, (str(point), fuel, measured)
