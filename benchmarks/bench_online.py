@@ -11,6 +11,14 @@ Data: the appendix diesel model (tests/ident/synthetic.py, noise std 0.5 L/h) on
 Rates are samples processed per second of wall time on one core (the process is pinned to CPU 0 where possible);
 the goal is ≥ 50,000 samples/s (a week at Ts = 0.3 s, 2.0 M samples, in under a minute). The simulated fit of
 each final model on the window is printed for comparison.
+
+The engine model (--engine-samples, 0 skips): identified (`--model engine`, the paper's orders) on a synthetic
+Hammerstein trip (tests/ident/engine_data.py), then run online from it as the daemon runs a prior:
+  engine gain    ident.kalman.GainTracker (RPEM, λ = 0.9995) over its inputs, the map's columns computed at once
+  engine rpem    ident.rpem.RPEM adapting every parameter, likewise
+  daemon path    ident.live.LiveEstimator.feed over decoded records (three EEC1 and one LFE1 per 0.3 s bin): the
+                 bins' resampling, the map's columns computed bin by bin, the gain tracker, the /ident/* records;
+                 per bin, beside the same path for the paper's linear model
 """
 import argparse
 import os
@@ -35,6 +43,7 @@ def main():
     ap.add_argument("--samples", type=int, default=200_000)
     ap.add_argument("--window-samples", type=int, default=20_000)
     ap.add_argument("--refit-every", type=int, default=1000)
+    ap.add_argument("--engine-samples", type=int, default=20_000)
     args = ap.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {0})
@@ -78,6 +87,55 @@ def main():
           f"{2.016e6 / rate_rpem:.0f} s; goal >= 50,000 samples/s: {'met' if rate_rpem >= 50_000 else 'NOT met'}")
     print(f"simulated fit on the {n_w}-sample window: rpem {fit_percent(yw, simulate(est_w.model(), uw)):.2f} %, "
           f"pem {fit_percent(yw, simulate(model, uw)):.2f} %")
+    if args.engine_samples:
+        engine_rates(args.engine_samples, rate_rpem)
+
+
+def records(ds, ref_nm: float = 2000.0):
+    """Decoded records (topic, receive time [s], record) of dataset ds: EC1, then per bin three EEC1 and one LFE1."""
+    yield "/j1939/EC1", 0.0, {"sa": 0, "EngReferenceTorque": ref_nm}
+    for k in range(len(ds)):
+        t = 0.01 + k * ds.Ts
+        for j in range(3):
+            yield "/j1939/EEC1", t + j * 0.1, {"sa": 0, "EngSpeed": float(ds.u[k, 0]),
+                                               "ActualEngPercentTorque": float(ds.u[k, 1] / ref_nm * 100.0)}
+        yield "/j1939/LFE1", t + 0.05, {"sa": 0, "EngFuelRate": float(ds.y[k])}
+
+
+def engine_rates(n: int, rate_rpem: float) -> None:
+    """The engine model's online rates (module docstring) [samples/s], and the ratio to the linear RPEM's."""
+    from fuelid.ident.identify import MIN_SEGMENT_S
+    from fuelid.ident.kalman import GainTracker
+    from fuelid.ident.live import LiveEstimator
+    from fuelid.ident.modelchoice import ModelKind, identify_chosen
+    from fuelid.ident.modeldata import model_data
+    from fuelid.ident.polymodel import Structure, parse_orders
+    from tests.ident.engine_data import trip
+
+    structure = Structure(**parse_orders("paper"))
+    engine = identify_chosen(trip(n=12000, seed=0), structure, kind=ModelKind.ENGINE, min_segment_s=MIN_SEGMENT_S)
+    linear = identify_chosen(trip(n=12000, seed=0), structure, kind=ModelKind.LINEAR, min_segment_s=MIN_SEGMENT_S)
+    ds = trip(n=n, seed=1)
+    u, y = model_data(engine, ds)
+    rates = {}
+    for name, make in (("engine gain (compiled, one pass)", lambda: GainTracker(engine, lam=0.9995)),
+                       ("engine rpem (compiled, one pass)", lambda: RPEM(prior=engine, lam=0.9995))):
+        make().update(u[:100], y[:100])  # JIT compile
+        est = make()
+        t = time.perf_counter()
+        est.update(u, y)
+        rates[name] = n / (time.perf_counter() - t)
+    recs = list(records(ds))
+    for name, model in (("daemon path, engine model (per bin)", engine), ("daemon path, linear model (per bin)", linear)):
+        live = LiveEstimator.from_model(model, forgetting=0.9995)
+        live.prepare()
+        t = time.perf_counter()
+        for topic, t_rec, rec in recs:
+            live.feed(topic, t_rec, rec)
+        rates[name] = n / (time.perf_counter() - t)
+    print(f"engine model: {engine.structure.n_params} parameters ({len(engine.B)} inputs), {n} samples")
+    for name, rate in rates.items():
+        print(f"{name:<44} {rate:>12,.0f} {rate / rate_rpem:>8.2f}")
 
 
 if __name__ == "__main__":

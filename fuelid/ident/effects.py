@@ -263,7 +263,7 @@ def torque_rise(T, t, torque_unit: str) -> np.ndarray:
     T = held(T)
     r = np.zeros_like(T)
     r[1:] = np.diff(T) / np.diff(np.asarray(t, float))
-    return np.maximum(np.nan_to_num(r), 0.0) / torque_scale(torque_unit)[0]
+    return np.fmax(r, 0.0) / torque_scale(torque_unit)[0]  # fmax: 0 where r is NaN (a torque never known)
 
 
 def engine_map_columns(emap: EngineMap, n, T, rise) -> np.ndarray:

@@ -65,7 +65,8 @@ def knots(lo: float, hi: float, segments: int = SEGMENTS) -> np.ndarray:
 
 
 def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """B-spline basis values (N × K) at x, clamped into the knots' base interval [t[DEGREE], t[-DEGREE-1]].
+    """B-spline basis values (N × K) at x, clamped into the knots' base interval [t[DEGREE], t[-DEGREE-1]] (NaN taken
+    as its lower end).
 
     On equally spaced knots (`knots`, spacing h) the cubic B-splines non-zero on the j-th interval of the base,
     [t[3 + j], t[4 + j]], are B_j … B_j+3, at the position u = (x − t[3 + j])/h ∈ [0, 1] in it (de Boor 1978)
@@ -74,7 +75,7 @@ def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     x = np.asarray(x, float).ravel()
     k = len(t) - DEGREE - 1
     lo, hi, h = t[DEGREE], t[-DEGREE - 1], (t[-1] - t[0]) / (len(t) - 1)
-    pos = (np.clip(x, lo, hi) - lo) / h
+    pos = (np.clip(np.where(np.isnan(x), lo, x), lo, hi) - lo) / h
     j = np.minimum(pos.astype(int), k - DEGREE - 1)
     u = pos - j
     v = 1.0 - u
@@ -151,8 +152,8 @@ class EngineMap:
         """(B_i(n) N × kn, C_j(T) N × kt, fuelled N): the axes' basis values with the extrapolation of the module
         docstring (speed clamped, torque clamped below T_lo, linear above T_hi) and whether T > CUT_TORQUE."""
         n, T = np.broadcast_arrays(np.asarray(n, float).ravel(), np.asarray(T, float).ravel())
-        bn = _axis(self.speed_knots, np.nan_to_num(n))
-        bt = _axis(self.torque_knots, np.nan_to_num(T))
+        bn = _axis(self.speed_knots, n)
+        bt = _axis(self.torque_knots, T)
         t_hi = self.torque_range[1]
         above = T > t_hi
         if above.any():
