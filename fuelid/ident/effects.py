@@ -231,7 +231,7 @@ def _engine_map(ds, fitted: dict | None = None):
     plane, x_map = m(n, T) [fuel unit] (ident.enginemap; `fitted` its to_dict, fitted on ds by `static_engine_map`
     when not given), through one transfer function of unit static gain (ident.hammerstein); and its transient
     fuelling, the extra fuel while the torque builds up faster than the turbocharger's boost: the torque's rise
-    r = max(dT/dt, 0) (`torque_rise`: a backward difference, causal) and r·f/f_scale (the surcharge grows with the
+    r = max(dT/dt, 0) (`torque_rise`) and r·f/f_scale (the surcharge grows with the
     fuel the map gives, f = s(n, T))."""
     emap = EngineMap.from_dict(fitted if fitted is not None else static_engine_map(ds))
     n, T = ds.u[:, 0], ds.u[:, 1]
@@ -256,14 +256,11 @@ def torque_scale(torque_unit: str) -> tuple[float, str]:
 
 
 def torque_rise(T, t, torque_unit: str) -> np.ndarray:
-    """The torque's rise r_k = max((T_k − T_{k−1}) / (t_k − t_{k−1}), 0) / scale [kNm/s or 100 %/s] of the torque T
-    held across missing samples (`held`), at sample times t [s]; r_0 = 0. A backward difference: causal, so the
-    online estimator computes the same column sample by sample (ident.live); the model's dynamics absorb its half
-    sample of delay against a central difference."""
-    T = held(T)
-    r = np.zeros_like(T)
-    r[1:] = np.diff(T) / np.diff(np.asarray(t, float))
-    return np.fmax(r, 0.0) / torque_scale(torque_unit)[0]  # fmax: 0 where r is NaN (a torque never known)
+    """The torque's rise r = max(dT/dt, 0) / scale [kNm/s or 100 %/s] of the torque T held across missing samples
+    (`held`: a gradient would spread a missing sample to its neighbours), at sample times t [s], by central
+    differences (`rate`; one-sided at the ends). r at sample k needs sample k + 1: the online estimator computes it
+    one sample late (ident.live)."""
+    return np.fmax(rate(held(T), t), 0.0) / torque_scale(torque_unit)[0]  # fmax: 0 where a torque is never known
 
 
 def engine_map_columns(emap: EngineMap, n, T, rise) -> np.ndarray:

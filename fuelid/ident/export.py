@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 
-from fuelid.ident.effects import torque_scale
 from fuelid.ident.enginemap import CUT_TORQUE
 from fuelid.ident.hammerstein import engine_map_of
 from fuelid.ident.polymodel import PolyModel, parameter_names
@@ -127,7 +126,7 @@ def _hammerstein_lines(model: PolyModel) -> list[str]:
         return []
     emap = engine_map_of(model)
     units = f"[{_printable(emap.speed_unit)}] x [{_printable(emap.torque_unit)}] -> [{_printable(emap.fuel_unit)}]"
-    scale = torque_scale(emap.torque_unit)[0]
+    scale = 1000.0 if emap.torque_unit == "Nm" else 100.0
     return [
         "% --- Hammerstein block (idnlhw's input nonlinearity): the engine's static fuel map s(n, T), " + units,
         "% as a tensor-product cubic B-spline (Curve Fitting Toolbox: sp = spmak({map_speed_knots, map_torque_knots},"
@@ -146,12 +145,11 @@ def _hammerstein_lines(model: PolyModel) -> list[str]:
         f"map_cut_torque = {_num(g['map_cut_torque'])};  % at or below this torque the fuel is cut: s = 0",
         "map = griddedInterpolant({map_speed, map_torque}, map_fuel, 'spline', 'nearest');",
         "map_s = @(n, T) (T > map_cut_torque) .* max(map(n, T), 0);",
-        "% the torque's rise: a backward difference of the torque held over missing samples, 0 at the first",
-        f"torque_rise = @(T) max([0; diff(fillmissing(T, 'previous'))] / Ts, 0) / {_num(scale)};",
         "% the engine map's input columns, u = [n, T, engine_inputs(n, T), ...] (column vectors, Ts apart):",
         "engine_inputs = @(n, T) [map_s(n, T) - (map_plane(1) + map_plane(2) * (n - map_operating_point(1)) "
         "+ map_plane(3) * (T - map_operating_point(2))), ...",
-        f"    torque_rise(T), torque_rise(T) .* map_s(n, T) / map_fuel_scale];",
+        f"    max(gradient(T, Ts), 0) / {_num(scale)}, max(gradient(T, Ts), 0) / {_num(scale)} .* map_s(n, T) "
+        "/ map_fuel_scale];",
     ]
 
 

@@ -35,8 +35,9 @@ Every closed bin once the estimator runs gives records for the daemon to write (
 
 An engine model (a prior with the `engine_map` effect: ident.hammerstein) runs with its map fixed: each bin's map
 inputs are computed from its speed and torque by the definition the offline model uses (ident.effects:
-`engine_map_columns`, the torque rise `torque_rise` a backward difference on the held torque, so it needs no later
-sample), and only the dynamics' parameters (or the common fuel gain) adapt.
+`engine_map_columns`; the torque rise `torque_rise`, a central difference on the held torque, needs the next bin's
+torque, so each bin runs and its records are written when the next one closes, 0.3 s later), and only the
+dynamics' parameters (or the common fuel gain) adapt.
 
 dc_gain G_i(1) = B_i(1)/F_i(1) [output unit per input unit]; fuel_change_pct how much the steady-state fuel
 at the mean operating point has moved since the prior, 100 (Σ_i G_i(1) ū_i / Σ_i G⁰_i(1) ū_i − 1) with ū the
@@ -221,7 +222,8 @@ class LiveEstimator:
         self._last_data_t = -math.inf
         self._next_parameters = self._next_snapshot = None
         self.engine_map = engine_map
-        self._torque_held = math.nan  # the last finite torque of this stretch (the torque rise's previous sample)
+        self._torque_held = math.nan  # the last finite torque of this stretch before the pending bin
+        self._pending = None  # an engine model's bin (k, [speed, torque], fuel) waiting for the next one
 
     @classmethod
     def from_model(cls, model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
@@ -271,6 +273,7 @@ class LiveEstimator:
         if k > self._bin:
             out += self._close(self._bin)
             if t - self._last_data_t > self._max_gap:  # silence: no bins in between, filters restart
+                out += self._flush()
                 self._restart()
             else:
                 for empty in range(self._bin + 1, k):
@@ -318,12 +321,31 @@ class LiveEstimator:
         u = np.array([speed, torque])
         if self.est is None and not self._watch_idle(u, fuel):
             return []
+        if self.engine_map is None:
+            return self._run(k, u, fuel)
+        # an engine model: the torque rise of bin k needs bin k + 1's torque, so bin k runs when k + 1 closes
+        out = [] if self._pending is None else self._run_engine(*self._pending, torque)
+        self._pending = (k, u, fuel)
+        return out
+
+    def _flush(self) -> list[tuple[str, float, dict]]:
+        """Run an engine model's pending bin, the last of its stretch (its torque rise one-sided, as offline)."""
+        out = [] if self._pending is None else self._run_engine(*self._pending, None)
+        self._pending = None
+        return out
+
+    def _run_engine(self, k: int, u: np.ndarray, fuel: float, next_torque: float | None):
+        """Run the estimator on bin k of an engine model, its map inputs from its speed and torque u and the next
+        bin's torque (None: the stretch ends with bin k)."""
+        map_inputs = self._map_inputs(u[0], u[1], next_torque)
+        t = (self._t0_ns + (k + 1) * self._step_ns) * 1e-9
+        return [("/ident/engine_map", t, self._map_record(t, map_inputs))] + self._run(k, np.r_[u, map_inputs[1:]],
+                                                                                         fuel)
+
+    def _run(self, k: int, u: np.ndarray, fuel: float) -> list[tuple[str, float, dict]]:
+        """Run the estimator on bin k (inputs u, fuel) and make its records."""
         t = (self._t0_ns + (k + 1) * self._step_ns) * 1e-9
         out = []
-        if self.engine_map is not None:
-            map_inputs = self._map_inputs(speed, torque)
-            u = np.r_[u, map_inputs[1:]]
-            out.append(("/ident/engine_map", t, self._map_record(t, map_inputs)))
         trace = self.est.update(u[None, :], np.array([fuel]))
         if np.isfinite(u).all():
             self._du_sum = self._du_sum + (u - self.est.u0)
@@ -340,12 +362,14 @@ class LiveEstimator:
             self.snapshot()
         return out
 
-    def _map_inputs(self, speed: float, torque: float) -> np.ndarray:
-        """[s(n, T), m(n, T), r, r·s/f_scale] of this bin: the map's fuel and its input columns (ident.effects'
-        engine_map_columns; the torque rise from the last finite torque of this stretch, Ts before)."""
+    def _map_inputs(self, speed: float, torque: float, next_torque: float | None) -> np.ndarray:
+        """[s(n, T), m(n, T), r, r·s/f_scale] of a bin: the map's fuel and its input columns (ident.effects'
+        engine_map_columns), the torque rise over the last finite torque before the bin and the next bin's
+        (`torque_rise`'s central difference; without a next bin, its one-sided difference at the end)."""
         from fuelid.ident.effects import engine_map_columns, torque_rise  # with the map (SciPy)
 
-        rise = torque_rise(np.array([self._torque_held, torque]), np.array([0.0, self.Ts]), self.torque_unit)[1:]
+        window = [self._torque_held, torque] + ([] if next_torque is None else [next_torque])
+        rise = torque_rise(np.array(window), self.Ts * np.arange(len(window)), self.torque_unit)[1:2]
         if math.isfinite(torque):
             self._torque_held = torque
         cols = engine_map_columns(self.engine_map, np.array([speed]), np.array([torque]), rise)[0]

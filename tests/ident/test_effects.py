@@ -101,11 +101,10 @@ def test_regressors_units_and_physics():
 
 def test_engine_map_is_the_maps_part_beyond_its_plane_and_the_torque_rise():
     """engine_map: x_map = m(n, T), the static map fitted on the data beyond its plane (ident.enginemap), and the
-    transient fuelling's torque rise r = max(ΔT/Δt, 0) [kNm/s] (a backward difference) and r·s(n, T)/f_scale; x_map
-    through B/F with one pole,
+    transient fuelling's torque rise r = max(dT/dt, 0) [kNm/s] and r·s(n, T)/f_scale; x_map through B/F with one pole,
     the rise columns through a first-order lag; a map given (a model's) is the one used."""
     ds = hidden.make(None, n=2000)
-    rise = np.maximum(np.r_[0.0, np.diff(ds.u[:, 1]) / np.diff(ds.t)], 0.0) / 1000.0
+    rise = np.maximum(np.gradient(ds.u[:, 1], ds.t), 0.0) / 1000.0
     reg = fx.EFFECTS["engine_map"].build(ds)
     assert reg.units == ("L/h", "kNm/s", "kNm/s") and reg.names[0] == "map beyond the plane"
     assert reg.orders == (fx.MAP_ORDERS, fx.RISE_ORDERS, fx.RISE_ORDERS)
@@ -123,15 +122,16 @@ def test_engine_map_is_the_maps_part_beyond_its_plane_and_the_torque_rise():
     assert np.allclose(given.x[:, [0, 2]], 0.0) and np.allclose(given.x[:, 1], rise)
 
 
-def test_torque_rise_is_causal_on_the_held_torque():
-    """r_k depends on samples up to k only (the online estimator computes it as they arrive); a missing torque is
-    held, so it rises again only from the last known value; units: kNm/s for N·m, 100 %/s for %."""
+def test_torque_rise_is_the_held_torques_central_difference():
+    """r_k = max((T_k+1 − T_k−1)/(t_k+1 − t_k−1), 0) of the torque held over a missing sample (one-sided at the ends);
+    units: kNm/s for N·m, 100 %/s for %. Sample k needs only samples up to k + 1 (the online estimator runs one
+    sample late)."""
     t = 0.5 * np.arange(6)
     T = np.array([100.0, 300.0, np.nan, 200.0, 700.0, 600.0])
-    assert np.allclose(fx.torque_rise(T, t, "Nm"), [0, 0.4, 0, 0, 1.0, 0])
-    assert np.allclose(fx.torque_rise(T, t, "%"), [0, 4.0, 0, 0, 10.0, 0])
+    assert np.allclose(fx.torque_rise(T, t, "Nm"), [0.4, 0.2, 0, 0.4, 0.4, 0])
+    assert np.allclose(fx.torque_rise(T, t, "%"), [4.0, 2.0, 0, 4.0, 4.0, 0])
     later = T.copy()
-    later[4:] = [0.0, 5000.0]
+    later[5:] = 5000.0
     assert np.array_equal(fx.torque_rise(later, t, "Nm")[:4], fx.torque_rise(T, t, "Nm")[:4])
 
 
