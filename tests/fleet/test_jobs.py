@@ -149,8 +149,8 @@ def test_the_diagnosis_sample_is_whole_cycles_evenly_spaced_and_bounded():
 def test_a_truck_with_a_curved_map_gets_the_engine_model_and_its_steady_fuel_is_the_measured_one(tmp_path):
     """A truck with a VECTO engine map: the job builds the model `fuelid identify` builds by default, the engine
     model (its held-out choice), and the fleet's steady-state fuel at the default reference points (fleet.drift)
-    is within 15 % of the mean fuel measured within 100 rpm and 150 N·m of each (+3.6, +0.5 and +6.4 % on this trip;
-    −1.6 … +15.6 % over the points with more than 50 such samples of four 30-min trips of both VECTO engines)."""
+    is within 15 % of the mean fuel measured within 100 rpm and 150 N·m of each (+2.7, +1.0 and +6.8 % on this trip;
+    −14.0 … +15.1 % at the points with more than 50 such samples of seven 30-min trips of both VECTO engines)."""
     from fuelid.fleet.drift import DEFAULT_POINTS, steady_fuel
     from fuelid.ident.dataset import build_dataset
     from fuelid.sim.trip import TripConfig, simulate, write
