@@ -53,7 +53,7 @@ def converted(engine, tmp_path_factory):
 @pytest.fixture(scope="module")
 def model_path(engine, converted):
     path = converted / "model.json"
-    assert main(["identify", str(converted / f"{SETS[engine].ident}.mcap"), "--orders", "paper", "-o", str(path),
+    assert main(["identify", str(converted / f"{SETS[engine].ident}.mcap"), "--orders", "paper", "--model", "linear", "-o", str(path),
                  "--json"]) == 0
     return path
 

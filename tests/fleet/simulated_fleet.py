@@ -16,6 +16,7 @@ import sqlalchemy as sa
 
 from fuelid.fleet import db
 from fuelid.fleet.storage import BlobStore
+from fuelid.ident.enginemap import fit_map
 from fuelid.ident.modelfile import to_dict
 from fuelid.ident.polymodel import PolyModel
 
@@ -32,20 +33,29 @@ def engine_model(factor: float = 1.0, effects=()) -> PolyModel:
     return m
 
 
-LOAD = "EEC2.EngPercentLoadAtCurrentSpeed"
+def _fitted_map() -> dict:
+    """An engine map (ident.enginemap) of a curved fuel surface [L/h] over 600–1900 rpm × 0–2400 N·m about idle:
+    the model's plane plus 0.5 ñT̃ + 0.3 ñ² + 0.8 T̃² (ñ, T̃ in krpm and kNm)."""
+    rng = np.random.default_rng(7)
+    n, T = rng.uniform(600, 1900, 4000), rng.uniform(0, 2400, 4000)
+    dn, dT = (n - 600.0) / 1000.0, T / 1000.0
+    fuel = 2.0 + 6.0 * dn + 18.0 * dT + 0.5 * dn * dT + 0.3 * dn ** 2 + 0.8 * dT ** 2
+    return fit_map(n, T, fuel, (600.0, 0.0), 2.0, ("rpm", "Nm", "L/h")).to_dict()
+
+
+MAP = _fitted_map()
 
 
 def mapped_model(factor: float = 1.0) -> PolyModel:
-    """engine_model with the engine map: its six engine_map columns (ñ·T̃, ñ², T̃², relative load, torque rise,
-    rise·T̃ in krpm and kNm, static gains only) and the relative load as the truck's data show it,
-    L = 40 %/kNm · T (ident.steady's stored reference)."""
+    """engine_model with the engine map: its three engine_map columns (the map beyond its plane, of static gain
+    `factor`, and the torque rise's two, which are zero at rest) and the fitted map the model carries."""
     base = engine_model(factor)
-    gains = [0.5, 0.3, 0.8, 0.02, 0.0, 0.0]
-    m = PolyModel(A=base.A, B=base.B + [[factor * g] for g in gains], F=base.F + [[1.0]] * 6, C=base.C, D=base.D,
-                  Ts=base.Ts, nk=base.nk + (0,) * 6, input_names=base.input_names + tuple(f"map {k}" for k in range(6)),
-                  input_units=base.input_units + ("1",) * 6, output_name=base.output_name,
-                  output_unit=base.output_unit, u0=base.u0 + (0.0,) * 6, y0=base.y0, effects=("engine_map",),
-                  info={**base.info, "steady_reference": {LOAD: {"surface": [0, 0, 40.0, 0, 0, 0, 0]}}})
+    gains = [1.0, 0.0, 0.0]
+    m = PolyModel(A=base.A, B=base.B + [[factor * g] for g in gains], F=base.F + [[1.0]] * 3, C=base.C, D=base.D,
+                  Ts=base.Ts, nk=base.nk + (0,) * 3, input_names=base.input_names + tuple(f"map {k}" for k in range(3)),
+                  input_units=base.input_units + ("L/h", "kNm/s", "kNm/s"), output_name=base.output_name,
+                  output_unit=base.output_unit, u0=base.u0 + (0.0,) * 3, y0=base.y0, effects=("engine_map",),
+                  info={**base.info, "effect_parameters": {"engine_map": MAP}})
     m.covariance = 1e-10 * np.eye(m.structure.n_params)
     return m
 

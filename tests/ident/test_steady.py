@@ -6,29 +6,47 @@ import pytest
 
 from fuelid.errors import InputError
 from fuelid.ident.dataset import Dataset
-from fuelid.ident.modeldata import model_data
+from fuelid.ident.enginemap import EngineMap, fit_map
 from fuelid.ident.polymodel import PolyModel, from_theta, simulate
-from fuelid.ident.steady import data_reference, steady_fuel
+from fuelid.ident.steady import data_reference, steady_fuel, steady_inputs
 
 LOAD = "EEC2.EngPercentLoadAtCurrentSpeed"
 REGEN = "DPFC1.DPFActiveRegenStatus"
 
 
+def fitted_map() -> dict:
+    """An engine map (ident.enginemap) fitted to a curved fuel surface [L/h] over 600–1900 rpm × 0–2400 N·m about idle
+    (600 rpm, 0 N·m, 2 L/h): 2 + 4 ñ + 20 T̃ + 0.5 ñT̃ + 0.3 ñ² + 0.8 T̃², ñ, T̃ in krpm and kNm."""
+    rng = np.random.default_rng(5)
+    n, T = rng.uniform(600, 1900, 4000), rng.uniform(0, 2400, 4000)
+    dn, dT = (n - 600.0) / 1000.0, T / 1000.0
+    fuel = 2.0 + 4.0 * dn + 20.0 * dT + 0.5 * dn * dT + 0.3 * dn ** 2 + 0.8 * dT ** 2
+    return fit_map(n, T, fuel, (600.0, 0.0), 2.0, ("rpm", "Nm", "L/h")).to_dict()
+
+
+MAP = fitted_map()
+
+
 def map_model(map_gain=1.0, cov_scale=1e-10):
-    """Fuel [L/h] from speed [rpm], torque [N·m], the engine map's six columns (five-tap FIRs, as the effect
-    adds them) and a DPF regeneration's three, about idle (600 rpm, 0 N·m, 2 L/h); the relative load as a
-    truck's data show it, L = 40 %/kNm · T."""
-    fir = [[0.3, 0.3, 0.2, 0.1, 0.1]] * 6
-    mp = np.array([0.5, 0.3, 0.8, 0.02, 0.4, 0.1])[:, None] * map_gain
-    B = [[0, 0.004, 0.002], [0.01, 0.004]] + [list(r) for r in mp * np.array(fir)] + [[3.0], [0.001], [0.002]]
-    F = [[1, -0.5], [1, -0.3]] + [[1.0]] * 6 + [[1, -0.2]] * 3
-    m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 10,
-                  input_units=("rpm", "Nm") + ("1",) * 9, output_unit="L/h", u0=(600.0, 0.0) + (0.0,) * 9, y0=2.0,
-                  effects=("engine_map", "dpf_regeneration"),
-                  info={"steady_reference": {LOAD: {"surface": [0, 0, 40.0, 0, 0, 0, 0]}}})
+    """Fuel [L/h] from speed [rpm], torque [N·m], the engine map's three columns (the map beyond its plane, of unit
+    static gain times map_gain, and the torque rise's two), the engine's relative load as a bus-signal level (what a
+    truck's data show, L = 40 %/kNm · T) and a DPF regeneration's three, about idle (600 rpm, 0 N·m, 2 L/h)."""
+    B = [[0, 0.004, 0.002], [0.01, 0.004], [map_gain], [0.01], [0.001], [0.02], [3.0], [0.001], [0.002]]
+    F = [[1, -0.5], [1, -0.3]] + [[1.0]] * 4 + [[1, -0.2]] * 3
+    m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 8,
+                  input_units=("rpm", "Nm") + ("1",) * 7, output_unit="L/h", u0=(600.0, 0.0) + (0.0,) * 7, y0=2.0,
+                  effects=("engine_map", f"level:{LOAD}", "dpf_regeneration"),
+                  info={"effect_parameters": {"engine_map": MAP},
+                        "steady_reference": {LOAD: {"surface": [0, 0, 40.0, 0, 0, 0, 0]}}})
     n = m.structure.n_params
     m.covariance = cov_scale * (np.eye(n) + 0.3 * np.ones((n, n)))
     return m
+
+
+def settled_simulation(model, speed, torque, n=2000):
+    """The model simulated to rest [L/h] on its inputs held at the point's values (ident.steady.steady_inputs)."""
+    du, _ = steady_inputs(model, speed, torque)
+    return simulate(model, np.tile(np.asarray(model.u0, float) + du, (n, 1)))[-1]
 
 
 def held(model, speed, torque, n=600, **signals):
@@ -42,9 +60,8 @@ def held(model, speed, torque, n=600, **signals):
 @pytest.mark.parametrize("point", [(1000, 600), (1400, 1800), (800, 100)])
 def test_steady_fuel_is_the_settled_simulation_of_the_models_own_inputs(point):
     m = map_model()
-    u, _ = model_data(m, held(m, *point, **{LOAD: 0.04 * point[1], REGEN: 0}))
-    settled = simulate(m, u)[-1]
     s = steady_fuel(m, *point)
+    settled = settled_simulation(m, *point)
     assert s.value == pytest.approx(settled, rel=1e-9) and s.unit == "L/h"
     assert s.reference[REGEN] == "no DPF regeneration" and "data" in s.reference[LOAD]
 
@@ -52,10 +69,8 @@ def test_steady_fuel_is_the_settled_simulation_of_the_models_own_inputs(point):
 def test_the_engine_map_changes_the_steady_state_by_its_static_curvature():
     n, T = 1400.0, 1800.0
     with_map, plane = steady_fuel(map_model(), n, T).value, steady_fuel(map_model(map_gain=0.0), n, T).value
-    dn, dT = (n - 600.0) / 1000.0, T / 1000.0  # krpm, kNm from the operating point
-    load = 0.04 * T / 100.0  # the relative load column [1], 40 %/kNm
-    curvature = 0.5 * dn * dT + 0.3 * dn ** 2 + 0.8 * dT ** 2 + 0.02 * load  # FIR taps sum to 1; no rise when held
-    assert with_map - plane == pytest.approx(curvature / 0.8, rel=1e-9) and curvature > 1.0  # through 1/A(1)
+    curvature = EngineMap.from_dict(MAP).beyond_plane(np.array([n]), np.array([T]))[0]  # no rise when held
+    assert with_map - plane == pytest.approx(curvature / 0.8, rel=1e-9) and abs(curvature) > 0.1  # through 1/A(1)
 
 
 def test_a_regenerating_reference_burns_more():
@@ -87,9 +102,11 @@ def test_data_reference_fits_what_the_point_decides_and_takes_the_median_of_the_
     ds.extra[REGEN] = ds.extra[REGEN].astype(float)
     ref = data_reference(m, ds)
     assert set(ref) == {LOAD} and "surface" in ref[LOAD]  # the regeneration state has its stated reference
-    m.info = {"steady_reference": ref}
-    u, _ = model_data(m, held(m, 1200, 1500, **{LOAD: 100.0 * 1500 / (2600.0 - 360.0), REGEN: 0}))
-    assert steady_fuel(m, 1200, 1500).value == pytest.approx(simulate(m, u)[-1], abs=0.02)
+    m.info = {**m.info, "steady_reference": ref}
+    assert steady_fuel(m, 1200, 1500).value == pytest.approx(settled_simulation(m, 1200, 1500), abs=1e-6)
+    load = 100.0 * 1500 / (2600.0 - 360.0)  # the relative load the data show at the point [%]
+    assert steady_fuel(m, 1200, 1500, reference={LOAD: load}).value == pytest.approx(
+        steady_fuel(m, 1200, 1500).value, abs=0.5)
 
 
 def test_an_effect_on_a_bus_signal_is_held_at_its_reference():
@@ -104,6 +121,8 @@ def test_an_effect_on_a_bus_signal_is_held_at_its_reference():
                       nk=base.nk + (0,) * len(B), input_units=base.input_units + ("1",) * len(B), output_unit="L/h",
                       u0=base.u0 + (0.0,) * len(B), y0=2.0, effects=base.effects + (spec,),
                       info={**base.info, **extra_info,
+                            "effect_parameters": {**base.info["effect_parameters"],
+                                                  **extra_info.get("effect_parameters", {})},
                             "steady_reference": {**base.info["steady_reference"], **extra_info.get("steady_reference", {})}})
         s = steady_fuel(m, 1200, 1200)
         assert s.value - steady_fuel(base, 1200, 1200).value == pytest.approx(expected, abs=1e-9), spec
