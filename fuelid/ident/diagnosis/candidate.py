@@ -28,6 +28,8 @@ class Reason(enum.Enum):
     BUILD_FAILED = "the model could not be identified with it"
     NOT_BUILT = "candidates that explain more used this round's builds"
     SELECTION_STOPPED = "forward selection reached its round limit before re-testing it"
+    DETERMINED_BY_INPUTS = ("engine speed and torque determine its bus signal: what it explains is the engine's own "
+                            "fuelling at its operating point, not a hidden effect")
 
 
 class MapStatus(enum.Enum):

@@ -5,6 +5,8 @@ ident.diagnosis.screening); the significant ones that explain min_effect_percent
 largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the base; of those that pass, the one with
 the largest mean paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a
 generic form of a bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
+on a bus signal that engine speed and torque determine (Settings.min_share_beyond_inputs) is
+NAMED_NOT_RECOMMENDED (DETERMINED_BY_INPUTS) without a build: it can only stand in for the engine's map. A candidate
 that passed the screening (significant and relevant) in an earlier round and no longer does is EXPLAINED_BY the one
 accepted since. The search stops when nothing passes.
 
@@ -50,6 +52,11 @@ def _generic(c: Candidate) -> bool:
     """A generic form of a bus signal (ident.effects.generic_effects: ids FORM:MESSAGE.Signal), whose physics nobody
     stated: of the candidates that pass in one round, a catalogued or engineer-defined one is accepted before it."""
     return ":" in c.effect
+
+
+def _determined(ds, c: Candidate, settings: Settings) -> bool:
+    """Whether engine speed and torque determine the bus signal of generic candidate c (Settings.min_share_beyond_inputs)."""
+    return fx.share_beyond_inputs(ds, c.definition.signals[0]) < settings.min_share_beyond_inputs
 
 
 def _spec(c: Candidate) -> str:
@@ -109,6 +116,9 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 c.decide(Status.NOT_SIGNIFICANT)
             elif not relevant:
                 c.decide(Status.TOO_SMALL)
+            elif _generic(c) and c is not term and _determined(ds, c, settings):
+                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.DETERMINED_BY_INPUTS)
+                pool.remove(c)
             else:
                 passed_before.add(c.effect)
                 eligible.append(c)

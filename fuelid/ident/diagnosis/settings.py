@@ -17,6 +17,12 @@ class Settings:
     """[%] Share of the simulation error a significant candidate's least-squares fit must explain to be built:
     smaller effects are detectable with many samples but not worth an input."""
 
+    min_share_beyond_inputs: float = 0.1
+    """[1] Share of a bus signal's variance a static quadratic map of engine speed and torque must leave
+    (ident.effects.share_beyond_inputs) for its generic forms to be built: below it (a variance inflation factor
+    above 10, as for identifiability) speed and torque determine the signal, and what it explains is the engine's
+    own fuelling at its operating point, not a hidden effect."""
+
     max_builds: int = 3
     """Candidates built per round of forward selection (the screened ones that explain the largest share of
     the simulation error): each build is
