@@ -30,7 +30,7 @@ from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
 from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, compare, refits
 from fuelid.ident.effectfile import effects_of_model
-from fuelid.ident.identify import FitMemo, identify_model
+from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.polymodel import PolyModel, Structure
 
@@ -72,13 +72,17 @@ def _specs(model: PolyModel) -> list[str]:
 
 
 def built(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
-    """The model `fuelid identify` builds on all of ds with the model's effects and `spec` (ident.identify.
-    identify_model: PEM from its initialisation and from the effects added in turn; the fits of earlier builds on
-    these data served by `memo`): the base of the next round once `spec` is accepted."""
-    s = model.structure
-    structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
+    """The base of the next round once `spec` is accepted, on all of ds: for the engine map the model `fuelid
+    identify` builds with it (ident.identify.identify_model: the map and the dynamics jointly); for any other effect
+    the model refitted by PEM from itself with the effect's coefficients at zero (ident.identify.refit_with_effects:
+    V never rises, and the engine map, fixed, is not refitted in every round). The fits of earlier builds on these
+    data are served by `memo`."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
+        if spec != MAP_EFFECT:
+            return refit_with_effects(model, ds, [spec], defined=defined, memo=memo)
+        s = model.structure
+        structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
         return identify_model(ds, structure, _specs(model) + [spec],
                               defined=tuple(effects_of_model(model)) + tuple(defined), memo=memo)
 
