@@ -34,7 +34,10 @@ def test_the_front_door_keeps_the_engine_model_names_the_regeneration_and_the_er
     # and torque determine (EEC2's relative load, EEC1's demand torque) are named but never recommended
     assert result["missing_effects"][0] == "dpf_regeneration", result["verdict"]
     recommended = [c["effect"] for c in result["candidates"] if c.get("recommended")]
-    assert recommended[0] == "dpf_regeneration" and all(":" not in e for e in recommended), result["verdict"]
+    assert recommended[0] == "dpf_regeneration", result["verdict"]
+    determined = [c for c in result["candidates"] if c.get("reason") == "determined_by_inputs"]
+    assert {"level:EEC2.EngPercentLoadAtCurrentSpeed", "level:EEC1.EngDemandPercentTorque"} <= \
+        {c["effect"] for c in determined} and not any(c.get("recommended") for c in determined)
     assert result["model"]["engine_map"]["covered_share"] > 0.2
     assert run_json(capsys, "identify", trip, "--effects-from", diagnosis, "-o", after)["effects"] == \
         ["engine_map", *recommended]

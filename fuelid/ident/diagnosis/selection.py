@@ -72,19 +72,28 @@ def _specs(model: PolyModel) -> list[str]:
 
 
 def built(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
-    """The base of the next round once `spec` is accepted, on all of ds: for the engine map the model `fuelid
-    identify` builds with it (ident.identify.identify_model: the map and the dynamics jointly); for any other effect
-    the model refitted by PEM from itself with the effect's coefficients at zero (ident.identify.refit_with_effects:
-    V never rises, and the engine map, fixed, is not refitted in every round). The fits of earlier builds on these
-    data are served by `memo`."""
+    """The model `fuelid identify` builds on all of ds with the model's effects and `spec` (ident.identify.
+    identify_model: PEM from its initialisation and from the effects added in turn; with the engine map, the map and
+    the dynamics jointly; the fits of earlier builds on these data served by `memo`)."""
+    s = model.structure
+    structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        if spec != MAP_EFFECT:
-            return refit_with_effects(model, ds, [spec], defined=defined, memo=memo)
-        s = model.structure
-        structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
         return identify_model(ds, structure, _specs(model) + [spec],
                               defined=tuple(effects_of_model(model)) + tuple(defined), memo=memo)
+
+
+def refitted(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
+    """The base of the next round once `spec` is accepted, on all of ds: the model refitted by PEM from itself with
+    the effect's coefficients at zero (ident.identify.refit_with_effects)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return refit_with_effects(model, ds, [spec], defined=defined, memo=memo)
+
+
+def _joint(model: PolyModel) -> bool:
+    """Whether the model has a part a PEM refit holds fixed (the engine map, fitted jointly with the dynamics)."""
+    return MAP_EFFECT in {fx.parse_effect(e)[0] for e in model.effects}
 
 
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
@@ -98,6 +107,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     accepted: list[Candidate] = []
     passed_before: set[str] = set()
     scored: dict[str, Scored] = {}  # its refits without each fold
+    candidate_models: dict[str, PolyModel] = {}  # built on all the data as identify builds them (engine-model base)
     memo = FitMemo()  # the builds' PEM fits, shared: the base and the stages of the effects accepted recur
     for rnd in range(1, settings.max_rounds + 1):
         found = screen([c.definition for c in pool], model, ds, run, settings.alpha)
@@ -136,7 +146,11 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 continue
             c.spec = _spec(c)
             try:
-                scored[c.effect] = refits(list(base.models), ds, folds, [c.spec], settings, defined)
+                if c is term or _joint(model):  # the candidate's model as identify builds it, then its fold refits
+                    candidate_models[c.effect] = built(model, ds, c.spec, defined, memo)
+                    scored[c.effect] = refits(candidate_models[c.effect], ds, folds, [], settings, defined)
+                else:  # nested in the base's fold models: each refitted with the candidate's coefficients at zero
+                    scored[c.effect] = refits(list(base.models), ds, folds, [c.spec], settings, defined)
             except BUILD_ERRORS:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
                 if c is not term:
@@ -151,7 +165,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             break
         best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
         try:
-            model = built(model, ds, best.spec, defined, memo)
+            model = candidate_models.get(best.effect) or refitted(model, ds, best.spec, defined, memo)
             run = run_gradients(run_model(model, ds))
         except BUILD_ERRORS:
             best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)

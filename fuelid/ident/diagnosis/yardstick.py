@@ -5,7 +5,8 @@ Folds. With several trips (breaks of the log of at least trip_break_s: other fil
 on one trip, fold k holds the chunks c ≡ k (mod folds) of chunk_s seconds (interleaved: every fit sees every part
 of the trip). Scoring blocks are block_s long. For each fold the base model is refitted by PEM on the other folds'
 samples from itself, and the candidate's model from that fold base with the candidate's coefficients at zero
-(ident.identify.refit_with_effects: a warm start, so the two fits are nested and paired); both are simulated over
+(ident.identify.refit_with_effects: a warm start, so the two fits are nested and paired), or on an engine-model base
+from the candidate's model identified on all the data (ident.diagnosis.selection); both are simulated over
 the whole data from rest, and the simulation errors on the held-out samples, after each segment's first n_start, are summed per block b:
 
     d_b = (SSE_b(base) − SSE_b(with)) / n_b          [(output unit)²], one pair per block,
