@@ -149,7 +149,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 continue
             c.spec = _spec(c)
             try:
-                if c is term or _joint(model):  # the candidate's model as identify builds it, then its fold refits
+                if _joint(model):  # the candidate's model as identify builds it, then its fold refits
                     candidate_models[c.effect] = built(model, ds, c.spec, defined, memo)
                     scored[c.effect] = refits(candidate_models[c.effect], ds, folds, [], settings, defined)
                 else:  # nested in the base's fold models: each refitted with the candidate's coefficients at zero
@@ -168,7 +168,8 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             break
         best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
         try:
-            model = candidate_models.get(best.effect) or refitted(model, ds, best.spec, defined, memo)
+            model = (built(model, ds, best.spec, defined, memo) if best is term
+                     else candidate_models.get(best.effect) or refitted(model, ds, best.spec, defined, memo))
             run = run_gradients(run_model(model, ds))
         except BUILD_ERRORS:
             best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
