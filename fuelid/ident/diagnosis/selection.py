@@ -71,8 +71,8 @@ def _specs(model: PolyModel) -> list[str]:
             for e in model.effects]
 
 
-def built(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
-    """The model `fuelid identify` builds on all of ds with the model's effects and `spec` (ident.identify.
+def built(model: PolyModel, ds, specs: list[str], defined, memo: FitMemo) -> PolyModel:
+    """The model `fuelid identify` builds on all of ds with the model's effects and `specs` (ident.identify.
     identify_model: PEM from the linear model with the effects added in turn; with the engine map, the map and the
     dynamics jointly; the fits of earlier builds on these data, the linear model and the stages the builds share,
     served by `memo`). Of identify's two starts only the one from the linear model with the effects added in turn is
@@ -81,7 +81,7 @@ def built(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
     structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        return identify_model(ds, structure, _specs(model) + [spec],
+        return identify_model(ds, structure, _specs(model) + specs,
                               defined=tuple(effects_of_model(model)) + tuple(defined), memo=memo,
                               initialisation=False)
 
@@ -112,6 +112,11 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     scored: dict[str, Scored] = {}  # its refits without each fold
     candidate_models: dict[str, PolyModel] = {}  # built on all the data as identify builds them (engine-model base)
     memo = FitMemo()  # the builds' PEM fits, shared: the base and the stages of the effects accepted recur
+    if _joint(model) and base is not None:  # candidates are built as identify builds them: so is what they are held to
+        try:
+            base = refits(built(model, ds, [], defined, memo), ds, folds, [], settings, defined)
+        except BUILD_ERRORS:
+            base = None
     for rnd in range(1, settings.max_rounds + 1):
         found = screen([c.definition for c in pool], model, ds, run, settings.alpha)
         if term is not None:
@@ -150,7 +155,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             c.spec = _spec(c)
             try:
                 if _joint(model):  # the candidate's model as identify builds it, then its fold refits
-                    candidate_models[c.effect] = built(model, ds, c.spec, defined, memo)
+                    candidate_models[c.effect] = built(model, ds, [c.spec], defined, memo)
                     scored[c.effect] = refits(candidate_models[c.effect], ds, folds, [], settings, defined)
                 else:  # nested in the base's fold models: each refitted with the candidate's coefficients at zero
                     scored[c.effect] = refits(list(base.models), ds, folds, [c.spec], settings, defined)
@@ -168,7 +173,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             break
         best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
         try:
-            model = (built(model, ds, best.spec, defined, memo) if best is term
+            model = (built(model, ds, [best.spec], defined, memo) if best is term
                      else candidate_models.get(best.effect) or refitted(model, ds, best.spec, defined, memo))
             run = run_gradients(run_model(model, ds))
         except BUILD_ERRORS:
