@@ -92,10 +92,12 @@ def _surface(n: np.ndarray, T: np.ndarray, torque_unit: str) -> np.ndarray:
 
 
 def _signals_of(effect_id: str, defined) -> tuple[str, ...]:
-    """The bus signals an effect names; a generic effect ``FORM:SIG`` (ident.effects.generic_effects) names SIG."""
+    """The bus signals an effect's inputs are built from; a generic effect ``FORM:SIG`` (ident.effects.generic_effects)
+    names SIG; a shift (the fuel signal's delay) has no input: held for ever, a delayed constant is the constant."""
     if ":" in effect_id:
         return (effect_id.split(":", 1)[1],)
-    return get_effect(effect_id, None, defined).signals
+    effect = get_effect(effect_id, None, defined)
+    return () if effect.enters == "shift" else effect.signals
 
 
 def _model_signals(model: PolyModel) -> list[tuple[str, str]]:

@@ -130,3 +130,15 @@ def test_an_effect_on_a_bus_signal_is_held_at_its_reference():
         s = steady_fuel(m, 1200, 1200)
         assert s.value - steady_fuel(base, 1200, 1200).value == pytest.approx(expected, abs=1e-9), spec
         assert sig in s.reference
+
+
+def test_the_fuel_signals_delay_leaves_the_steady_state_as_it_is():
+    """A shift of the fuel signal (fuel_delay) has no input: held for ever, a delayed constant is the constant, and
+    the fuel signal it names needs no reference value."""
+    m = map_model()
+    delayed = PolyModel(A=m.A, B=m.B, F=m.F, C=m.C, D=m.D, Ts=m.Ts, nk=m.nk, input_names=m.input_names,
+                        input_units=m.input_units, output_unit="L/h", u0=m.u0, y0=m.y0,
+                        effects=m.effects + ("fuel_delay",), covariance=m.covariance,
+                        info={**m.info, "effect_parameters": {**m.info["effect_parameters"], "fuel_delay": 0.6}})
+    s = steady_fuel(delayed, 1200, 1200)
+    assert s.value == pytest.approx(steady_fuel(m, 1200, 1200).value, rel=1e-12) and "LFE1.EngFuelRate" not in s.reference
