@@ -40,7 +40,7 @@ from fuelid.errors import InputError
 from fuelid.ident.dataset import Dataset
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.effects import get_effect, parse_effect
-from fuelid.ident.hammerstein import MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN, steady_state_map
+from fuelid.ident.hammerstein import MAP_COLUMN, MAP_EFFECT, RISE_COLUMN, RISE_MAP_COLUMN, steady_state_map
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.polymodel import PolyModel, polynomials
 
@@ -183,7 +183,10 @@ def steady_inputs(model: PolyModel, speed_rpm: float, torque: float,
 
 def steady_value(model: PolyModel, speed_rpm: float, torque: float, du: np.ndarray) -> float:
     """y_ss [output unit] at (speed_rpm [rpm], torque [torque unit]) with input deviations du (`steady_inputs`):
-    the static map f(n, T) plus Σ G_i du_i over the inputs outside it (module docstring)."""
+    the static map f(n, T) plus Σ G_i du_i over the inputs outside it (module docstring). InputError for an engine
+    model without its map's input."""
+    if MAP_EFFECT in model.effects and MAP_COLUMN not in model.input_names:
+        raise InputError(f"the model carries an engine map but no input named {MAP_COLUMN!r}: not a model fuelid wrote")
     beyond = [i for i, name in enumerate(model.input_names) if i >= 2 and name not in MAP_INPUTS]
     static = float(steady_state_map(model, [speed_rpm], [torque])[0])
     return static + float(static_gains(model)[beyond] @ du[beyond]) if beyond else static
