@@ -18,8 +18,9 @@ The measured steady fuel at a point is the simulator's own in a steady run (`ste
 torque held for 60 s, fuel as sim.mapfuel computes it — the VECTO map at the combustion torque, the transient
 surcharge, the ECU's LFE1 averaging — the last 30 s averaged); the reported torque is the indicated torque
 (brake + friction + auxiliaries, as sim.trip reports it), so the map is read at the reported torque less the
-engine's friction. Beside the model's steady state, the error of its fitted map s(n, T) alone (ident.enginemap;
-the engine model only) says how much of the steady state the map carries and how much the dynamics' static gains.
+engine's friction. Beside the model's steady state: the error of its fitted map s(n, T) read alone (the engine
+model only), and of a static map fitted to the trip's own samples (ident.enginemap.fit_map of the fuel over speed
+and torque: what the data say without dynamics), so an error can be placed in the data or in the model's fit.
 Limit: |mean error| ≤ 2 % per engine (over its points and seeds); the spread (standard deviation over points and
 seeds) and the worst point are printed beside it.
 
@@ -112,6 +113,7 @@ def trip_models(engine_file: Path, seed: int, minutes: float):
 def engine_case(engine_file: Path, seed: int, minutes: float) -> dict:
     """The default model and the simulator at every point the trip covers, and the drifts on the same data."""
     from fuelid.fleet.drift import ReferencePoint, drift, steady_fuel as fleet_steady_fuel
+    from fuelid.ident.enginemap import fit_map
     from fuelid.ident.hammerstein import engine_map_of
     from fuelid.ident.steady import steady_fuel
     from fuelid.sim import vecto
@@ -119,6 +121,8 @@ def engine_case(engine_file: Path, seed: int, minutes: float) -> dict:
     ds, models = trip_models(engine_file, seed, minutes)
     model = models["default"]
     emap = engine_map_of(model)
+    ok = ds.valid & np.isfinite(ds.y)
+    data_map = fit_map(ds.u[ok, 0], ds.u[ok, 1], ds.y[ok], tuple(ds.u0), ds.y0, (*ds.input_units, ds.output_unit))
     t_max = vecto.read_engine(engine_file).max_torque_nm
     points = []
     for n in SPEEDS_RPM:
@@ -130,9 +134,11 @@ def engine_case(engine_file: Path, seed: int, minutes: float) -> dict:
             s = steady_fuel(model, n, T)
             measured = steady_run(engine_file, n, T)
             fitted_map = float(emap(np.array([n]), np.array([T]))[0]) if emap is not None else None
+            static = float(data_map(np.array([n]), np.array([T]))[0])
             points.append({"speed_rpm": n, "torque_nm": T, "model_l_h": s.value, "std_l_h": s.std_error,
                            "measured_l_h": measured, "error_percent": 100.0 * (s.value / measured - 1.0),
                            "map_error_percent": None if fitted_map is None else 100.0 * (fitted_map / measured - 1.0),
+                           "data_map_error_percent": 100.0 * (static / measured - 1.0),
                            "samples_near": int(near.sum())})
     refs = tuple(ReferencePoint(p["speed_rpm"], p["torque_nm"], "Nm") for p in points)
     drifts = {}
@@ -158,6 +164,9 @@ def summary(cases: list[dict]) -> dict:
             "mean_abs_error_percent": float(np.abs(errors).mean()),
             "worst": {k: worst[k] for k in ("seed", "speed_rpm", "torque_nm", "error_percent")},
             "map_alone_mean_error_percent": float(np.mean(maps)) if maps else None,
+            "data_map_mean_error_percent": float(np.mean([p["data_map_error_percent"] for p in rows])),
+            "drift_within_error_bars": {k: [sum(c["drift"][k]["within_error_bars"] for c in cases if k in c["drift"]),
+                                            sum(k in c["drift"] for c in cases)] for k in ("refit", "linear")},
             "engine_model_chosen": sum(c["chosen"] == "engine" for c in cases),
             "within_limit": bool(abs(errors.mean()) <= LIMIT_PERCENT)}
 
@@ -178,14 +187,14 @@ def main() -> None:
         print(json.dumps(results, indent=1))
         return
     print(f"{'engine':>20} {'seed':>4} {'rpm':>5} {'N·m':>6} {'model L/h':>15} {'steady run L/h':>14} {'error %':>8} "
-          f"{'map s %':>8}")
+          f"{'map s %':>8} {'data map %':>10}")
     for name, r in results.items():
         for c in r["cases"]:
             for p in c["points"]:
                 alone = "" if p["map_error_percent"] is None else f"{p['map_error_percent']:+8.2f}"
                 print(f"{name:>20} {c['seed']:>4} {p['speed_rpm']:5.0f} {p['torque_nm']:6.0f} "
                       f"{p['model_l_h']:7.2f} ± {p['std_l_h']:5.2f} {p['measured_l_h']:14.2f} "
-                      f"{p['error_percent']:+8.2f} {alone}")
+                      f"{p['error_percent']:+8.2f} {alone:>8} {p['data_map_error_percent']:+10.2f}")
     print(f"\ndrift on the same data over the case's points, d ± σ_d [%] (within the error bars: |d| ≤ {K_SIGMA:g} σ_d)")
     for name, r in results.items():
         for c in r["cases"]:
@@ -197,11 +206,15 @@ def main() -> None:
         w = r["worst"]
         alone = "" if r["map_alone_mean_error_percent"] is None else \
             f"; the fitted map s(n, T) alone {r['map_alone_mean_error_percent']:+.2f} %"
+        alone += f"; a static map of the trip's data {r['data_map_mean_error_percent']:+.2f} %"
+        within = r["drift_within_error_bars"]
         print(f"{name}: mean error {r['mean_error_percent']:+.2f} % ± {r['spread_percent']:.2f} % (spread) over "
               f"{r['points']} points of {len(r['cases'])} seeds (engine model on {r['engine_model_chosen']}), "
               f"mean |error| {r['mean_abs_error_percent']:.2f} %, worst {w['error_percent']:+.2f} % at "
               f"{w['speed_rpm']:.0f} rpm × {w['torque_nm']:.0f} N·m (seed {w['seed']}){alone} "
-              f"(limit ±{LIMIT_PERCENT:g} % on the mean: {'met' if r['within_limit'] else 'NOT met'})")
+              f"(limit ±{LIMIT_PERCENT:g} % on the mean: {'met' if r['within_limit'] else 'NOT met'}); drift within "
+              f"the error bars: the second start on {within['refit'][0]} of {within['refit'][1]}, the linear model on "
+              f"{within['linear'][0]} of {within['linear'][1]}")
 
 
 if __name__ == "__main__":
