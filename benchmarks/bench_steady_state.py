@@ -26,8 +26,8 @@ seeds) and the worst point are printed beside it.
 
 Drift on the same data (fleet.drift over the case's points): the same model identified again with PEM started from
 the first (ident.identify.identify_model's init: another start of the same criterion) and the paper's linear model
-(`--model linear`) against the default model, d = 100 (S₁/S₀ − 1) [%] with its standard error σ_d; a refit should stay
-within 2 σ_d, while the linear model's plane differs from the engine's curved map by what it cannot represent.
+(`--model linear`) against the default model, d = 100 (S₁/S₀ − 1) [%] with its standard error σ_d; a refit should
+stay within 2 σ_d, while the linear model's plane differs from the engine's curved map by what it cannot represent.
 """
 from __future__ import annotations
 
@@ -195,7 +195,8 @@ def main() -> None:
                 print(f"{name:>20} {c['seed']:>4} {p['speed_rpm']:5.0f} {p['torque_nm']:6.0f} "
                       f"{p['model_l_h']:7.2f} ± {p['std_l_h']:5.2f} {p['measured_l_h']:14.2f} "
                       f"{p['error_percent']:+8.2f} {alone:>8} {p['data_map_error_percent']:+10.2f}")
-    print(f"\ndrift on the same data over the case's points, d ± σ_d [%] (within the error bars: |d| ≤ {K_SIGMA:g} σ_d)")
+    print(f"\ndrift on the same data over the case's points, d ± σ_d [%] "
+          f"(within the error bars: |d| ≤ {K_SIGMA:g} σ_d)")
     for name, r in results.items():
         for c in r["cases"]:
             text = "; ".join(f"{k} ({d['chosen']} model) {d['percent']:+.2f} ± {d['std_percent']:.2f} "

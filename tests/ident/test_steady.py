@@ -34,7 +34,8 @@ def map_model(map_gain=1.0, cov_scale=1e-10):
     truck's data show, L = 40 %/kNm · T) and a DPF regeneration's three, about idle (600 rpm, 0 N·m, 2 L/h)."""
     B = [[0, 0.004, 0.002], [0.01, 0.004], [map_gain], [0.01], [0.001], [0.02], [3.0], [0.001], [0.002]]
     F = [[1, -0.5], [1, -0.3]] + [[1.0]] * 4 + [[1, -0.2]] * 3
-    names = ("speed", "torque", MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN, LOAD) + tuple(f"regeneration {k}" for k in (1, 2, 3))
+    names = ("speed", "torque", MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN, LOAD) + tuple(f"regeneration {k}"
+                                                                                       for k in (1, 2, 3))
     m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 8, input_names=names,
                   input_units=("rpm", "Nm") + ("1",) * 7, output_unit="L/h", u0=(600.0, 0.0) + (0.0,) * 7, y0=2.0,
                   effects=("engine_map", f"level:{LOAD}", "dpf_regeneration"),
@@ -84,8 +85,8 @@ def test_standard_error_matches_sampling_the_parameters():
     m = map_model(cov_scale=1e-8)
     draws = np.random.default_rng(0).multivariate_normal(m.theta, m.covariance, size=2000)
     values = [steady_fuel(from_theta(t, m.structure, m.Ts, u0=m.u0, y0=m.y0, input_names=m.input_names,
-                                     input_units=m.input_units,
-                                     effects=m.effects, info=m.info), 1200, 1200).value for t in draws]
+                                     input_units=m.input_units, effects=m.effects, info=m.info), 1200, 1200).value
+              for t in draws]
     assert steady_fuel(m, 1200, 1200).std_error == pytest.approx(np.std(values), rel=0.08)
 
 
@@ -141,4 +142,5 @@ def test_the_fuel_signals_delay_leaves_the_steady_state_as_it_is():
                         effects=m.effects + ("fuel_delay",), covariance=m.covariance,
                         info={**m.info, "effect_parameters": {**m.info["effect_parameters"], "fuel_delay": 0.6}})
     s = steady_fuel(delayed, 1200, 1200)
-    assert s.value == pytest.approx(steady_fuel(m, 1200, 1200).value, rel=1e-12) and "LFE1.EngFuelRate" not in s.reference
+    assert s.value == pytest.approx(steady_fuel(m, 1200, 1200).value, rel=1e-12)
+    assert "LFE1.EngFuelRate" not in s.reference
