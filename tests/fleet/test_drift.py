@@ -10,7 +10,8 @@ import pytest
 from fuelid.cli import main
 from fuelid.ident.dataset import build_dataset
 from fuelid.ident.identify import MIN_SEGMENT_S, identify_model
-from fuelid.ident.modelchoice import identify_chosen
+from fuelid.ident.diagnosis import diagnose, effects_to_add
+from fuelid.ident.modelchoice import ModelKind, identify_chosen
 from fuelid.ident.polymodel import Structure, parse_orders
 from fuelid.ident.steady import data_reference
 
@@ -92,12 +93,17 @@ def fuel_measured_near(ds, point, samples: int = NEAREST) -> float:
 
 @pytest.fixture(scope="module")
 def front_door(tmp_path_factory):
-    """The trip's dataset and the front door's model (`fuelid identify --effects-from`: the default model with the
-    DPF regeneration the diagnosis confirms), with the reference values a fleet job records."""
+    """The trip's dataset and the front door's model: `fuelid identify`'s default model identified again with the
+    effects its diagnosis recommends (`identify --effects-from`: the regeneration and the inertia), with the
+    reference values a fleet job records."""
     mcap = tmp_path_factory.mktemp("drift") / "trip.mcap"
     assert main(["convert", str(TRIP), "-o", str(mcap), "--json"]) == 0
     ds = build_dataset([mcap])
-    model = identify_chosen(ds, Structure(**parse_orders("paper")), ["dpf_regeneration"], min_segment_s=MIN_SEGMENT_S)
+    structure = Structure(**parse_orders("paper"))
+    before = identify_chosen(ds, structure, min_segment_s=MIN_SEGMENT_S)
+    effects = effects_to_add(diagnose(before, ds).to_json())
+    model = identify_chosen(ds, structure, effects, kind=ModelKind(before.info["model_choice"]["chosen"]),
+                            min_segment_s=MIN_SEGMENT_S, base=before)
     model.info["steady_reference"] = data_reference(model, ds)
     return ds, model
 
@@ -106,7 +112,7 @@ def test_front_door_steady_fuel_is_the_fuel_measured_near_the_points(front_door)
     """The engine model's steady fuel at the default points against the fuel measured near each: within 15 % at
     each and 10 % on their mean."""
     ds, model = front_door
-    assert model.info["model_choice"]["chosen"] == "engine"
+    assert model.effects[:2] == ("engine_map", "dpf_regeneration") and model.info["model_choice"]["chosen"] == "engine"
     sf = steady_fuel(model, DEFAULT_POINTS)
     assert sf.reference["DPFC1.DPFActiveRegenStatus"] == "no DPF regeneration"
     measured = [fuel_measured_near(ds, p) for p in DEFAULT_POINTS]
