@@ -130,6 +130,17 @@ def test_a_refit_stores_the_model_with_the_effects_its_diagnosis_confirmed(tmp_p
     assert "2024-06-01-trip.mcap" in page and str(blob) not in page and "with dpf_regeneration" in page
 
 
+def test_a_linear_model_whose_diagnosis_advises_the_engine_map_is_refitted_as_the_engine_model(trip, tmp_path,
+                                                                                                  monkeypatch):
+    """The diagnosis of a linear model can advise the engine map: the job then stores the engine model, as
+    `identify --effects-from` builds it, instead of failing on a linear model asked for the map."""
+    import fuelid.fleet.jobs as jobs
+
+    monkeypatch.setattr(jobs, "effects_to_add", lambda diagnosis: ["engine_map"])
+    res = identify_truck("truck5", [str(trip)], str(tmp_path / "job"))
+    assert load_model(res["model_path"]).effects[0] == "engine_map"
+
+
 def test_the_diagnosis_sample_is_whole_cycles_evenly_spaced_and_bounded():
     """A 10-hour truck: the job diagnoses at most DIAGNOSIS_HOURS of it, whole 30-min drive cycles spread over the
     whole time; a short truck is diagnosed on all of its data."""
