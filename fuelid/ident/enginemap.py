@@ -94,6 +94,13 @@ def _axis_slope(t: np.ndarray, x: float) -> np.ndarray:
     return BSpline(t, np.eye(k), DEGREE).derivative()(x)
 
 
+def greville(t: np.ndarray) -> np.ndarray:
+    """The Greville abscissae ξ_i = (t_i+1 + t_i+2 + t_i+3)/3 of the cubic B-splines on knots t (K): Σ_i ξ_i B_i(x) = x,
+    so a line a + b x has the coefficients a + b ξ_i (de Boor 1978)."""
+    k = len(t) - DEGREE - 1
+    return (t[1: k + 1] + t[2: k + 2] + t[3: k + 3]) / 3.0
+
+
 def second_differences(k: int) -> np.ndarray:
     """Δ² (k − 2 × k)."""
     return np.diff(np.eye(k), n=2, axis=0)
@@ -201,6 +208,12 @@ class EngineMap:
         j = np.where(T == t_hi, COVERAGE_BINS - 1, j)
         i, j = np.broadcast_arrays(np.nan_to_num(i, nan=-1).astype(int), np.nan_to_num(j, nan=-1).astype(int))
         return i, j
+
+    def plane_coefficients(self, a: float, b_n: float, b_T: float) -> np.ndarray:
+        """The coefficients (kn × kt) of the plane a + b_n (n − n0) + b_T (T − T0) [fuel unit] on this map's basis
+        (`greville`): exact over the knot box."""
+        n0, T0 = self.operating_point
+        return a + b_n * (greville(self.speed_knots)[:, None] - n0) + b_T * (greville(self.torque_knots)[None, :] - T0)
 
     def with_coefficients(self, coef, plane, smoothing: float | None = None) -> EngineMap:
         """This map with other coefficients (kn·kt) and plane (and smoothing λ, when given)."""

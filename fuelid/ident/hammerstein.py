@@ -72,6 +72,53 @@ def static_gain(b: np.ndarray, f: np.ndarray) -> float:
     return float(np.sum(b) / np.sum(f))
 
 
+def path_gains(model: PolyModel) -> tuple[float, float]:
+    """(G_n(1), G_T(1)): the static gains of the speed and torque paths, of 1/A · B_i/F_i [fuel unit/rpm, fuel
+    unit/torque unit]."""
+    a1 = float(np.sum(model.A))
+    return tuple(static_gain(b, f) / a1 for b, f in zip(model.B[:2], model.F[:2]))
+
+
+def as_steady_state(model: PolyModel) -> PolyModel:
+    """The engine model with its map s renormalised to its steady state: with the map block's static gain
+    g = G_m(1) and the paths' gains (g_n, g_T) (`path_gains`), the plane p = (p_0, p_n, p_T),
+
+        s' = g s + (1 − g) p_0 + (g_n − g p_n) ñ + (g_T − g p_T) T̃,   plane' = (p_0, g_n, g_T),   B_m' = B_m / g,
+
+    (the plane's coefficients exact on the B-spline basis: EngineMap.plane_coefficients) so that
+    m' = s' − plane' = g m: the map's path is unchanged and f(n, T) = y0 + g_n ñ + g_T T̃ + G_m'(1) m' = s'
+    over the knot box (speed is clamped outside it). The transient column r·s/f_scale takes s' (its B divided by g
+    too): unchanged up to r times the plane's change (the transient fuelling's share of it). The model unchanged
+    when G_m(1) is not above MIN_MAP_GAIN (no map to speak of)."""
+    emap = engine_map_of(model)
+    names = model.input_names
+    j, jr = names.index(MAP_COLUMN), names.index(RISE_MAP_COLUMN)
+    g = static_gain(model.B[j], model.F[j]) / float(np.sum(model.A))
+    if not (np.isfinite(g) and g > MIN_MAP_GAIN):
+        return model
+    g_n, g_T = path_gains(model)
+    p0, p_n, p_T = emap.plane
+    c = g * emap.coef + emap.plane_coefficients((1.0 - g) * p0, g_n - g * p_n, g_T - g * p_T)
+    fitted = emap.with_coefficients(c, (p0, g_n, g_T))
+    B = list(model.B)
+    B[j], B[jr] = B[j] / g, B[jr] / g
+    params = {**model.info["effect_parameters"], MAP_EFFECT: fitted.to_dict()}
+    return dataclasses.replace(model, B=B, covariance=_scaled_b(model, (j, jr), 1.0 / g),
+                               info={**model.info, "effect_parameters": params})
+
+
+def _scaled_b(model: PolyModel, inputs, factor: float) -> np.ndarray | None:
+    """The parameter covariance with the B coefficients of `inputs` multiplied by `factor` (D P D, D diagonal)."""
+    if model.covariance is None:
+        return None
+    s = model.structure
+    d = np.ones(s.n_params)
+    start = s.na + np.cumsum((0, *s.nb))
+    for i in inputs:
+        d[start[i]: start[i] + s.nb[i]] = factor
+    return model.covariance * np.outer(d, d)
+
+
 def steady_state_map(model: PolyModel, n, T) -> np.ndarray:
     """The model's steady-state fuel [output unit] at speeds n [rpm] and torques T [torque unit] with every other
     input at its operating point: f(n, T) = y0 + G_n(1)(n − n0) + G_T(1)(T − T0) + G_m(1) m(n, T) (G_m(1) = 1 after
@@ -210,6 +257,7 @@ def joint_fit(model: PolyModel, ds, segments, *, keep, fit=pem, rounds: int = JO
     model, u, y, start = tried[k]
     if start is not None and model.info["stop_reason"] == "max_iterations":  # the kept step (b) to its own end
         model = _fitted(fit, u, y, start, ds.Ts, segments, FINAL_MAX_ITER)
+    model = as_steady_state(model)
     model.info["joint"] = {"loss_V": history, "simulation_rmse": sims, "kept_round": k, "stop": stop,
                            "tolerance": tol}
     return model
