@@ -45,7 +45,7 @@ import numpy as np
 
 from fuelid.blas import one_blas_thread
 from fuelid.ident.effects import MAP_COLUMNS
-from fuelid.ident.enginemap import EngineMap, penalised_gram_fit, plane_slopes
+from fuelid.ident.enginemap import EngineMap, penalised_gram_fit
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.pem import pem
@@ -170,12 +170,10 @@ def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
     if not (np.isfinite(gain) and gain > MIN_MAP_GAIN):
         return None
     u, y = model_data(model, ds)
-    n, T = ds.u[:, 0], ds.u[:, 1]
-    idx = np.concatenate([np.arange(s.start, s.stop) for s in segments])
-    phi = emap.basis(np.nan_to_num(n), np.nan_to_num(T))
-    Pi = plane_slopes(phi[idx], n[idx], T[idx], emap.operating_point)
-    phi_bar = phi - np.column_stack([n - emap.operating_point[0], T - emap.operating_point[1]]) @ Pi
-    p0 = emap.plane[0]
+    n, T = np.nan_to_num(ds.u[:, 0]), np.nan_to_num(ds.u[:, 1])
+    phi = emap.basis(n, T)
+    p0, (g_n, g_T) = emap.plane[0], path_gains(model)
+    paths = emap.with_coefficients(np.zeros(emap.coef.size), (p0, g_n, g_T)).plane_at(n, T)  # y0 + g_n ñ + g_T T̃
     rise_phi = u[:, names.index(RISE_COLUMN)][:, None] * phi / emap.fuel_scale
     others = [i for i in range(len(model.B)) if i not in (j, jr)]
     sub = dataclasses.replace(model, B=[model.B[i] for i in others], F=[model.F[i] for i in others],
@@ -187,18 +185,19 @@ def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
     with one_blas_thread():
         for s in segments:
             rest = lfilter(model.A, [1.0], y[s] - model.y0) - input_responses(sub, u[s][:, others]).sum(axis=1) \
-                + lfilter(model.B[j], model.F[j], np.full(s.stop - s.start, p0))
+                + lfilter(model.B[j], model.F[j], paths[s])
             w_all.append(rest[n0:])
-            through = lfilter(model.B[j], model.F[j], phi_bar[s], axis=0) \
+            through = lfilter(model.B[j], model.F[j], phi[s], axis=0) \
                 + lfilter(model.B[jr], model.F[jr], rise_phi[s], axis=0)
             z_all.append(through[n0:])
         w, Z = np.concatenate(w_all), np.vstack(z_all)
         kn, kt = emap.coef.shape
         c, lam = penalised_gram_fit(Z.T @ Z, Z.T @ w, float(w @ w), len(w), kn, kt)
-    c = gain * c - (gain - 1.0) * p0  # x_map = φ̄ c − p0 times the gain (φ̄ of a constant is that constant)
+    # x_map = φ c − (y0 + g_n ñ + g_T T̃) times the gain: the plane's coefficients (exact on the basis) scaled alike
+    c = gain * c - (gain - 1.0) * emap.plane_coefficients(p0, g_n, g_T).ravel()
     B = list(model.B)
     B[j], B[jr] = B[j] / gain, B[jr] / gain
-    fitted = emap.with_coefficients(c, (emap.plane[0], *(Pi @ c)), lam)
+    fitted = emap.with_coefficients(c, (p0, g_n, g_T), lam)
     params = {**model.info["effect_parameters"], MAP_EFFECT: fitted.to_dict()}
     return dataclasses.replace(model, B=B, covariance=None, info={**model.info, "effect_parameters": params})
 
@@ -224,16 +223,17 @@ def joint_fit(model: PolyModel, ds, segments, *, keep, fit=pem, rounds: int = JO
               max_iter: int = JOINT_MAX_ITER) -> PolyModel:
     """The engine model `model` (with the engine_map effect, its dynamics fitted by PEM with its map fixed) refined by
     the block-coordinate descent of the module docstring on the slices `segments` of dataset ds; fit: `pem` or a
-    FitMemo's; rounds, tol: at most that many rounds, while V falls by more than tol of itself; max_iter: step (b)'s
-    PEM iterations. Of the start and the rounds' models the one `keep(models, simulation errors)` picks is kept
+    FitMemo's; rounds, tol: at most that many rounds, while V or the simulation error falls by more than tol of
+    itself (the rounds alternate two criteria: step (b) lowers V, step (c) the simulation error); max_iter: step
+    (b)'s PEM iterations. Of the start and the rounds' models the one `keep(models, simulation errors)` picks is kept
     (ident.identify.kept_fit: the lowest V unless another simulates the data grossly better — a round can lower V
     while the noise model takes up a drift the simulation then shows), its step (b) continued to FINAL_MAX_ITER when
     it stopped at its limit (its convergence is PEM's own). info["joint"] records V (`loss`) and the simulation error
     (`simulation_error`) of the start and each round, the round kept and why the rounds stopped."""
     u, y = model_data(model, ds)
-    V = loss(model, u, y, segments)
+    V, sim = loss(model, u, y, segments), simulation_error(model, u, y, segments)
     model.info["loss_V"] = V
-    tried, history, stop = [(model, u, y, None)], [V], "rounds"
+    tried, history, sims, stop = [(model, u, y, None)], [V], [sim], "rounds"
     for _ in range(rounds):
         start = refit_map(model, ds, segments)
         if start is None:
@@ -241,18 +241,15 @@ def joint_fit(model: PolyModel, ds, segments, *, keep, fit=pem, rounds: int = JO
             break
         u, y = model_data(start, ds)
         cand = _fitted(fit, u, y, start, ds.Ts, segments, max_iter)
-        V_new = loss(cand, u, y, segments)
+        V_new, sim_new = loss(cand, u, y, segments), simulation_error(cand, u, y, segments)
         cand.info["loss_V"] = V_new
         tried.append((cand, u, y, start))
         history.append(V_new)
-        if not V_new < V:
-            stop = "a round raised V"
+        sims.append(sim_new)
+        if not (V - V_new > tol * V or sim - sim_new > tol * sim):
+            stop = "converged" if V_new < V else "a round raised V"
             break
-        model, fell, V = cand, (V - V_new) / V, V_new
-        if fell < tol:
-            stop = "converged"
-            break
-    sims = [simulation_error(m, u_, y_, segments) for m, u_, y_, _ in tried]
+        model, V, sim = cand, V_new, sim_new
     k = keep([m for m, *_ in tried], sims)
     model, u, y, start = tried[k]
     if start is not None and model.info["stop_reason"] == "max_iterations":  # the kept step (b) to its own end
