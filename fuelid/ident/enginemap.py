@@ -27,10 +27,11 @@ surface continues linearly along torque with its slope at T_hi (non-negative, so
 torque (`CUT_TORQUE`: motoring, the injection cut) the fuel is 0.
 
 The model's input is the map's part beyond a plane, m(n, T) = s(n, T) − (p_0 + p_n (n − n0) + p_T (T − T0))
-(`beyond_plane`): p_0 the model's fuel at its operating point (n0, T0) (the data's idle fuel y0), p_n, p_T the
-slopes of the least-squares plane of s over the identification data, so m has no speed- or torque-linear component
-there, which is what the model's own speed and torque paths carry. Its level is kept: the model's plane passes
-through (n0, T0, y0), and where the map lies above or below that plane on average is the map's.
+(`beyond_plane`): p_0 the model's fuel at its operating point (n0, T0) (the data's idle fuel y0). A static fit
+(`fit_map`) takes p_n, p_T the slopes of the least-squares plane of s over its data, so m has no speed- or
+torque-linear component there; the engine model (ident.hammerstein) sets them to its speed and torque paths' static
+gains, so that the model's steady state is s itself. A plane's coefficients on the basis are exact
+(`EngineMap.plane_coefficients`, `greville`), so moving the plane between s and the paths leaves m a spline.
 
 The validity region is the data's coverage: sample counts on a COVERAGE_BINS × COVERAGE_BINS grid over the knot box
 (`covered`: at least COVERAGE_MIN samples in the cell).

@@ -1,41 +1,45 @@
 """The engine model: the engine's static fuel map (ident.enginemap) as a Hammerstein block under the paper's
 Box-Jenkins dynamics, identified jointly by prediction-error minimisation.
 
-    y(t) = y0 + Σ_i B_i/F_i ũ_i(t) + B_m/F_m x_map(t) + C/D e(t),     x_map(t) = m(n(t), T(t)) = Σ_k c_k φ̄_k(n, T)
+    y(t) = y0 + Σ_i B_i/F_i ũ_i(t) + B_m/F_m x_map(t) + C/D e(t),
+    x_map(t) = m(n(t), T(t)) = s(n, T) − (y0 + g_n ñ + g_T T̃),   s(n, T) = Σ_k c_k φ_k(n, T)
 
-u = [speed, torque, x_map, torque rise r, r·s/f_scale, other effects' inputs…] (ident.effects' `engine_map`); m the
-map's part beyond its plane over the identification data (φ̄_k = φ_k minus its least-squares plane in speed and
-torque), B_m/F_m of unit static gain G_m(1) = 1. With m ≡ 0 it is the paper's linear model; its steady state is the
-full map (`steady_state_map`)
+u = [speed, torque, x_map, torque rise r, r·s/f_scale, other effects' inputs…] (ident.effects' `engine_map`); s the
+map, (g_n, g_T) = (G_n(1), G_T(1)) the static gains of the speed and torque paths (`path_gains`; the map's `plane`
+(y0, g_n, g_T) after `joint_fit`), so m is the map beyond the plane those paths carry at rest; B_m/F_m of unit
+static gain G_m(1) = 1. With m ≡ 0 it is the paper's linear model; its steady state is the map itself
+(`steady_state_map`)
 
-    f(n, T) = y0 + G_n(1)(n − n0) + G_T(1)(T − T0) + m(n, T).
+    f(n, T) = y0 + G_n(1) ñ + G_T(1) T̃ + G_m(1) m(n, T) = s(n, T).
 
 Joint identification (`joint_fit`): block-coordinate descent (for Hammerstein systems Narendra & Gallman 1966,
 Bai 1998) of PEM's criterion V = ½ Σ ε², ε = D/C (ỹ − Σ_i G_i ũ_i) (Ljung 1999, ch. 7), the map's block in the
 output-error sense:
 
-(a) the map starts from its static penalised fit to the time-aligned fuel (ident.effects.static_engine_map);
+(a) the map starts from its static penalised fit to the time-aligned fuel (ident.effects.static_engine_map), m
+    beyond its least-squares plane over the data;
 (b) with the map fixed, PEM of every transfer function and the noise model (ident.pem.pem, warm-started);
-(c) with the dynamics fixed, the simulation error is affine in the map's coefficients c (x_map = φ̄ c − p_0 and the
-    transient column r·s/f_scale = r φ c / f_scale are both affine in c):
+(c) with the dynamics fixed, the simulation error is affine in the map's coefficients c — x_map = φ c − ℓ with
+    ℓ = y0 + g_n ñ + g_T T̃ the paths' plane at the current gains, and the transient column r·s/f_scale = r φ c/f_scale:
 
-        y − ŷ_s = w − Z c,   w = ỹ − Σ_{i ∉ map} G_i ũ_i + G_m p_0,   Z = G_m φ̄ + G_rs (r φ / f_scale),
+        y − ŷ_s = w − Z c,   w = ỹ − Σ_{i ∉ map} G_i ũ_i + G_m ℓ,   Z = G_m φ + G_rs (r φ / f_scale),
 
-    so c is the penalised least-squares solution on the filtered basis columns Z (ident.enginemap.penalised_gram_fit:
-    the P-spline penalty, λ by GCV on this problem, monotone and non-negative), then rescaled to G_m(1) = 1: B_m and
-    the transient column's B divided by the gain g, c replaced by g c − (g − 1) p_0 (so x_map becomes g x_map: the
-    same map path; a constant's φ̄ is itself), the transient column's path the same up to its share of the constant
-    (g − 1) p_0 r / f_scale. The map is a static property: fitted through the noise model D/C instead (the same V as
-    (b)), whose high-order D has roots near the unit circle, its level and slow errors weigh next to nothing, and on
-    the shipped 1.5 h map-engine trip V fell over the rounds while the simulation error rose from 3.0 to 3.4 L/h;
-    through the simulation error it is the map the data's steady states say (1.3 L/h there);
+    so the whole map, its plane included, is the penalised least-squares solution on the filtered basis columns Z
+    (ident.enginemap.penalised_gram_fit: the P-spline penalty, λ by GCV on this problem, monotone and non-negative):
+    the fuel's steady level and slopes are fitted on the simulation error, where the speed and torque paths' static
+    gains from (b) are only as good as PEM's slow poles let them be. Then rescaled to G_m(1) = 1: B_m and the
+    transient column's B divided by the gain g, c replaced by g c − (g − 1) c_ℓ (c_ℓ the plane ℓ's coefficients,
+    exact on the basis: x_map becomes g x_map, the same map path), the transient column's path the same up to its
+    share of (g − 1) ℓ r / f_scale. The map is a static property: fitted through the noise model D/C instead (the same V
+    as (b)), whose high-order D has roots near the unit circle, its level and slow errors weigh next to nothing;
 
-(b)–(c) repeated while V falls by more than JOINT_TOL of itself, at most JOINT_ROUNDS rounds; of the start and the
-rounds' models the one identify's own rule keeps (ident.identify.kept_fit: the lowest V unless another simulates the
-data grossly better) is kept. A map whose transfer function's static gain fell to about zero or below
-(MIN_MAP_GAIN: the data put no weight on the map beyond the plane, as on an engine whose fuel is a plane in speed and
-torque), where the rescaling is undefined, ends the rounds. The parameter covariance is the last PEM's (the
-dynamics given the map); the map's coefficients carry none.
+(b)–(c) repeated while V or the simulation error falls by more than JOINT_TOL of itself (the two steps lower two
+criteria), at most JOINT_ROUNDS rounds; of the start and the rounds' models the one identify's own rule keeps
+(ident.identify.kept_fit: the lowest V unless another simulates the data grossly better) is kept, and renormalised so
+that its map is its steady state (`as_steady_state`: step (b) last moved the gains). A map whose transfer function's
+static gain fell to about zero or below (MIN_MAP_GAIN: the data put no weight on the map beyond the plane, as on an
+engine whose fuel is a plane in speed and torque), where the rescaling is undefined, ends the rounds. The parameter
+covariance is the last PEM's (the dynamics given the map); the map's coefficients carry none.
 """
 from __future__ import annotations
 
@@ -56,7 +60,7 @@ MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN = (f"{MAP_EFFECT}: {name}" for name in 
 JOINT_ROUNDS = 4
 JOINT_MAX_ITER = 30  # PEM iterations in each round's step (b), warm-started from the round before
 FINAL_MAX_ITER = 100  # the kept round's step (b) continued to this limit when it stopped at JOINT_MAX_ITER
-JOINT_TOL = 1e-3  # a round is worth another while it lowers V by more than this share of V
+JOINT_TOL = 1e-3  # a round is worth another while it lowers V or the simulation error by more than this share
 MIN_MAP_GAIN = 0.05  # [1] a map block whose static gain fell below this carries next to nothing of the map
 
 
@@ -121,8 +125,9 @@ def _scaled_b(model: PolyModel, inputs, factor: float) -> np.ndarray | None:
 
 def steady_state_map(model: PolyModel, n, T) -> np.ndarray:
     """The model's steady-state fuel [output unit] at speeds n [rpm] and torques T [torque unit] with every other
-    input at its operating point: f(n, T) = y0 + G_n(1)(n − n0) + G_T(1)(T − T0) + G_m(1) m(n, T) (G_m(1) = 1 after
-    `joint_fit`); for a model without an engine map, the plane y0 + G_n(1)(n − n0) + G_T(1)(T − T0). The transient
+    input at its operating point: f(n, T) = y0 + G_n(1)(n − n0) + G_T(1)(T − T0) + G_m(1) m(n, T) (after
+    `joint_fit` G_m(1) = 1 and the map's plane is (y0, G_n(1), G_T(1)), so f is the map s over its knot box:
+    `as_steady_state`); for a model without an engine map, the plane y0 + G_n(1)(n − n0) + G_T(1)(T − T0). The transient
     columns are 0 in steady state; the static gains are of 1/A · B_i/F_i."""
     n, T = np.asarray(n, float), np.asarray(T, float)
     a1 = float(np.sum(model.A))
@@ -160,7 +165,8 @@ def loss(model: PolyModel, u: np.ndarray, y: np.ndarray, segments) -> float:
 
 def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
     """Step (c) of the module docstring: the model with its map's coefficients by penalised least squares on the
-    simulation error given its dynamics, on the slices `segments` of dataset ds, rescaled to G_m(1) = 1, the plane over those samples; None when
+    simulation error given its dynamics, on the slices `segments` of dataset ds, rescaled to G_m(1) = 1, the map's
+    plane the paths' static gains (y0, G_n(1), G_T(1)); None when
     the map's transfer function has no positive static gain G_m(1) > MIN_MAP_GAIN (the data give the map's input no
     weight: nothing to refit)."""
     emap = engine_map_of(model)
