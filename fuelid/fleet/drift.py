@@ -4,9 +4,9 @@ the parameter covariance, and the change against the truck's first model and the
 A reference point p = (engine speed n [rpm], engine torque T [N·m or % of reference torque, the model's
 torque unit]) is held for ever; the model's output settles at y_ss(p), the whole model's steady state with
 every other signal at the stated reference condition (ident.steady: the effects' inputs rebuilt at the point,
-the engine map's included). The fleet compares the mean over the K points, S = (1/K) Σ_k y_ss(p_k), whose
-standard error by the delta method is σ_S = √(gᵀ P g), g = ∂S/∂θ (ident.steady.steady_gradient at the mean
-input deviation: S is linear in them) and P the covariance of θ.
+the engine model's static map included). The fleet compares the mean over the K points, S = (1/K) Σ_k y_ss(p_k),
+whose standard error by the delta method is σ_S = √(gᵀ P g), g = ∂S/∂θ = (1/K) Σ_k ∂y_ss(p_k)/∂θ
+(ident.steady.steady_gradient) and P the covariance of θ.
 
 Drift of the latest model against the first is d = 100 (S₁/S₀ − 1) [%] with
 σ_d = 100 √(σ₁² + (S₁/S₀)² σ₀²) / S₀ (the two fits are on different data, so independent). A truck is
@@ -22,7 +22,7 @@ import numpy as np
 
 from fuelid.errors import InputError
 from fuelid.ident.polymodel import PolyModel
-from fuelid.ident.steady import static_gains, std_error, steady_inputs
+from fuelid.ident.steady import std_error, steady_gradient, steady_inputs, steady_value
 
 TORQUE_UNITS = ("Nm", "%")
 _POINT = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*x\s*(-?[0-9]+(?:\.[0-9]*)?)\s*(Nm|%)\s*$")
@@ -91,9 +91,13 @@ def steady_fuel(model: PolyModel, points: tuple[ReferencePoint, ...]) -> SteadyF
         raise InputError(f"model inputs are in {', '.join(model.input_units)}; the reference points need rpm "
                          f"and {unit}")
     du, reference = zip(*(steady_inputs(model, p.speed_rpm, p.torque) for p in points))
-    per_point = model.y0 + np.array(du) @ static_gains(model)
-    return SteadyFuel(tuple(float(v) for v in per_point), float(per_point.mean()),
-                      std_error(model, np.mean(du, axis=0)), model.output_unit, reference[0])
+    per_point = np.array([steady_value(model, p.speed_rpm, p.torque, d) for p, d in zip(points, du)])
+    sigma = None
+    if model.covariance is not None:
+        g = np.mean([steady_gradient(model, p.speed_rpm, p.torque, d) for p, d in zip(points, du)], axis=0)
+        sigma = std_error(model, g)
+    return SteadyFuel(tuple(float(v) for v in per_point), float(per_point.mean()), sigma, model.output_unit,
+                      reference[0])
 
 
 @dataclass(frozen=True)

@@ -152,7 +152,8 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             lap("diagnose")
             diagnosis = found.to_json()
             effects = effects_to_add(diagnosis)
-            kind = ModelKind(model.info["model_choice"]["chosen"])
+            # the kind chosen, or the engine model when the diagnosis advises the map (a linear model's diagnosis)
+            kind = ModelKind.ENGINE if "engine_map" in effects else ModelKind(model.info["model_choice"]["chosen"])
             stored = identify_chosen(ds, structure, effects, kind=kind, min_segment_s=MIN_SEGMENT_S, files=names,
                                      init=previous, base=model) if effects else model
             lap("identify with effects")

@@ -27,10 +27,11 @@ surface continues linearly along torque with its slope at T_hi (non-negative, so
 torque (`CUT_TORQUE`: motoring, the injection cut) the fuel is 0.
 
 The model's input is the map's part beyond a plane, m(n, T) = s(n, T) − (p_0 + p_n (n − n0) + p_T (T − T0))
-(`beyond_plane`): p_0 the model's fuel at its operating point (n0, T0) (the data's idle fuel y0), p_n, p_T the
-slopes of the least-squares plane of s over the identification data, so m has no speed- or torque-linear component
-there, which is what the model's own speed and torque paths carry. Its level is kept: the model's plane passes
-through (n0, T0, y0), and where the map lies above or below that plane on average is the map's.
+(`beyond_plane`): p_0 the model's fuel at its operating point (n0, T0) (the data's idle fuel y0). A static fit
+(`fit_map`) takes p_n, p_T the slopes of the least-squares plane of s over its data, so m has no speed- or
+torque-linear component there; the engine model (ident.hammerstein) sets them to its speed and torque paths' static
+gains, so that the model's steady state is s itself. A plane's coefficients on the basis are exact
+(`EngineMap.plane_coefficients`, `greville`), so moving the plane between s and the paths leaves m a spline.
 
 The validity region is the data's coverage: sample counts on a COVERAGE_BINS × COVERAGE_BINS grid over the knot box
 (`covered`: at least COVERAGE_MIN samples in the cell).
@@ -92,6 +93,13 @@ def _axis_slope(t: np.ndarray, x: float) -> np.ndarray:
     """d/dx of each B-spline basis function at x (K)."""
     k = len(t) - DEGREE - 1
     return BSpline(t, np.eye(k), DEGREE).derivative()(x)
+
+
+def greville(t: np.ndarray) -> np.ndarray:
+    """The Greville abscissae ξ_i = (t_i+1 + t_i+2 + t_i+3)/3 of the cubic B-splines on knots t (K): Σ_i ξ_i B_i(x) = x,
+    so a line a + b x has the coefficients a + b ξ_i (de Boor 1978)."""
+    k = len(t) - DEGREE - 1
+    return (t[1: k + 1] + t[2: k + 2] + t[3: k + 3]) / 3.0
 
 
 def second_differences(k: int) -> np.ndarray:
@@ -201,6 +209,12 @@ class EngineMap:
         j = np.where(T == t_hi, COVERAGE_BINS - 1, j)
         i, j = np.broadcast_arrays(np.nan_to_num(i, nan=-1).astype(int), np.nan_to_num(j, nan=-1).astype(int))
         return i, j
+
+    def plane_coefficients(self, a: float, b_n: float, b_T: float) -> np.ndarray:
+        """The coefficients (kn × kt) of the plane a + b_n (n − n0) + b_T (T − T0) [fuel unit] on this map's basis
+        (`greville`): exact over the knot box."""
+        n0, T0 = self.operating_point
+        return a + b_n * (greville(self.speed_knots)[:, None] - n0) + b_T * (greville(self.torque_knots)[None, :] - T0)
 
     def with_coefficients(self, coef, plane, smoothing: float | None = None) -> EngineMap:
         """This map with other coefficients (kn·kt) and plane (and smoothing λ, when given)."""

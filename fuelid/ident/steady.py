@@ -3,14 +3,16 @@ every other signal at a stated reference condition.
 
 The model runs on u = [n, T, x_1 … x_k] (ident.modeldata): engine speed n [rpm], torque T [Nm or %] and the
 columns x_j its effects build from the bus signals — some of them functions of n and T themselves (the engine
-map's curvature ñ·T̃, ñ², T̃²; a regime's I·ñ, I·T̃). Held at a point p = (n, T) for ever, every input is
-constant, u_ss(p) = the inputs `model_data` builds on a constant dataset (n and T held, each other signal at
-its reference value; a rate of change is then 0), and the output settles at
+model's map columns; a regime's I·ñ, I·T̃). Held at a point p = (n, T) for ever, every input is constant,
+u_ss(p) = the inputs `model_data` builds on a constant dataset (n and T held, each other signal at its reference
+value; a rate of change is then 0), and the output settles at
 
-    y_ss(p) = y0 + Σ_i G_i (u_ss,i(p) − u0_i),    G_i = B_i(1) / (A(1) F_i(1))   [output unit]
+    y_ss(p) = f(n, T) + Σ_{i ∉ S} G_i (u_ss,i(p) − u0_i),    G_i = B_i(1) / (A(1) F_i(1))   [output unit]
 
-(the static gains of the transfer functions B_i/(A F_i)). Because the effects are rebuilt by their own
-builders, this holds for any effect whose inputs depend on speed and torque.
+with S = speed, torque and the engine map's three columns, and f the model's own static map over speed and torque
+(ident.hammerstein.steady_state_map: the engine model's fitted map under its dynamics' static gains; for a model
+without an engine map the plane y0 + G_n ñ + G_T T̃). The other effects' inputs are rebuilt by their own builders,
+so this holds for any effect whose inputs depend on speed and torque.
 
 The reference condition is a value per bus signal (`REFERENCE`): a warm engine, no regeneration, standard air,
 fan, retarder and PTO off, driving in gear with the clutch closed. A signal with no stated value — the engine's
@@ -20,16 +22,15 @@ decides: the load against the full-load curve) or takes its median (signals it d
 store that in the model (info["steady_reference"]). An effect centred on a level (``scales:SIG``) is at that
 level. A signal with no value at all is an InputError naming it.
 
-Uncertainty by the delta method: y_ss is a function of θ = (a, b, f, c, d) (order of
-ident.polymodel.parameter_names) only through the gains, with Δu_i = u_ss,i − u0_i,
-
-    ∂y_ss/∂b_i,l = Δu_i / (A(1) F_i(1)),   ∂y_ss/∂f_i,k = −G_i Δu_i / F_i(1),   ∂y_ss/∂a_j = −Σ_i G_i Δu_i / A(1),
-
-0 for the noise model (c, d), and σ = √(gᵀ P g) with P the covariance of θ. A mean over points is linear in
-Δu, so its gradient is g at the mean Δu.
+Uncertainty by the delta method, σ = √(gᵀ P g), P the covariance of θ = (a, b, f, c, d) (order of
+ident.polymodel.parameter_names) and g = ∂y_ss/∂θ by central differences (`steady_gradient`: y_ss is a rational
+function of θ whatever the static map does with it; 0 for the noise model c, d). The engine map's coefficients
+carry no covariance (ident.hammerstein), so σ is the part of the uncertainty the dynamics' parameters carry. A mean
+over points has the mean of their gradients.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -39,8 +40,9 @@ from fuelid.errors import InputError
 from fuelid.ident.dataset import Dataset
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.effects import get_effect, parse_effect
+from fuelid.ident.hammerstein import MAP_COLUMN, MAP_EFFECT, RISE_COLUMN, RISE_MAP_COLUMN, steady_state_map
 from fuelid.ident.modeldata import model_data
-from fuelid.ident.polymodel import PolyModel
+from fuelid.ident.polymodel import PolyModel, polynomials
 
 # The reference condition: bus signal → (value [its DBC unit], what it states).
 REFERENCE: dict[str, tuple[float, str]] = {
@@ -58,6 +60,9 @@ REFERENCE: dict[str, tuple[float, str]] = {
     "ETC2.TransCurrentGear": (12.0, "driving: in gear, no shift"),
     "ETC2.TransSelectedGear": (12.0, "driving: in gear, no shift"),
 }
+MAP_INPUTS = (MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN)  # the engine map's columns: in its static map f(n, T)
+STEP = 1e-6  # central differences' step relative to max(|θ_j|, STEP_FLOOR)
+STEP_FLOOR = 1e-2
 SAMPLES = 16  # length of the constant dataset: a rate of change by central differences is 0 on it
 SURFACE = ("1", "n", "T", "n.T", "n2", "T2", "n2.T")  # data_reference's basis in krpm and kNm (or 100 %)
 DECIDED_BY_POINT = 0.05  # at most this share of a signal's variance left by SURFACE: a function of the point
@@ -87,10 +92,12 @@ def _surface(n: np.ndarray, T: np.ndarray, torque_unit: str) -> np.ndarray:
 
 
 def _signals_of(effect_id: str, defined) -> tuple[str, ...]:
-    """The bus signals an effect names; a generic effect ``FORM:SIG`` (ident.effects.generic_effects) names SIG."""
+    """The bus signals an effect's inputs are built from; a generic effect ``FORM:SIG`` (ident.effects.generic_effects)
+    names SIG; a shift (the fuel signal's delay) has no input: held for ever, a delayed constant is the constant."""
     if ":" in effect_id:
         return (effect_id.split(":", 1)[1],)
-    return get_effect(effect_id, None, defined).signals
+    effect = get_effect(effect_id, None, defined)
+    return () if effect.enters == "shift" else effect.signals
 
 
 def _model_signals(model: PolyModel) -> list[tuple[str, str]]:
@@ -174,23 +181,38 @@ def steady_inputs(model: PolyModel, speed_rpm: float, torque: float,
     return u[n // 2] - np.asarray(model.u0), said
 
 
-def steady_gradient(model: PolyModel, du: np.ndarray) -> np.ndarray:
-    """∂y_ss/∂θ at input deviations du (module docstring), in the order of parameter_names."""
-    s = model.structure
-    a1 = model.A.sum()
-    f1 = np.array([f.sum() for f in model.F])
-    gains = static_gains(model)
-    grad = [np.full(s.na, -(gains @ du) / a1)]
-    grad += [np.full(nb, du[i] / (a1 * f1[i])) for i, nb in enumerate(s.nb)]
-    grad += [np.full(nf, -gains[i] * du[i] / f1[i]) for i, nf in enumerate(s.nf)]
-    return np.concatenate(grad + [np.zeros(s.nc + s.nd)])
+def steady_value(model: PolyModel, speed_rpm: float, torque: float, du: np.ndarray) -> float:
+    """y_ss [output unit] at (speed_rpm [rpm], torque [torque unit]) with input deviations du (`steady_inputs`):
+    the static map f(n, T) plus Σ G_i du_i over the inputs outside it (module docstring). InputError for an engine
+    model without its map's input."""
+    if MAP_EFFECT in model.effects and MAP_COLUMN not in model.input_names:
+        raise InputError(f"the model carries an engine map but no input named {MAP_COLUMN!r}: not a model fuelid wrote")
+    beyond = [i for i, name in enumerate(model.input_names) if i >= 2 and name not in MAP_INPUTS]
+    static = float(steady_state_map(model, [speed_rpm], [torque])[0])
+    return static + float(static_gains(model)[beyond] @ du[beyond]) if beyond else static
 
 
-def std_error(model: PolyModel, du: np.ndarray) -> float | None:
-    """σ = √(gᵀ P g) [output unit] of y_ss at deviations du; None without a covariance."""
+def steady_gradient(model: PolyModel, speed_rpm: float, torque: float, du: np.ndarray) -> np.ndarray:
+    """g = ∂y_ss/∂θ [output unit per parameter unit] at the point, in the order of parameter_names: central
+    differences of `steady_value` over θ with steps STEP · max(|θ_j|, STEP_FLOOR) (0 for the noise model c, d,
+    which the steady state does not depend on)."""
+    s, theta = model.structure, model.theta
+    g = np.zeros(s.n_params)
+    for j in range(s.n_params - s.nc - s.nd):
+        h = STEP * max(abs(theta[j]), STEP_FLOOR)
+        up, down = theta.copy(), theta.copy()
+        up[j] += h
+        down[j] -= h
+        at = [dataclasses.replace(model, **polynomials(t, s)._asdict(), covariance=None) for t in (up, down)]
+        g[j] = (steady_value(at[0], speed_rpm, torque, du) - steady_value(at[1], speed_rpm, torque, du)) / (2 * h)
+    return g
+
+
+def std_error(model: PolyModel, g: np.ndarray) -> float | None:
+    """σ = √(gᵀ P g) [output unit] for the gradient g of a steady state (`steady_gradient`); None without a
+    covariance."""
     if model.covariance is None:
         return None
-    g = steady_gradient(model, du)
     return math.sqrt(max(float(g @ model.covariance @ g), 0.0))
 
 
@@ -199,5 +221,6 @@ def steady_fuel(model: PolyModel, speed_rpm: float, torque: float, reference: di
     signal at the reference condition (`REFERENCE`, overridden per signal by `reference` {signal: value}), and
     its standard error by the delta method (module docstring)."""
     du, said = steady_inputs(model, speed_rpm, torque, reference)
-    value = model.y0 + float(static_gains(model) @ du)
-    return SteadyState(float(speed_rpm), float(torque), value, std_error(model, du), model.output_unit, said)
+    value = steady_value(model, speed_rpm, torque, du)
+    error = std_error(model, steady_gradient(model, speed_rpm, torque, du)) if model.covariance is not None else None
+    return SteadyState(float(speed_rpm), float(torque), value, error, model.output_unit, said)

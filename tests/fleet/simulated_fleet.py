@@ -17,6 +17,7 @@ import sqlalchemy as sa
 from fuelid.fleet import db
 from fuelid.fleet.storage import BlobStore
 from fuelid.ident.enginemap import fit_map
+from fuelid.ident.hammerstein import MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN
 from fuelid.ident.modelfile import to_dict
 from fuelid.ident.polymodel import PolyModel
 
@@ -52,7 +53,7 @@ def mapped_model(factor: float = 1.0) -> PolyModel:
     base = engine_model(factor)
     gains = [1.0, 0.0, 0.0]
     m = PolyModel(A=base.A, B=base.B + [[factor * g] for g in gains], F=base.F + [[1.0]] * 3, C=base.C, D=base.D,
-                  Ts=base.Ts, nk=base.nk + (0,) * 3, input_names=base.input_names + tuple(f"map {k}" for k in range(3)),
+                  Ts=base.Ts, nk=base.nk + (0,) * 3, input_names=base.input_names + (MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN),
                   input_units=base.input_units + ("L/h", "kNm/s", "kNm/s"), output_name=base.output_name,
                   output_unit=base.output_unit, u0=base.u0 + (0.0,) * 3, y0=base.y0, effects=("engine_map",),
                   info={**base.info, "effect_parameters": {"engine_map": MAP}})

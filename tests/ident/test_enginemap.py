@@ -79,3 +79,13 @@ def test_to_dict_and_back_gives_the_same_map_with_its_units(fitted):
 def test_too_few_fuelled_samples_is_an_input_error():
     with pytest.raises(InputError, match="at least"):
         fit_map(np.full(50, 1000.0), np.linspace(1, 100, 50), np.ones(50), (600.0, 0.0), 1.0)
+
+
+def test_a_plane_s_coefficients_reproduce_the_plane_over_the_knot_box():
+    from fuelid.ident.enginemap import EngineMap, knots
+
+    tn, tt = knots(600.0, 2000.0), knots(0.0, 1500.0)
+    shell = EngineMap(tn, tt, np.zeros(81), (0, 0, 0), (700.0, 100.0), 1.0, 0.0, np.zeros((12, 12)), "rpm", "Nm")
+    plane = shell.with_coefficients(shell.plane_coefficients(3.0, 0.01, 0.02), (3.0, 0.01, 0.02))
+    n, T = np.meshgrid(np.linspace(600, 2000, 7), np.linspace(1, 1500, 7))
+    assert np.allclose(plane(n, T), plane.plane_at(n, T)) and np.allclose(plane.beyond_plane(n, T), 0.0, atol=1e-9)

@@ -7,6 +7,7 @@ import pytest
 from fuelid.errors import InputError
 from fuelid.ident.dataset import Dataset
 from fuelid.ident.enginemap import EngineMap, fit_map
+from fuelid.ident.hammerstein import MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN
 from fuelid.ident.polymodel import PolyModel, from_theta, simulate
 from fuelid.ident.steady import data_reference, steady_fuel, steady_inputs
 
@@ -33,7 +34,9 @@ def map_model(map_gain=1.0, cov_scale=1e-10):
     truck's data show, L = 40 %/kNm · T) and a DPF regeneration's three, about idle (600 rpm, 0 N·m, 2 L/h)."""
     B = [[0, 0.004, 0.002], [0.01, 0.004], [map_gain], [0.01], [0.001], [0.02], [3.0], [0.001], [0.002]]
     F = [[1, -0.5], [1, -0.3]] + [[1.0]] * 4 + [[1, -0.2]] * 3
-    m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 8,
+    names = ("speed", "torque", MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN, LOAD) + tuple(f"regeneration {k}"
+                                                                                       for k in (1, 2, 3))
+    m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 8, input_names=names,
                   input_units=("rpm", "Nm") + ("1",) * 7, output_unit="L/h", u0=(600.0, 0.0) + (0.0,) * 7, y0=2.0,
                   effects=("engine_map", f"level:{LOAD}", "dpf_regeneration"),
                   info={"effect_parameters": {"engine_map": MAP},
@@ -81,8 +84,9 @@ def test_a_regenerating_reference_burns_more():
 def test_standard_error_matches_sampling_the_parameters():
     m = map_model(cov_scale=1e-8)
     draws = np.random.default_rng(0).multivariate_normal(m.theta, m.covariance, size=2000)
-    values = [steady_fuel(from_theta(t, m.structure, m.Ts, u0=m.u0, y0=m.y0, input_units=m.input_units,
-                                     effects=m.effects, info=m.info), 1200, 1200).value for t in draws]
+    values = [steady_fuel(from_theta(t, m.structure, m.Ts, u0=m.u0, y0=m.y0, input_names=m.input_names,
+                                     input_units=m.input_units, effects=m.effects, info=m.info), 1200, 1200).value
+              for t in draws]
     assert steady_fuel(m, 1200, 1200).std_error == pytest.approx(np.std(values), rel=0.08)
 
 
@@ -118,7 +122,7 @@ def test_an_effect_on_a_bus_signal_is_held_at_its_reference():
             (f"scales:{sig}", {"effect_parameters": {f"scales:{sig}": 95.0}}, [[0.1], [0.01], [0.02]], 0.0),
             (f"level:{sig}", {"steady_reference": {sig: {"median": 90.0}}}, [[0.1]], 0.1 * 90.0 / 0.8)]:
         m = PolyModel(A=base.A, B=base.B + B, F=base.F + [[1.0]] * len(B), C=base.C, D=base.D, Ts=0.3,
-                      nk=base.nk + (0,) * len(B), input_units=base.input_units + ("1",) * len(B), output_unit="L/h",
+                      nk=base.nk + (0,) * len(B), input_names=base.input_names + (spec,) * len(B), input_units=base.input_units + ("1",) * len(B), output_unit="L/h",
                       u0=base.u0 + (0.0,) * len(B), y0=2.0, effects=base.effects + (spec,),
                       info={**base.info, **extra_info,
                             "effect_parameters": {**base.info["effect_parameters"],
@@ -127,3 +131,16 @@ def test_an_effect_on_a_bus_signal_is_held_at_its_reference():
         s = steady_fuel(m, 1200, 1200)
         assert s.value - steady_fuel(base, 1200, 1200).value == pytest.approx(expected, abs=1e-9), spec
         assert sig in s.reference
+
+
+def test_the_fuel_signals_delay_leaves_the_steady_state_as_it_is():
+    """A shift of the fuel signal (fuel_delay) has no input: held for ever, a delayed constant is the constant, and
+    the fuel signal it names needs no reference value."""
+    m = map_model()
+    delayed = PolyModel(A=m.A, B=m.B, F=m.F, C=m.C, D=m.D, Ts=m.Ts, nk=m.nk, input_names=m.input_names,
+                        input_units=m.input_units, output_unit="L/h", u0=m.u0, y0=m.y0,
+                        effects=m.effects + ("fuel_delay",), covariance=m.covariance,
+                        info={**m.info, "effect_parameters": {**m.info["effect_parameters"], "fuel_delay": 0.6}})
+    s = steady_fuel(delayed, 1200, 1200)
+    assert s.value == pytest.approx(steady_fuel(m, 1200, 1200).value, rel=1e-12)
+    assert "LFE1.EngFuelRate" not in s.reference
