@@ -5,8 +5,9 @@ A reference point p = (engine speed n [rpm], engine torque T [N·m or % of refer
 torque unit]) is held for ever; the model's output settles at y_ss(p), the whole model's steady state with
 every other signal at the stated reference condition (ident.steady: the effects' inputs rebuilt at the point,
 the engine model's static map included). The fleet compares the mean over the K points, S = (1/K) Σ_k y_ss(p_k),
-whose standard error by the delta method is σ_S = √(gᵀ P g), g = ∂S/∂θ = (1/K) Σ_k ∂y_ss(p_k)/∂θ
-(ident.steady.steady_gradient) and P the covariance of θ.
+whose standard error by the delta method is σ_S = √(gᵀ P g + φᵀ C φ), g = ∂S/∂θ = (1/K) Σ_k ∂y_ss(p_k)/∂θ
+(ident.steady.steady_gradient), P the covariance of θ, and for an engine model φ = (1/K) Σ_k φ(p_k) the mean of
+its map's basis at the points and C the covariance of the map's coefficients (ident.steady.map_basis).
 
 Drift of the latest model against the first is d = 100 (S₁/S₀ − 1) [%] with
 σ_d = 100 √(σ₁² + (S₁/S₀)² σ₀²) / S₀ (the two fits are on different data, so independent). A truck is
@@ -22,7 +23,7 @@ import numpy as np
 
 from fuelid.errors import InputError
 from fuelid.ident.polymodel import PolyModel
-from fuelid.ident.steady import std_error, steady_gradient, steady_inputs, steady_value
+from fuelid.ident.steady import map_basis, std_error, steady_gradient, steady_inputs, steady_value
 
 TORQUE_UNITS = ("Nm", "%")
 _POINT = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*x\s*(-?[0-9]+(?:\.[0-9]*)?)\s*(Nm|%)\s*$")
@@ -95,7 +96,8 @@ def steady_fuel(model: PolyModel, points: tuple[ReferencePoint, ...]) -> SteadyF
     sigma = None
     if model.covariance is not None:
         g = np.mean([steady_gradient(model, p.speed_rpm, p.torque, d) for p, d in zip(points, du)], axis=0)
-        sigma = std_error(model, g)
+        phi = [map_basis(model, p.speed_rpm, p.torque) for p in points]
+        sigma = std_error(model, g, None if phi[0] is None else np.mean(phi, axis=0))
     return SteadyFuel(tuple(float(v) for v in per_point), float(per_point.mean()), sigma, model.output_unit,
                       reference[0])
 

@@ -35,6 +35,17 @@ gains, so that the model's steady state is s itself. A plane's coefficients on t
 
 The validity region is the data's coverage: sample counts on a COVERAGE_BINS × COVERAGE_BINS grid over the knot box
 (`covered`: at least COVERAGE_MIN samples in the cell).
+
+The coefficients' covariance (`coefficient_covariance`) is the sandwich of the penalised least-squares estimate,
+robust to errors correlated in time: with A = ΦᵀΦ + λ'P (the penalised Gram matrix), r = y − Φ ĉ and the samples
+cut into consecutive blocks b of COVARIANCE_BLOCK samples,
+
+    Cov(ĉ) = A⁻¹ (Σ_b Φ_bᵀ r_b r_bᵀ Φ_b) A⁻¹
+
+(the cluster-robust estimator of Liang & Zeger 1986 with blocks as clusters; for the penalised fit's frequentist
+covariance, Wood, *Generalized Additive Models*, 2017, §6.9). It ignores the bounds (where a bound holds, the true
+spread is smaller) and the smoothing bias; a steady state s(p) = φ(p)ᵀ ĉ has the variance φ(p)ᵀ Cov(ĉ) φ(p)
+(ident.steady).
 """
 from __future__ import annotations
 
@@ -55,6 +66,7 @@ COVERAGE_BINS = 12
 COVERAGE_MIN = 10  # samples in a coverage cell for it to count as covered
 SMOOTHING_GRID = np.logspace(-6, 3, 19)  # λ tried by GCV, relative to tr(ΦᵀΦ)/tr(P)
 MIN_SAMPLES = 200
+COVARIANCE_BLOCK = 100  # samples per block of `coefficient_covariance` (30 s at 0.3 s): longer than the errors' memory
 
 
 def knots(lo: float, hi: float, segments: int = SEGMENTS) -> np.ndarray:
@@ -136,6 +148,7 @@ class EngineMap:
     speed_unit: str = "rpm"
     torque_unit: str = "%"
     fuel_unit: str = "L/h"
+    covariance: np.ndarray | None = None
 
     def __post_init__(self):
         self.speed_knots = np.asarray(self.speed_knots, float)
@@ -145,6 +158,8 @@ class EngineMap:
         self.coverage = np.asarray(self.coverage, float)
         self.plane = tuple(float(v) for v in self.plane)
         self.operating_point = tuple(float(v) for v in self.operating_point)
+        if self.covariance is not None:
+            self.covariance = np.asarray(self.covariance, float).reshape(self.coef.size, self.coef.size)
 
     @property
     def speed_range(self) -> tuple[float, float]:
@@ -216,11 +231,13 @@ class EngineMap:
         n0, T0 = self.operating_point
         return a + b_n * (greville(self.speed_knots)[:, None] - n0) + b_T * (greville(self.torque_knots)[None, :] - T0)
 
-    def with_coefficients(self, coef, plane, smoothing: float | None = None) -> EngineMap:
-        """This map with other coefficients (kn·kt) and plane (and smoothing λ, when given)."""
+    def with_coefficients(self, coef, plane, smoothing: float | None = None,
+                          covariance: np.ndarray | None = None) -> EngineMap:
+        """This map with other coefficients (kn·kt), plane, and smoothing λ and covariance [fuel unit²] (kn·kt ×
+        kn·kt) when given (else this map's λ, and no covariance)."""
         return EngineMap(self.speed_knots, self.torque_knots, np.asarray(coef, float), plane, self.operating_point,
                          self.fuel_scale, self.smoothing if smoothing is None else smoothing, self.coverage,
-                         self.speed_unit, self.torque_unit, self.fuel_unit)
+                         self.speed_unit, self.torque_unit, self.fuel_unit, covariance)
 
     def to_dict(self) -> dict:
         """JSON-ready: the knots, coefficients (speed index first), plane, coverage and units."""
@@ -232,7 +249,8 @@ class EngineMap:
                 "operating_point": {"speed": self.operating_point[0], "torque": self.operating_point[1]},
                 "fuel_scale": self.fuel_scale, "smoothing": self.smoothing,
                 "cut_torque": CUT_TORQUE,
-                "coverage": {"bins": COVERAGE_BINS, "min_samples": COVERAGE_MIN, "counts": self.coverage.tolist()}}
+                "coverage": {"bins": COVERAGE_BINS, "min_samples": COVERAGE_MIN, "counts": self.coverage.tolist()},
+                **({} if self.covariance is None else {"covariance": self.covariance.tolist()})}
 
     @classmethod
     def from_dict(cls, d: dict) -> EngineMap:
@@ -242,7 +260,7 @@ class EngineMap:
                        (d["plane"]["p0"], d["plane"]["per_speed"], d["plane"]["per_torque"]),
                        (d["operating_point"]["speed"], d["operating_point"]["torque"]), float(d["fuel_scale"]),
                        float(d["smoothing"]), d["coverage"]["counts"], d["units"]["speed"], d["units"]["torque"],
-                       d["units"]["fuel"])
+                       d["units"]["fuel"], d.get("covariance"))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(f"malformed engine map: {exc}") from None
 
@@ -283,19 +301,36 @@ def penalised_fit(phi: np.ndarray, y: np.ndarray, kn: int, kt: int, smoothing: f
     G + λ'P = L Lᵀ it is ‖Lᵀ c − L⁻¹ g‖² + const, a K × K bounded least-squares problem for scipy.optimize.lsq_linear
     (K = kn·kt; the penalty keeps G + λ'P well conditioned: its null space, the bilinear surfaces, is determined
     by any data not on one line). Returns (c, λ)."""
+    return penalised_gram_fit(phi.T @ phi, phi.T @ y, float(y @ y), len(y), kn, kt, smoothing, monotone, lower)
+
+
+def penalty_gram(kn: int, kt: int) -> np.ndarray:
+    """P = RᵀR of the second-difference penalty (`penalty`)."""
     R = penalty(kn, kt)
-    G, g, P = phi.T @ phi, phi.T @ y, R.T @ R
-    return penalised_gram_fit(G, g, float(y @ y), len(y), kn, kt, smoothing, monotone, lower)
+    return R.T @ R
+
+
+def penalised_gram(G: np.ndarray, smoothing: float, kn: int, kt: int) -> np.ndarray:
+    """A = G + λ' P (+ a ridge of 1e-10 tr G), λ' = λ tr(G)/tr(P): the Gram matrix of the penalised fit."""
+    P = penalty_gram(kn, kt)
+    return G + smoothing * np.trace(G) / np.trace(P) * P + 1e-10 * np.trace(G) * np.eye(len(G))
+
+
+def coefficient_covariance(phi: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """Cov(ĉ) = A⁻¹ (Σ_b Φ_bᵀ r_b r_bᵀ Φ_b) A⁻¹ [fuel unit²] (module docstring) from the design Φ (N × K, rows in
+    time order), the residuals r (N) and the penalised Gram matrix A (`penalised_gram`)."""
+    blocks = np.arange(len(r)) // COVARIANCE_BLOCK
+    scores = np.zeros((blocks[-1] + 1 if len(r) else 0, phi.shape[1]))
+    np.add.at(scores, blocks, phi * r[:, None])
+    Ainv_S = solve(A, scores.T, assume_a="pos")  # A⁻¹ Φ_bᵀ r_b, one column per block
+    return Ainv_S @ Ainv_S.T
 
 
 def penalised_gram_fit(G, g, yy: float, N: int, kn: int, kt: int, smoothing: float | None = None,
                        monotone: bool = True, lower: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """`penalised_fit` from G = ΦᵀΦ, g = Φᵀy, yy = yᵀy and the number of samples N."""
-    R = penalty(kn, kt)
-    P = R.T @ R
-    lam = gcv_smoothing(G, g, yy, N, P) if smoothing is None else smoothing
-    A = G + lam * np.trace(G) / np.trace(P) * P + 1e-10 * np.trace(G) * np.eye(len(G))
-    L = cholesky(A, lower=True)
+    lam = gcv_smoothing(G, g, yy, N, penalty_gram(kn, kt)) if smoothing is None else smoothing
+    L = cholesky(penalised_gram(G, lam, kn, kt), lower=True)
     M = monotone_transform(kn, kt) if monotone else np.eye(kn * kt)
     b = solve_triangular(L, g, lower=True)
     if not monotone:
@@ -309,7 +344,9 @@ def fit_map(n, T, y, op, y0: float, units=("rpm", "%", "L/h"), smoothing: float 
     """The static map of fuel y [fuel unit] over speed n [rpm] and torque T [torque unit] (finite samples of the
     three arrays): knots over their range (torque from max(min T, CUT_TORQUE)), coefficients by `penalised_fit`
     (non-negative, monotone in torque; λ by GCV when not given), the plane through (op = (n0, T0), y0) with the slopes
-    of the least-squares plane over these samples, their coverage. InputError with fewer than MIN_SAMPLES samples above the cut torque."""
+    of the least-squares plane over these samples, their coverage, the coefficients' covariance
+    (`coefficient_covariance`, the samples in the order given). InputError with fewer than MIN_SAMPLES samples above
+    the cut torque."""
     n, T, y = (np.asarray(a, float).ravel() for a in (n, T, y))
     ok = np.isfinite(n) & np.isfinite(T) & np.isfinite(y)
     n, T, y = n[ok], T[ok], y[ok]
@@ -323,6 +360,9 @@ def fit_map(n, T, y, op, y0: float, units=("rpm", "%", "L/h"), smoothing: float 
     phi = shell.basis(n, T)
     kn, kt = shell.coef.shape
     c, lam = penalised_fit(phi[fuelled], y[fuelled], kn, kt, smoothing)
+    with one_blas_thread():
+        cov = coefficient_covariance(phi[fuelled], y[fuelled] - phi[fuelled] @ c,
+                                     penalised_gram(phi[fuelled].T @ phi[fuelled], lam, kn, kt))
     counts = np.histogram2d(n, T, bins=COVERAGE_BINS, range=[shell.speed_range, shell.torque_range])[0]
     plane = (y0, *(plane_slopes(phi, n, T, op) @ c))
-    return EngineMap(tn, tt, c, plane, op, float(np.percentile(y, 95)) or 1.0, lam, counts, *units)
+    return EngineMap(tn, tt, c, plane, op, float(np.percentile(y, 95)) or 1.0, lam, counts, *units, cov)

@@ -49,7 +49,7 @@ import numpy as np
 
 from fuelid.blas import one_blas_thread
 from fuelid.ident.effects import MAP_COLUMNS
-from fuelid.ident.enginemap import EngineMap, penalised_gram_fit
+from fuelid.ident.enginemap import EngineMap, coefficient_covariance, penalised_gram, penalised_gram_fit
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.pem import pem
@@ -92,7 +92,9 @@ def as_steady_state(model: PolyModel) -> PolyModel:
     (the plane's coefficients exact on the B-spline basis: EngineMap.plane_coefficients) so that
     m' = s' − plane' = g m: the map's path is unchanged and f(n, T) = y0 + g_n ñ + g_T T̃ + G_m'(1) m' = s'
     over the knot box (speed is clamped outside it). The transient column r·s/f_scale takes s' (its B divided by g
-    too): unchanged up to r times the plane's change (the transient fuelling's share of it). The model unchanged
+    too): unchanged up to r times the plane's change (the transient fuelling's share of it). The coefficients'
+    covariance becomes g² times its own (the plane's part is the paths', whose uncertainty θ's covariance carries).
+    The model unchanged
     when G_m(1) is not above MIN_MAP_GAIN (no map to speak of)."""
     emap = engine_map_of(model)
     names = model.input_names
@@ -103,7 +105,8 @@ def as_steady_state(model: PolyModel) -> PolyModel:
     g_n, g_T = path_gains(model)
     p0, p_n, p_T = emap.plane
     c = g * emap.coef + emap.plane_coefficients((1.0 - g) * p0, g_n - g * p_n, g_T - g * p_T)
-    fitted = emap.with_coefficients(c, (p0, g_n, g_T))
+    fitted = emap.with_coefficients(c, (p0, g_n, g_T), covariance=None if emap.covariance is None
+                                    else g ** 2 * emap.covariance)
     B = list(model.B)
     B[j], B[jr] = B[j] / g, B[jr] / g
     params = {**model.info["effect_parameters"], MAP_EFFECT: fitted.to_dict()}
@@ -166,7 +169,8 @@ def loss(model: PolyModel, u: np.ndarray, y: np.ndarray, segments) -> float:
 def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
     """Step (c) of the module docstring: the model with its map's coefficients by penalised least squares on the
     simulation error given its dynamics, on the slices `segments` of dataset ds, rescaled to G_m(1) = 1, the map's
-    plane the paths' static gains (y0, G_n(1), G_T(1)); None when
+    plane the paths' static gains (y0, G_n(1), G_T(1)), with the coefficients' covariance (ident.enginemap.
+    coefficient_covariance of the filtered basis Z and the simulation error left); None when
     the map's transfer function has no positive static gain G_m(1) > MIN_MAP_GAIN (the data give the map's input no
     weight: nothing to refit)."""
     emap = engine_map_of(model)
@@ -198,12 +202,14 @@ def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
             z_all.append(through[n0:])
         w, Z = np.concatenate(w_all), np.vstack(z_all)
         kn, kt = emap.coef.shape
-        c, lam = penalised_gram_fit(Z.T @ Z, Z.T @ w, float(w @ w), len(w), kn, kt)
+        G = Z.T @ Z
+        c, lam = penalised_gram_fit(G, Z.T @ w, float(w @ w), len(w), kn, kt)
+        cov = coefficient_covariance(Z, w - Z @ c, penalised_gram(G, lam, kn, kt))
     # x_map = φ c − (y0 + g_n ñ + g_T T̃) times the gain: the plane's coefficients (exact on the basis) scaled alike
     c = gain * c - (gain - 1.0) * emap.plane_coefficients(p0, g_n, g_T).ravel()
     B = list(model.B)
     B[j], B[jr] = B[j] / gain, B[jr] / gain
-    fitted = emap.with_coefficients(c, (p0, g_n, g_T), lam)
+    fitted = emap.with_coefficients(c, (p0, g_n, g_T), lam, gain ** 2 * cov)
     params = {**model.info["effect_parameters"], MAP_EFFECT: fitted.to_dict()}
     return dataclasses.replace(model, B=B, covariance=None, info={**model.info, "effect_parameters": params})
 

@@ -22,11 +22,12 @@ decides: the load against the full-load curve) or takes its median (signals it d
 store that in the model (info["steady_reference"]). An effect centred on a level (``scales:SIG``) is at that
 level. A signal with no value at all is an InputError naming it.
 
-Uncertainty by the delta method, σ = √(gᵀ P g), P the covariance of θ = (a, b, f, c, d) (order of
+Uncertainty by the delta method, σ = √(gᵀ P g + φᵀ C φ): P the covariance of θ = (a, b, f, c, d) (order of
 ident.polymodel.parameter_names) and g = ∂y_ss/∂θ by central differences (`steady_gradient`: y_ss is a rational
-function of θ whatever the static map does with it; 0 for the noise model c, d). The engine map's coefficients
-carry no covariance (ident.hammerstein), so σ is the part of the uncertainty the dynamics' parameters carry. A mean
-over points has the mean of their gradients.
+function of θ whatever the static map does with it; 0 for the noise model c, d); for an engine model, C the
+covariance of its map's coefficients c (ident.enginemap.coefficient_covariance) and φ = ∂y_ss/∂c the map's basis at
+the point (`map_basis`; the map is fitted given the dynamics, so the two parts are added as independent). A mean
+over points has the mean of their gradients and of their φ.
 """
 from __future__ import annotations
 
@@ -40,7 +41,8 @@ from fuelid.errors import InputError
 from fuelid.ident.dataset import Dataset
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.effects import get_effect, parse_effect
-from fuelid.ident.hammerstein import MAP_COLUMN, MAP_EFFECT, RISE_COLUMN, RISE_MAP_COLUMN, steady_state_map
+from fuelid.ident.hammerstein import (MAP_COLUMN, MAP_EFFECT, RISE_COLUMN, RISE_MAP_COLUMN, engine_map_of,
+                                      steady_state_map)
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.polymodel import PolyModel, polynomials
 
@@ -208,12 +210,25 @@ def steady_gradient(model: PolyModel, speed_rpm: float, torque: float, du: np.nd
     return g
 
 
-def std_error(model: PolyModel, g: np.ndarray) -> float | None:
-    """σ = √(gᵀ P g) [output unit] for the gradient g of a steady state (`steady_gradient`); None without a
-    covariance."""
+def map_basis(model: PolyModel, speed_rpm: float, torque: float) -> np.ndarray | None:
+    """φ = ∂y_ss/∂c = G_m(1) × the engine map's basis at the point (kn·kt; G_m the map input's static gain, 1 for a
+    model `fuelid identify` wrote), None for a model without a map or without its coefficients' covariance."""
+    emap = engine_map_of(model)
+    if emap is None or emap.covariance is None:
+        return None
+    return static_gains(model)[model.input_names.index(MAP_COLUMN)] * emap.basis([speed_rpm], [torque])[0]
+
+
+def std_error(model: PolyModel, g: np.ndarray, phi: np.ndarray | None = None) -> float | None:
+    """σ = √(gᵀ P g + φᵀ C φ) [output unit] for the gradient g of a steady state (`steady_gradient`) and φ its
+    gradient over the map's coefficients (`map_basis`, None: no map term), C their covariance; None without a
+    covariance of θ."""
     if model.covariance is None:
         return None
-    return math.sqrt(max(float(g @ model.covariance @ g), 0.0))
+    var = float(g @ model.covariance @ g)
+    if phi is not None:
+        var += float(phi @ engine_map_of(model).covariance @ phi)
+    return math.sqrt(max(var, 0.0))
 
 
 def steady_fuel(model: PolyModel, speed_rpm: float, torque: float, reference: dict | None = None) -> SteadyState:
@@ -222,5 +237,6 @@ def steady_fuel(model: PolyModel, speed_rpm: float, torque: float, reference: di
     its standard error by the delta method (module docstring)."""
     du, said = steady_inputs(model, speed_rpm, torque, reference)
     value = steady_value(model, speed_rpm, torque, du)
-    error = std_error(model, steady_gradient(model, speed_rpm, torque, du)) if model.covariance is not None else None
+    error = std_error(model, steady_gradient(model, speed_rpm, torque, du), map_basis(model, speed_rpm, torque)) \
+        if model.covariance is not None else None
     return SteadyState(float(speed_rpm), float(torque), value, error, model.output_unit, said)

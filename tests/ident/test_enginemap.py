@@ -89,3 +89,31 @@ def test_a_plane_s_coefficients_reproduce_the_plane_over_the_knot_box():
     plane = shell.with_coefficients(shell.plane_coefficients(3.0, 0.01, 0.02), (3.0, 0.01, 0.02))
     n, T = np.meshgrid(np.linspace(600, 2000, 7), np.linspace(1, 1500, 7))
     assert np.allclose(plane(n, T), plane.plane_at(n, T)) and np.allclose(plane.beyond_plane(n, T), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("rho", [0.0, 0.9])
+def test_the_coefficients_covariance_predicts_the_spread_of_the_map_over_repeated_noisy_data(rho):
+    """Over 40 draws of the data (noise white, or AR(1) with ρ = 0.9 as a simulation error is), the spread of s at
+    three points is the one φᵀ Cov(ĉ) φ predicts (within the Monte-Carlo error of 40 draws and the estimator's own)."""
+    rng = np.random.default_rng(7)
+    n, T = rng.uniform(600, 1900, 3000), rng.uniform(200, 1700, 3000)
+    points = (np.array([900.0, 1200.0, 1600.0]), np.array([500.0, 1000.0, 1400.0]))
+    values, predicted = [], []
+    for _ in range(40):
+        e = rng.normal(0.0, 0.5, n.size)
+        noise = np.empty_like(e)
+        noise[0] = e[0]
+        for k in range(1, e.size):  # AR(1), unit-variance scaled
+            noise[k] = rho * noise[k - 1] + np.sqrt(1 - rho ** 2) * e[k]
+        emap = fit_map(n, T, surface(n, T) + noise, (600.0, 112.0), 2.0, ("rpm", "Nm", "L/h"), smoothing=1e-3)
+        phi = emap.basis(*points)
+        values.append(emap(*points))
+        predicted.append(np.sqrt(np.einsum("pk,kl,pl->p", phi, emap.covariance, phi)))
+    ratio = np.std(values, axis=0, ddof=1) / np.mean(predicted, axis=0)
+    assert ((ratio > 0.6) & (ratio < 1.5)).all(), ratio
+
+
+def test_the_covariance_travels_with_the_map(fitted):
+    again = EngineMap.from_dict(json.loads(json.dumps(fitted.to_dict())))
+    assert again.covariance.shape == (fitted.coef.size, fitted.coef.size)
+    assert np.allclose(again.covariance, fitted.covariance)

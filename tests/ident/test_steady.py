@@ -90,6 +90,26 @@ def test_standard_error_matches_sampling_the_parameters():
     assert steady_fuel(m, 1200, 1200).std_error == pytest.approx(np.std(values), rel=0.08)
 
 
+def test_the_maps_coefficient_uncertainty_adds_to_the_standard_error_as_sampling_both_says():
+    """θ and the map's coefficients c drawn from their covariances (independent): the spread of the steady state is
+    σ = √(gᵀPg + φᵀCφ)."""
+    m = map_model(cov_scale=1e-8)
+    k = np.asarray(MAP["coefficients"]).size
+    cov_c = np.eye(k) + 0.5 * np.ones((k, k))  # [(L/h)²]
+    m.info = {**m.info, "effect_parameters": {"engine_map": {**MAP, "covariance": cov_c.tolist()}}}
+    rng = np.random.default_rng(1)
+    thetas = rng.multivariate_normal(m.theta, m.covariance, size=1500)
+    coefs = rng.multivariate_normal(np.ravel(MAP["coefficients"]), cov_c, size=1500)
+    values = [steady_fuel(from_theta(t, m.structure, m.Ts, u0=m.u0, y0=m.y0, input_names=m.input_names,
+                                     input_units=m.input_units, effects=m.effects,
+                                     info={**m.info, "effect_parameters": {"engine_map": {
+                                         **MAP, "coefficients": c.reshape(np.shape(MAP["coefficients"])).tolist()}}}),
+                          1200, 1200).value for t, c in zip(thetas, coefs)]
+    sigma = steady_fuel(m, 1200, 1200).std_error
+    assert sigma == pytest.approx(np.std(values), rel=0.08)
+    assert sigma > 1.5 * steady_fuel(map_model(cov_scale=1e-8), 1200, 1200).std_error
+
+
 def test_a_signal_without_a_reference_value_is_named():
     m = map_model()
     m.info = {}
