@@ -3,7 +3,7 @@ simulation error on a validation trip of another day against the simulator's noi
 and the static baselines built from the identification data.
 
     .venv/bin/python benchmarks/bench_engine_model.py [--seeds N | --quick] [--first-seed S] [--engines LIST]
-        [--noise STD] [--jobs J] [--json]
+        [--noise STD] [--also "IDENTIFY OPTIONS"] [--jobs J] [--json]
 
 Engines: `paper` (the paper's linear Box-Jenkins diesel truth, sim.fuel, its own noise of 1.8 L/h std) and every
 VECTO engine set in ../shared/engines/ (its folder name, or any .veng path; without ../shared the shipped
@@ -15,10 +15,14 @@ the reported 1..N, e.g. --first-seed 101): sim.catalog.validation_pair(s) - a 60
 as a candump log and converted (`fuelid convert`). On the identification trip: `fuelid identify` with its default
 (`--model auto` when `fuelid identify --help` offers --model; otherwise today's default, the paper's orders), the
 linear paper model (`--model linear`, or the same default), and `fuelid compare` on the validation trip with the
-static baselines map, eb, ebstar built from the identification trip (`--map-from`). The commands run in the
-worker process (fuelid.cli.main), --jobs processes at a time (at most 2).
+static baselines map, eb, ebstar built from the identification trip (`--map-from`); with --also, one more model,
+`also`, identified with those `fuelid identify` options (e.g. "--model engine --effect fuel_delay=0.1"). The commands
+run in the worker process (fuelid.cli.main), --jobs processes at a time (at most 2).
 
-Reported per engine, over the seeds: the RMS simulation error [L/h] on the validation trip (median and min-max),
+Reported per engine, over the seeds: the RMS simulation error [L/h] on the validation trip (median and min-max)
+as `fuelid compare` scores it and against the measured fuel (`measured_rmse`: `fuelid compare` scores a model with
+the fuel_delay effect against the fuel advanced by τ, an interpolation that smooths the noise it is compared with;
+here its simulation is delayed by τ instead and compared with the fuel the bus reported; the same for other models),
 its ratio to the noise floor (the RMS of the trip's fuel noise over the validation dataset's valid samples: the
 truth.npz array fuel_noise_bin, sim.trip), simulation fit [%], the share of seeds where the default model beats
 each of map, eb and ebstar, and the wall time of one identification (`fuelid identify`'s own wall_time_s: data
@@ -131,6 +135,31 @@ def _valid_floor(mcap: Path, trip) -> float:
     return float(np.sqrt(np.mean(noise[k[ok]] ** 2)))
 
 
+def measured_rmse(model_path: Path, mcap: Path) -> float:
+    """RMS simulation error [fuel unit] of the model against the fuel the bus reported on the dataset of mcap: the
+    simulation of each valid stretch from zero state (its first n_start samples left out, as `fuelid compare`),
+    delayed by the model's fuel_delay τ [s] (ident.fueldelay.shift_signal by −τ/Ts) when it has one."""
+    import warnings
+
+    import numpy as np
+
+    from fuelid.ident.dataset import build_dataset
+    from fuelid.ident.fueldelay import shift_signal
+    from fuelid.ident.modeldata import model_data
+    from fuelid.ident.modelfile import load_model
+    from fuelid.ident.polymodel import simulate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ds = build_dataset([mcap])
+    model = load_model(model_path)
+    tau = float(model.info.get("effect_parameters", {}).get("fuel_delay", 0.0))
+    u, _ = model_data(model, ds)
+    n0 = model.structure.n_start
+    err = [(ds.y[s] - shift_signal(simulate(model, u[s]), -tau / ds.Ts))[n0:] for s in ds.segments()]
+    return float(np.sqrt(np.nanmean(np.concatenate(err) ** 2)))
+
+
 def run_case(label: str, engine: str, seed: int, noise: float, options: dict) -> dict:
     """One engine and seed: simulate, identify every model, compare on the validation trip (module docstring)."""
     from fuelid.sim.catalog import validation_pair
@@ -152,6 +181,7 @@ def run_case(label: str, engine: str, seed: int, noise: float, options: dict) ->
         cmp = _cli_json("compare", *files, valid_mcap, "--baselines", ",".join(BASELINES), "--map-from",
                         ident_mcap)
         floor = _valid_floor(valid_mcap, valid_trip)
+        measured = [measured_rmse(path, valid_mcap) for path in files]
     row = {"engine": label, "seed": seed, "valid_seed": valid_cfg.seed, "noise_floor_l_h": floor,
            "noise_floor_trip_l_h": valid_trip.summary["noise_floor"]["rms"], "simulate_s": t_sim,
            "identify_s": {}, "fit_s": {}}
@@ -163,6 +193,9 @@ def run_case(label: str, engine: str, seed: int, noise: float, options: dict) ->
     for name, s in scores.items():
         row[name] = ({"error": s["error"]} if "error" in s else
                      {"rmse_l_h": s["rmse"]["simulation"], "fit_percent": s["fit_percent"]["simulation"]})
+    for name, opts in options.items():
+        if "error" not in row[name]:
+            row[name]["measured_rmse_l_h"] = measured[files.index(fitted[tuple(opts)][0])]
     return row
 
 
@@ -186,11 +219,12 @@ def summarise(label: str, rows: list[dict], models) -> dict:
     n = len(rows)
     floor = [r["noise_floor_l_h"] for r in rows]
     ratio = [rmse(r, "default") / r["noise_floor_l_h"] for r in rows]
-    out = {"engine": label, "seeds": n, "noise_floor_l_h": _stats(floor),
+    out = {"engine": label, "seeds": n, "models": list(models), "noise_floor_l_h": _stats(floor),
            "identify_s": _stats([r["identify_s"]["default"] for r in rows]),
            "fit_s": _stats([r["fit_s"]["default"] for r in rows])}
     for m in (*models, *BASELINES):
         out[m] = {"rmse_l_h": _stats([rmse(r, m) for r in rows]),
+                  "measured_rmse_l_h": _stats([r[m].get("measured_rmse_l_h") for r in rows]),
                   "fit_percent": _stats([r[m].get("fit_percent") for r in rows]),
                   "errors": sum("error" in r[m] for r in rows)}
     out["default"]["ratio_to_floor"] = _stats(ratio)
@@ -237,6 +271,9 @@ def table(summaries: list[dict], models: str, noise: float) -> str:
             + " ".join(f"{s[b]['rmse_l_h']['median']:>6.3f}" if s[b]['rmse_l_h']['median'] is not None else
                        f"{'-':>6}" for b in BASELINES)
             + f" {s['default_beats_all']:>4}/{s['seeds']:<4} {s['identify_s']['median']:>7.2f}")
+    lines.append("RMS against the measured fuel (a fuel_delay model's simulation delayed by its tau), median [min-max]:")
+    for s in summaries:
+        lines.append(f"  {s['engine']}: " + "; ".join(f"{m} {mm(s[m]['measured_rmse_l_h'])}" for m in s["models"]))
     lines.append("acceptance (issue 55):")
     for s in summaries:
         a, n = s["acceptance"], s["seeds"]
@@ -264,12 +301,17 @@ def main() -> int:
     p.add_argument("--engines", help=f"comma-separated: {PAPER}, folder names in ../shared/engines, .veng paths "
                                      "(default: all)")
     p.add_argument("--noise", type=float, default=0.5, help="fuel noise std on the VECTO engines [L/h] (0.5)")
+    p.add_argument("--also", help='one more model: these `fuelid identify` options, e.g. "--model engine --effect '
+                                  'fuel_delay=0.1"')
     p.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2; default 2)")
     p.add_argument("--json", action="store_true", help="print every seed's figures and the summaries as JSON")
     args = p.parse_args()
     seeds = range(args.first_seed, args.first_seed + (2 if args.quick else args.seeds))
     engines = engine_sets(args.engines)
     options, models = model_options()
+    if args.also:
+        options["also"] = args.also.split()
+        models += f"; also: {args.also}"
     print(models, file=sys.stderr)
     cases = [(label, engine, s, args.noise, options) for label, engine in engines.items() for s in seeds]
     t0 = time.perf_counter()
@@ -283,6 +325,8 @@ def main() -> int:
                   f"(floor {r['noise_floor_l_h']:.3f}), linear {r['linear'].get('rmse_l_h', float('nan')):.3f}, "
                   + ", ".join(f"{b} {r[b].get('rmse_l_h', float('nan')):.3f}" for b in (*options, *BASELINES)
                               if b not in ("default", "linear"))
+                  + "; against the measured fuel: " + ", ".join(
+                      f"{m} {r[m].get('measured_rmse_l_h', float('nan')):.3f}" for m in options)
                   + f"; identify {r['identify_s']['default']:.2f} s", file=sys.stderr)
     summaries = [summarise(label, [r for r in rows if r["engine"] == label], options) for label in engines]
     wall = time.perf_counter() - t0
