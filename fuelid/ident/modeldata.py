@@ -108,3 +108,16 @@ def model_data(model, ds) -> tuple[np.ndarray, np.ndarray]:
     if u.shape[1] != len(model.B):
         raise InputError(f"model has {len(model.B)} inputs but the data and its effects give {u.shape[1]}")
     return u, fx.y
+
+
+def fuel_shift_s(model) -> float:
+    """τ [s]: how far the model's fuel is advanced by a fuel-delay effect (enters "shift": the built-in fuel_delay
+    or one the engineer defined), 0 without one. Its simulation delayed by τ (ident.fueldelay.shift_signal by
+    −τ/Ts) is its fuel as the bus reports it."""
+    defined = effects_of_model(model)
+    params = model.info.get("effect_parameters") or {}
+    for e in model.effects:
+        eid = parse_effect(e)[0]
+        if ":" not in eid and get_effect(eid, defined=defined).enters == "shift":  # generic forms never shift
+            return float(params.get(eid, 0.0))
+    return 0.0

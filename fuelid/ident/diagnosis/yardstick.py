@@ -31,7 +31,8 @@ from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis.candidate import HeldOut
 from fuelid.ident.diagnosis.settings import Settings
 from fuelid.ident.identify import MIN_SEGMENT_S, refit_with_effects
-from fuelid.ident.modeldata import model_data
+from fuelid.ident.fueldelay import shift_signal
+from fuelid.ident.modeldata import fuel_shift_s, model_data
 from fuelid.ident.polymodel import PolyModel, simulate
 from fuelid.ident.validation import cycle_fuel_error, error_table
 
@@ -74,8 +75,8 @@ def make_folds(ds, settings: Settings) -> Folds:
 @dataclass(frozen=True)
 class Scored:
     """Fold models of one effect set and their held-out simulation: models (one per fold), ysim [output unit] each
-    sample's simulation by the fold that left it out (NaN where none did or within a segment's first n_start), y the
-    fuel those models are fitted to (shifted by a fuel delay's τ)."""
+    sample's simulation by the fold that left it out (NaN where none did or within a segment's first n_start), as the
+    bus reports the fuel (delayed by a fuel delay's τ), y the fuel the bus reported."""
 
     models: tuple
     ysim: np.ndarray
@@ -83,18 +84,20 @@ class Scored:
 
 
 def _simulated(model: PolyModel, ds, fitted_on) -> tuple[np.ndarray, np.ndarray]:
-    """(the model's fuel y, its simulation from rest on each valid segment of ds with the first n_start samples
-    NaN). Its inputs are built as on `fitted_on` (ds with the fold's samples invalid): an effect whose columns
-    depend on the valid data (a generic state signal's states) then has the columns the fit had; its fuel (shifted
-    by a fuel delay within each segment) on ds."""
+    """(the fuel the bus reported [output unit], the model's simulation from rest on each valid segment of ds with
+    the first n_start samples NaN). Its inputs are built as on `fitted_on` (ds with the fold's samples invalid): an
+    effect whose columns depend on the valid data (a generic state signal's states) then has the columns the fit had.
+    A model fitted to the fuel advanced by a fuel delay τ (ident.modeldata.fuel_shift_s) has its simulation delayed
+    by τ: every model is scored against the same measured fuel, not against an interpolated (smoother) one."""
     u = model_data(model, fitted_on)[0]
-    y = model_data(model, ds)[1]
-    ysim = np.full(len(y), np.nan)
+    tau = fuel_shift_s(model)
+    ysim = np.full(len(ds.y), np.nan)
     n0 = model.structure.n_start
     for seg in ds.segments():
-        ysim[seg] = simulate(model, u[seg])
+        sim = simulate(model, u[seg])
+        ysim[seg] = shift_signal(sim, -tau / ds.Ts) if tau else sim
         ysim[seg.start:seg.start + n0] = np.nan
-    return y, ysim
+    return np.asarray(ds.y, float), ysim
 
 
 def score(fold_models, ds, folds: Folds) -> Scored:

@@ -43,3 +43,16 @@ def test_a_margin_no_fit_can_reach_rejects_even_the_true_effect(regeneration):
     ds, folds, base = regeneration
     strict = Settings(margin_se=1e6)
     assert not compare(base, refits(list(base.models), ds, folds, ["dpf_regeneration"], strict), folds, strict).passes
+
+
+def test_a_fuel_delay_is_scored_against_the_fuel_the_bus_reported_not_the_smoother_shifted_one(regeneration):
+    """A model fitted to the fuel advanced by τ: its held-out simulation is delayed back by τ and scored against the
+    measured fuel, as the base is; a delay the truth does not have (none here) does not pass."""
+    from fuelid.ident.fueldelay import shift_signal
+
+    ds, folds, base = regeneration
+    delayed = refits(list(base.models), ds, folds, ["fuel_delay=0.45"], S)
+    assert np.array_equal(delayed.y, base.y, equal_nan=True)  # both against the measured fuel
+    assert not compare(base, delayed, folds, S).passes
+    shifted = shift_signal(ds.y, 0.45 / ds.Ts, ds.segments())  # what the model was fitted to: smoother than y
+    assert np.nanstd(np.diff(shifted)) < np.nanstd(np.diff(ds.y))
