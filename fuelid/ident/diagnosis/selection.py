@@ -73,17 +73,16 @@ def _specs(model: PolyModel) -> list[str]:
 
 def built(model: PolyModel, ds, specs: list[str], defined, memo: FitMemo) -> PolyModel:
     """The model `fuelid identify` builds on all of ds with the model's effects and `specs` (ident.identify.
-    identify_model: PEM from the linear model with the effects added in turn; with the engine map, the map and the
-    dynamics jointly; the fits of earlier builds on these data, the linear model and the stages the builds share,
-    served by `memo`). Of identify's two starts only the one from the linear model with the effects added in turn is
-    made (the other, from its own initialisation, would double the cost of every build)."""
+    identify_model: PEM from its initialisation and from the linear model with the effects added in turn, one kept;
+    with the engine map, the map and the dynamics jointly; the fits of earlier builds on these data, the linear
+    model and the stages the builds share, served by `memo`): exactly the model `--effects-from` will add, so that
+    what the yardstick judges is what the engineer gets."""
     s = model.structure
     structure = Structure(nb=s.nb[:2], nf=s.nf[:2], nk=model.nk[:2], nc=s.nc, nd=s.nd, na=s.na)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         return identify_model(ds, structure, _specs(model) + specs,
-                              defined=tuple(effects_of_model(model)) + tuple(defined), memo=memo,
-                              initialisation=False)
+                              defined=tuple(effects_of_model(model)) + tuple(defined), memo=memo)
 
 
 def refitted(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
