@@ -187,8 +187,7 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     info["starts"] records the loss V and simulation RMS error each start reached, which was kept, and the stages.
     memo: PEM fits of earlier calls on these data, served instead of fitted again (`FitMemo`; the same model).
     initialisation: False leaves out the start from the ARX / Steiglitz–McBride
-    initialisation when effects are added (the engine model from the linear one: only the starts from init and
-    base).
+    initialisation when `base` is given (the engine model from the linear one: only the starts from init and base).
     With the engine_map effect the map and the dynamics are then refined jointly (ident.hammerstein.joint_fit, at
     most joint_rounds rounds).
     Raises FuelidError for an unusable effect, too little valid data, or a failed estimation."""
@@ -203,7 +202,7 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
     given = init if init is not None and init.structure == extended else None
     starts = {"initialisation" if given is None else "given model": given}
-    if given is None and not initialisation and fx.u.shape[1]:
+    if given is None and not initialisation and base is not None and fx.u.shape[1]:
         starts = {}
     fit = memo.pem if memo is not None else pem
     with warnings.catch_warnings():  # pem records its warnings in model.info
