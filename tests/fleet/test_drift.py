@@ -94,7 +94,7 @@ def fuel_measured_near(ds, point, samples: int = NEAREST) -> float:
 @pytest.fixture(scope="module")
 def front_door(tmp_path_factory):
     """The trip's dataset and the front door's model: `fuelid identify`'s default model identified again with the
-    effects its diagnosis recommends (`identify --effects-from`: the regeneration and the inertia), with the
+    effects its diagnosis recommends (`identify --effects-from`: the regeneration first), with the
     reference values a fleet job records."""
     mcap = tmp_path_factory.mktemp("drift") / "trip.mcap"
     assert main(["convert", str(TRIP), "-o", str(mcap), "--json"]) == 0
