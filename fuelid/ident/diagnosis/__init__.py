@@ -7,6 +7,7 @@ The package follows the method, each module using only those before it:
     statistics   the score tests, the AR whitener, Holm (plain arrays)
     run          the model run the screening tests (ident.modelrun) and its gradients
     failures     where the model fails: whiteness, worst stretches, error map
+    size         a recommended effect's size in the model built with it (its fuel contribution)
     candidate    the typed decisions: Status, Reason, MapStatus, the evidence, Candidate
     screening    each candidate's columns as it enters the model, its two tests, Holm over the family
     yardstick    folds of blocks or trips, the refits on each, the paired per-block held-out comparison

@@ -7,6 +7,7 @@ import enum
 from dataclasses import asdict, dataclass
 
 from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis.size import EffectSize
 
 
 class Status(enum.Enum):
@@ -96,7 +97,7 @@ class HeldOut:
 class Candidate:
     """One candidate effect and what the diagnosis concluded (status, reason, explained_by), with its evidence.
     spec: what `fuelid identify --effect` takes (a fuel delay with its τ); round: the forward-selection round of its
-    last screening (1 the model as given)."""
+    last screening (1 the model as given); size: a recommended effect's size (ident.diagnosis.size)."""
 
     definition: fx.Effect
     status: Status = Status.NOT_TESTABLE
@@ -106,6 +107,7 @@ class Candidate:
     held_out: HeldOut | None = None
     spec: str | None = None
     round: int = 0
+    size: EffectSize | None = None  # once recommended: its size in the model built with it
 
     def decide(self, status: Status, reason: Reason | None = None, explained_by: str | None = None) -> None:
         """Set the status, with its reason (NAMED_NOT_RECOMMENDED) or the candidate that explains it (EXPLAINED_BY)

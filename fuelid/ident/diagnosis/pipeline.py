@@ -1,5 +1,5 @@
-"""`diagnose`: the model run, where it fails, the folds and the base model's refits, the engine map, forward
-selection, and the Diagnosis (ident.diagnosis.render)."""
+"""`diagnose`: the model run, where it fails, the folds and the base model's refits (the ones the candidates are held
+to, and the held-out figures reported), the engine map, forward selection, and the Diagnosis (ident.diagnosis.render)."""
 from __future__ import annotations
 
 from fuelid.blas import in_one_blas_thread
@@ -8,9 +8,10 @@ from fuelid.ident.diagnosis.candidate import CURVATURE, Candidate, Status
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.render import STATUS_ORDER, Diagnosis
 from fuelid.ident.diagnosis.run import run_gradients
-from fuelid.ident.diagnosis.selection import candidate_effects, select
+from fuelid.ident.diagnosis.selection import base_refits, candidate_effects, select
 from fuelid.ident.diagnosis.settings import Settings
-from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, held_out_summary, make_folds, refits
+from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, held_out_summary, make_folds
+from fuelid.ident.identify import FitMemo
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.polymodel import PolyModel
 from fuelid.ident.validation import metrics
@@ -26,8 +27,9 @@ def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), 
     mrun.require_tested()
     run = run_gradients(mrun)
     folds = make_folds(ds, settings)
+    memo = FitMemo()
     try:
-        base = refits(model, ds, folds, [], settings)
+        base = base_refits(model, ds, folds, settings, effects, memo)
     except BUILD_ERRORS:
         base = None  # nothing can be built: whatever the screening names is not recommended (BUILD_FAILED)
     held_out = None if base is None else held_out_summary(base, ds)
@@ -35,7 +37,7 @@ def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), 
     included = {fx.parse_effect(e)[0] for e in model.effects}
     rows = [Candidate(e, Status.ALREADY_IN_MODEL if e.id in included else Status.NOT_TESTABLE)
             for e in family if e.id not in CURVATURE]
-    accepted, emap = select(rows, model, ds, run, base, folds, settings, effects)
+    accepted, emap = select(rows, model, ds, run, base, folds, settings, effects, memo)
     order = {id(c): k for k, c in enumerate(accepted)}
     rows.sort(key=lambda c: (order.get(id(c), len(order)), STATUS_ORDER.index(c.status),
                              c.screening.log10_p if c.screening else 0.0))

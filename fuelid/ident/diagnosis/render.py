@@ -5,8 +5,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import MAP_EFFECT, Candidate, EngineMap, MapStatus, Status
 from fuelid.ident.diagnosis.settings import Settings
+from fuelid.ident.diagnosis.size import EffectSize
 from fuelid.ident.modelrun import ModelRun
 
 ADD = "`fuelid identify --effects-from DIAGNOSIS.json` adds what is recommended"
@@ -18,13 +20,42 @@ def _gain(c: Candidate | EngineMap) -> str:
            f"{h.gain_in_se:.1f} standard errors over {h.n_blocks} blocks)"
 
 
+def signals_text(effect) -> str:
+    """An effect's bus signals as the engineer reads them: DBC names with their SPNs."""
+    spn = {s: fx.spn_of(s) for s in effect.signals}
+    return ", ".join(f"{s} (SPN {spn[s]})" if spn[s] is not None else s for s in effect.signals)
+
+
+def size_text(z: EffectSize) -> str:
+    """A recommended effect's size (ident.diagnosis.size) in words, with its units."""
+    said = {
+        "state": lambda: f"{z.value:+.3g} {z.unit} while on ({z.percent:+.1f} %)",
+        "scales_fuel": lambda: f"the fuel scaled by {z.percent:+.3g} % per {z.x_unit}",
+        "torque": lambda: f"fuel burnt for {z.value:.3g} {z.value_unit} of torque the bus does not report",
+        "additive": lambda: f"{z.value:+.3g} {z.value_unit}",
+        "shift": lambda: f"the fuel signal lags by {z.value:.2f} s",
+    }[z.form]()
+    return f"{said}, RMS fuel contribution {z.rms:.3g} {z.unit}"
+
+
+def _template(c: Candidate) -> str | None:
+    """An engineer-defined effect's explanation template (ident.effectfile) filled with its size, once recommended."""
+    z, template = c.size, c.definition.template
+    if template is None or z is None:
+        return None
+    return template.format(signals=signals_text(c.definition), size=z.value, percent=z.percent, rms=z.rms,
+                           unit=z.unit, x_unit=z.x_unit)
+
+
 def explanation(c: Candidate) -> str:
-    """What the diagnosis says of one candidate: its status and the evidence that decided it."""
+    """What the diagnosis says of one candidate: its status and the evidence that decided it; once recommended, its
+    size (an engineer-defined effect's own sentence when it has one)."""
     s = c.screening
     p = "" if s is None else f"p = {s.p_value:.2g} (Holm {s.p_holm:.2g}), explains {s.explains_percent:.1f} % of " \
                              "the simulation error"
+    size = "" if c.size is None else f"; {_template(c) or size_text(c.size)}"
     return {
-        Status.RECOMMENDED: lambda: f"recommended: {_gain(c)}",
+        Status.RECOMMENDED: lambda: f"recommended: {_gain(c)}{size}",
         Status.NAMED_NOT_RECOMMENDED: lambda: f"named, not recommended: {c.reason.value}" + (
             f" ({_gain(c)})" if c.held_out is not None else "") + f"; {p}",
         Status.EXPLAINED_BY: lambda: f"explained by {c.explained_by}: significant before it was added, not after",
@@ -75,7 +106,7 @@ def candidate_json(c: Candidate) -> dict:
             "recommended": c.recommended, "significant": c.named, "testable": s is not None, "round": c.round,
             "statistic": s and s.statistic, "df": s.df if s else 0, "p_value": s and s.p_value,
             "p_holm": s and s.p_holm, "estimated_drop_percent": s and s.explains_percent,
-            "rmse_drop_percent": h and h.drop_percent,
+            "rmse_drop_percent": h and h.drop_percent, "size": c.size and c.size.to_json(),
             "screening": s and s.to_json(), "held_out": h and h.to_json(), "explanation": explanation(c)}
 
 

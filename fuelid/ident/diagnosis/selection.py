@@ -28,6 +28,7 @@ from fuelid.ident.diagnosis.candidate import CURVATURE, MAP_EFFECT, Candidate, E
 from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
+from fuelid.ident.diagnosis.size import effect_size
 from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, compare, refits
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
@@ -98,11 +99,19 @@ def _joint(model: PolyModel) -> bool:
     return MAP_EFFECT in {fx.parse_effect(e)[0] for e in model.effects}
 
 
+def base_refits(model: PolyModel, ds, folds: Folds, settings: Settings, defined, memo: FitMemo) -> Scored:
+    """The fold refits the candidates are held to: on an engine-model base, of the model `fuelid identify` builds on
+    ds with the model's effects (`built`: the candidates are built so too); otherwise of `model` itself. Raises
+    BUILD_ERRORS."""
+    start = built(model, ds, [], defined, memo) if _joint(model) else model
+    return refits(start, ds, folds, [], settings, defined)
+
+
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
-           settings: Settings, defined=()) -> tuple[list[Candidate], EngineMap]:
+           settings: Settings, defined=(), memo: FitMemo | None = None) -> tuple[list[Candidate], EngineMap]:
     """Forward selection (module docstring) over `candidates` (their status set here) from `model` (run: its Run,
-    base: its fold refits, None when they failed); returns (those recommended in the order accepted, the engine
-    map's status)."""
+    base: `base_refits`, None when they failed; memo: the FitMemo base_refits used); returns (those recommended in
+    the order accepted, the engine map's status)."""
     pool = [c for c in candidates if c.status is not Status.ALREADY_IN_MODEL]
     in_model = bool(set(CURVATURE) & {fx.parse_effect(e)[0] for e in model.effects})
     term = None if in_model else Candidate(fx.EFFECTS[MAP_EFFECT])  # the engine map, while not accepted
@@ -110,12 +119,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     passed_before: set[str] = set()
     scored: dict[str, Scored] = {}  # its refits without each fold
     candidate_models: dict[str, PolyModel] = {}  # built on all the data as identify builds them (engine-model base)
-    memo = FitMemo()  # the builds' PEM fits, shared: the base and the stages of the effects accepted recur
-    if _joint(model) and base is not None:  # candidates are built as identify builds them: so is what they are held to
-        try:
-            base = refits(built(model, ds, [], defined, memo), ds, folds, [], settings, defined)
-        except BUILD_ERRORS:
-            base = None
+    memo = FitMemo() if memo is None else memo  # the builds' PEM fits, shared: the base's and the effects' stages recur
     for rnd in range(1, settings.max_rounds + 1):
         found = screen([c.definition for c in pool], model, ds, run, settings.alpha)
         if term is not None:
@@ -179,6 +183,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
         best.decide(Status.RECOMMENDED)
+        best.size = None if best is term else effect_size(model, ds, best.definition)
         base = scored[best.effect]
         accepted.append(best)
         if best is term:

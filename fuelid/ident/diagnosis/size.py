@@ -1,0 +1,103 @@
+"""The size of a recommended effect in the model built with it: what the engineer reads beside the evidence, and
+what an engineer-defined effect's explanation template is filled with (ident.effectfile).
+
+The effect's fuel contribution over the data, its columns x_j (j ∈ the effect) from 0, simulated from rest on each
+valid segment after its first n_start samples:
+
+    c(t) = 1/A(q) Σ_j B_j(q)/F_j(q) x_j(t)      [output unit],
+
+ŷ₀ = ŷ − c the model's simulation with the effect's columns at 0, and x the effect's first column. The figure its
+form states (least squares over those samples):
+- a state (a regime I, I·ñ, I·T̃; a bus signal's states): the mean of c while on [output unit], and that in % of
+  ŷ₀ there;
+- scales_fuel, y (1 + m x): m from c ≈ m · x · ŷ₀ [1 per unit of x], percent = 100 m;
+- torque: the torque k per unit of x the fuel burns for through the torque path, c ≈ k · 1/A · B_T/F_T x [torque
+  unit per unit of x];
+- additive: the fuel g per unit of x, c ≈ g x [output unit per unit of x];
+- shift (the fuel signal's delay): τ [s], c = ŷ(t − τ) − ŷ(t).
+rms is the RMS of c [output unit].
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from fuelid.ident import effects as fx
+from fuelid.ident.filters import lfilter
+from fuelid.ident.fueldelay import shift_signal
+from fuelid.ident.modeldata import fuel_shift_s, model_data
+from fuelid.ident.polymodel import PolyModel, simulate
+
+
+@dataclass(frozen=True)
+class EffectSize:
+    """An effect's size (module docstring): value in value_unit (per its form), percent (NaN where the form has
+    none), rms [unit] of its fuel contribution, unit the fuel's, x_unit the unit of its first column."""
+
+    form: str  # "state", "scales_fuel", "torque", "additive" or "shift"
+    value: float
+    value_unit: str
+    percent: float
+    rms: float
+    unit: str
+    x_unit: str
+
+    def to_json(self) -> dict:
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+
+
+def _columns(model: PolyModel, effect_id: str) -> list[int]:
+    return [i for i, name in enumerate(model.input_names) if name.startswith(f"{effect_id}: ")]
+
+
+def _fit(c: np.ndarray, x: np.ndarray) -> float:
+    """The least-squares k in c ≈ k x (NaN when x is 0 throughout)."""
+    xx = float(x @ x)
+    return float(c @ x) / xx if xx > 0 else float("nan")
+
+
+def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
+    """The size of `effect` in `model` (built with it) on dataset ds (module docstring); None when the model does
+    not carry it or no sample is simulated."""
+    u, _ = model_data(model, ds)
+    n0 = model.structure.n_start
+    segments = [s for s in ds.segments() if s.stop - s.start > n0]
+    if not segments:
+        return None
+    unit = model.output_unit
+    if effect.enters == "shift":
+        tau = fuel_shift_s(model)
+        c = [shift_signal(y, -tau / ds.Ts) - y for y in (simulate(model, u[s]) for s in segments)]
+        c = np.concatenate([ci[n0:] for ci in c])
+        return EffectSize("shift", tau, "s", float("nan"), float(np.sqrt(np.mean(c ** 2))), unit, "s")
+    cols = _columns(model, effect.id)
+    if not cols:
+        return None
+
+    def through(i: int, x: np.ndarray) -> np.ndarray:  # 1/A · B_i/F_i x, from rest
+        return lfilter([1.0], model.A, lfilter(model.B[i], model.F[i], x))
+
+    c, y0, x, on, cT = [], [], [], [], []
+    for s in segments:
+        cs = sum(through(i, u[s, i]) for i in cols)
+        c.append(cs[n0:])
+        y0.append((simulate(model, u[s]) - cs)[n0:])
+        x.append(u[s, cols[0]][n0:])
+        on.append((u[s][:, cols] != 0).any(axis=1)[n0:])
+        cT.append(through(1, u[s, cols[0]])[n0:])
+    c, y0, x, on, cT = map(np.concatenate, (c, y0, x, on, cT))
+    rms = float(np.sqrt(np.mean(c ** 2)))
+    x_unit = model.input_units[cols[0]]
+    if effect.form == "regime":
+        if not on.any():
+            return EffectSize("state", float("nan"), unit, float("nan"), rms, unit, "1")
+        change = float(c[on].mean())
+        return EffectSize("state", change, unit, 100.0 * change / float(y0[on].mean()), rms, unit, "1")
+    if effect.enters == "scales_fuel":
+        m = _fit(c, x * y0)
+        return EffectSize("scales_fuel", m, f"1/{x_unit}", 100.0 * m, rms, unit, x_unit)
+    if effect.enters == "torque":
+        return EffectSize("torque", _fit(c, cT), f"{model.input_units[1]}/{x_unit}", float("nan"), rms, unit, x_unit)
+    return EffectSize("additive", _fit(c, x), f"{unit}/{x_unit}", float("nan"), rms, unit, x_unit)
