@@ -26,6 +26,8 @@ class Reason(enum.Enum):
     """Why a candidate named by the screening is not recommended."""
 
     NO_HELD_OUT_GAIN = "the model built with it does not lower the held-out error beyond the margin"
+    AGAINST_ITS_PHYSICS = ("the model built with it lowers the held-out error, but fits it against its stated "
+                           "physics: what it gains is not this effect")
     BUILD_FAILED = "the model could not be identified with it"
     NOT_BUILT = "candidates that explain more used this round's builds"
     SELECTION_STOPPED = "forward selection reached its round limit before re-testing it"
@@ -97,7 +99,7 @@ class HeldOut:
 class Candidate:
     """One candidate effect and what the diagnosis concluded (status, reason, explained_by), with its evidence.
     spec: what `fuelid identify --effect` takes (a fuel delay with its τ); round: the forward-selection round of its
-    last screening (1 the model as given); size: a recommended effect's size (ident.diagnosis.size)."""
+    last screening (1 the model as given); size: its size in the model built with it (ident.diagnosis.size), once it passed the yardstick."""
 
     definition: fx.Effect
     status: Status = Status.NOT_TESTABLE
@@ -107,7 +109,7 @@ class Candidate:
     held_out: HeldOut | None = None
     spec: str | None = None
     round: int = 0
-    size: EffectSize | None = None  # once recommended: its size in the model built with it
+    size: EffectSize | None = None  # once built and passed: its size in the model built with it
 
     def decide(self, status: Status, reason: Reason | None = None, explained_by: str | None = None) -> None:
         """Set the status, with its reason (NAMED_NOT_RECOMMENDED) or the candidate that explains it (EXPLAINED_BY)

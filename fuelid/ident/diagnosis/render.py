@@ -3,6 +3,7 @@ candidate's explanation, the verdict, and the JSON `fuelid diagnose --json` prin
 lay out)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from fuelid.ident import effects as fx
@@ -29,7 +30,7 @@ def signals_text(effect) -> str:
 def size_text(z: EffectSize) -> str:
     """A recommended effect's size (ident.diagnosis.size) in words, with its units."""
     said = {
-        "state": lambda: f"{z.value:+.3g} {z.unit} while on ({z.percent:+.1f} %)",
+        "state": lambda: f"{z.value:+.3g} {z.unit} while on" + (f" ({z.percent:+.1f} %)" * math.isfinite(z.percent)),
         "scales_fuel": lambda: f"the fuel scaled by {z.percent:+.3g} % per {z.x_unit}",
         "torque": lambda: f"fuel burnt for {z.value:.3g} {z.value_unit} of torque the bus does not report",
         "additive": lambda: f"{z.value:+.3g} {z.value_unit}",
@@ -41,7 +42,7 @@ def size_text(z: EffectSize) -> str:
 def _template(c: Candidate) -> str | None:
     """An engineer-defined effect's explanation template (ident.effectfile) filled with its size, once recommended."""
     z, template = c.size, c.definition.template
-    if template is None or z is None:
+    if template is None or z is None or not c.recommended:
         return None
     return template.format(signals=signals_text(c.definition), size=z.value, percent=z.percent, rms=z.rms,
                            unit=z.unit, x_unit=z.x_unit)
@@ -57,7 +58,7 @@ def explanation(c: Candidate) -> str:
     return {
         Status.RECOMMENDED: lambda: f"recommended: {_gain(c)}{size}",
         Status.NAMED_NOT_RECOMMENDED: lambda: f"named, not recommended: {c.reason.value}" + (
-            f" ({_gain(c)})" if c.held_out is not None else "") + f"; {p}",
+            f" ({_gain(c)}{size})" if c.held_out is not None else "") + f"; {p}",
         Status.EXPLAINED_BY: lambda: f"explained by {c.explained_by}: significant before it was added, not after",
         Status.NOT_SIGNIFICANT: lambda: f"not significant: {p}",
         Status.TOO_SMALL: lambda: f"too small: {p}",

@@ -2,7 +2,9 @@
 
 Rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
 ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds that explain the
-largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the base; of those that pass, the one with
+largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the base. One that passes but is fitted against the
+direction its physics states (ident.diagnosis.size.against_physics) is NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS):
+what it gains is not that effect. Of the others that pass, the one with
 the largest mean paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a
 generic form of a bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
 on a bus signal that engine speed and torque determine (Settings.min_share_beyond_inputs) is
@@ -21,14 +23,17 @@ that effect is accepted; never accepted, NOT_NEEDED.
 """
 from __future__ import annotations
 
+import dataclasses
 import warnings
+
+import numpy as np
 
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis.candidate import CURVATURE, MAP_EFFECT, Candidate, EngineMap, MapStatus, Reason, Status
 from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
-from fuelid.ident.diagnosis.size import effect_size
+from fuelid.ident.diagnosis.size import EffectSize, against_physics, effect_size
 from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, compare, refits
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
@@ -92,6 +97,19 @@ def refitted(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyMod
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         return refit_with_effects(model, ds, [spec], defined=defined, memo=memo)
+
+
+def _built_size(c: Candidate, model: PolyModel | None, scored: Scored, ds) -> EffectSize | None:
+    """c's size in the model built with it on all of ds (an engine-model base), else in its fold models: the
+    median of their values (fitted without each fold, run over all of ds)."""
+    if model is not None:
+        return effect_size(model, ds, c.definition)
+    sizes = [z for z in (effect_size(m, ds, c.definition) for m in scored.models) if z is not None]
+    if not sizes:
+        return None
+    return dataclasses.replace(sizes[0], value=float(np.median([z.value for z in sizes])),
+                               percent=float(np.median([z.percent for z in sizes])),
+                               rms=float(np.median([z.rms for z in sizes])))
 
 
 def _joint(model: PolyModel) -> bool:
@@ -168,10 +186,14 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                     pool.remove(c)
                 continue
             c.held_out = compare(base, scored[c.effect], folds, settings)
-            if c.held_out.passes:
-                passing.append(c)
-            else:  # open: a later round's base (without what masked it) may show its gain
+            c.size = _built_size(c, candidate_models.get(c.effect), scored[c.effect], ds) \
+                if c.held_out.passes and c is not term else None
+            if not c.held_out.passes:  # open: a later round's base (without what masked it) may show its gain
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
+            elif against_physics(c.definition, c.size):  # open too: another base may fit it the physical way
+                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.AGAINST_ITS_PHYSICS)
+            else:
+                passing.append(c)
         if not passing:
             break
         best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
@@ -183,7 +205,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
         best.decide(Status.RECOMMENDED)
-        best.size = None if best is term else effect_size(model, ds, best.definition)
+        best.size = None if best is term else effect_size(model, ds, best.definition)  # in the model accepted
         base = scored[best.effect]
         accepted.append(best)
         if best is term:

@@ -9,13 +9,15 @@ valid segment after its first n_start samples:
 ŷ₀ = ŷ − c the model's simulation with the effect's columns at 0, and x the effect's first column. The figure its
 form states (least squares over those samples):
 - a state (a regime I, I·ñ, I·T̃; a bus signal's states): the mean of c while on [output unit], and that in % of
-  ŷ₀ there;
+  ŷ₀ there where ŷ₀ is at least as large as the change (a relative change of a smaller baseline, such as the
+  fuel in overrun, says nothing);
 - scales_fuel, y (1 + m x): m from c ≈ m · x · ŷ₀ [1 per unit of x], percent = 100 m;
 - torque: the torque k per unit of x the fuel burns for through the torque path, c ≈ k · 1/A · B_T/F_T x [torque
   unit per unit of x];
 - additive: the fuel g per unit of x, c ≈ g x [output unit per unit of x];
 - shift (the fuel signal's delay): τ [s], c = ŷ(t − τ) − ŷ(t).
-rms is the RMS of c [output unit].
+rms is the RMS of c [output unit]. Its sign is what the physics of a catalogued or defined effect states
+(Effect.sign): a candidate fitted the other way is not that effect (`against_physics`).
 """
 from __future__ import annotations
 
@@ -89,15 +91,24 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
         cT.append(through(1, u[s, cols[0]])[n0:])
     c, y0, x, on, cT = map(np.concatenate, (c, y0, x, on, cT))
     rms = float(np.sqrt(np.mean(c ** 2)))
-    x_unit = model.input_units[cols[0]]
+    x_unit = model.input_units[cols[0]] or "1"  # a dimensionless bus signal (a gear ratio) has no DBC unit
     if effect.form == "regime":
         if not on.any():
             return EffectSize("state", float("nan"), unit, float("nan"), rms, unit, "1")
-        change = float(c[on].mean())
-        return EffectSize("state", change, unit, 100.0 * change / float(y0[on].mean()), rms, unit, "1")
+        change, baseline = float(c[on].mean()), float(y0[on].mean())
+        percent = 100.0 * change / baseline if baseline >= abs(change) else float("nan")
+        return EffectSize("state", change, unit, percent, rms, unit, "1")
     if effect.enters == "scales_fuel":
         m = _fit(c, x * y0)
-        return EffectSize("scales_fuel", m, f"1/{x_unit}", 100.0 * m, rms, unit, x_unit)
+        return EffectSize("scales_fuel", m, f"1 per {x_unit}", 100.0 * m, rms, unit, x_unit)
     if effect.enters == "torque":
-        return EffectSize("torque", _fit(c, cT), f"{model.input_units[1]}/{x_unit}", float("nan"), rms, unit, x_unit)
-    return EffectSize("additive", _fit(c, x), f"{unit}/{x_unit}", float("nan"), rms, unit, x_unit)
+        return EffectSize("torque", _fit(c, cT), f"{model.input_units[1]} per {x_unit}", float("nan"), rms, unit, x_unit)
+    return EffectSize("additive", _fit(c, x), f"{unit} per {x_unit}", float("nan"), rms, unit, x_unit)
+
+
+def against_physics(effect: fx.Effect, z: EffectSize | None) -> bool:
+    """Whether a built model fits `effect` against the direction its physics states (Effect.sign: +1 more fuel as
+    its x grows or while it is on, a lag for a shift; −1 less; 0 either way): what the model gains from it then is not
+    this effect."""
+    return z is not None and effect.sign != 0 and math.isfinite(z.value) and z.value * effect.sign < 0
+

@@ -135,3 +135,13 @@ def test_a_fuel_delay_is_estimated_from_its_screening_and_recommended_with_its_v
     assert delay.recommended and delay.spec.startswith("fuel_delay=")
     assert float(delay.spec.split("=")[1]) == pytest.approx(0.4, abs=0.15)
     assert dg.confirmed_effects(d.to_json()["candidates"]) == [delay.spec]
+
+
+def test_an_effect_fitted_against_its_physics_is_named_but_not_recommended():
+    ds = hidden.make("dpf_regeneration", n=4000, seed=11, size=-0.11)  # less fuel while it regenerates: not a DPF
+    d = dg.diagnose(hidden.fitted(ds), ds)
+    regen = next(c for c in d.candidates if c.effect == "dpf_regeneration")
+    assert regen.held_out.passes and regen.size.value < 0 and regen.size.percent == pytest.approx(-11, abs=3)
+    assert (regen.status, regen.reason) == (Status.NAMED_NOT_RECOMMENDED, dg.Reason.AGAINST_ITS_PHYSICS)
+    assert "dpf_regeneration" not in dg.confirmed_effects(d.to_json()["candidates"])
+    assert "dpf_regeneration is named by the screening but not recommended: the model built with it lowers" in d.verdict

@@ -25,7 +25,7 @@ def built(effect: str, spec: str, seed: int):
 
 @pytest.mark.parametrize("effect, spec, form, unit, truth, tol", [
     ("dpf_regeneration", "dpf_regeneration", "state", "L/h", 11.0, 2.5),  # +11 % while on: percent
-    ("inertia", "inertia", "torque", "Nm/Nm", 1.0, 0.25),  # J = J_bus: 1 N·m of torque per N·m of J_bus dω/dt
+    ("inertia", "inertia", "torque", "Nm per Nm", 1.0, 0.25),  # J = J_bus: 1 N·m of torque per N·m of J_bus dω/dt
     ("fuel_delay", "fuel_delay=0.4", "shift", "s", 0.4, 1e-9),  # τ as the model carries it
 ])
 def test_the_size_of_an_effect_is_the_size_hidden_in_the_data(effect, spec, form, unit, truth, tol):
