@@ -19,6 +19,9 @@ and case group:
                  engine's curvature, power_nonlinearity, counts when the base is the engine model or the diagnosis
                  advises the map); pairs: both
     clean        any missing effect recommended on a trip with nothing hidden (clean and traps)
+    where it helps  found, among the cases where the true effect lowers the other day's error (e_oracle < e_base):
+                 an effect the base model already represents (a short fuel delay inside the paper's B polynomials)
+                 is not missing from it
     oracle share (e_base − e_rec) / (e_base − e_oracle) on the other day's trip, median over the cases found
     harmful      e_rec > (1 + HARM) e_base on the other day's trip
     agree        the verdict's words and every candidate's `recommended` flag say the same
@@ -181,12 +184,15 @@ def report(label: str, rows: list[tuple[dict, dict]]) -> None:
         key = case["kind"] if case["kind"] in ("clean", "trap", "pair") else f"{case['kind']} ×{case['scale']:g}"
         groups[key].append(row)
     print(f"\n{label}")
-    print(f"  {'group':18s} {'found / recommended':28s} {'harmful':24s} {'agree':24s} oracle share (median)")
+    print(f"  {'group':18s} {'found / recommended':28s} {'where it helps':28s} {'harmful':24s} {'agree':24s} "
+          "oracle share (median)")
     for key, rs in sorted(groups.items()):
         hit = [r["found"] for r in rs] if not key.startswith(("clean", "trap")) else [bool(r["missing"]) for r in rs]
+        helps = [r["found"] for r in rs if "share" in r]  # share is set exactly when e_oracle < e_base
         shares = sorted(r["share"] for r in rs if "share" in r and r["found"])
         med = f"{shares[len(shares) // 2]:.2f} (n {len(shares)})" if shares else "–"
-        print(f"  {key:18s} {wilson(sum(hit), len(hit)):28s} {wilson(sum(r.get('harmful', False) for r in rs), len(rs)):24s}"
+        print(f"  {key:18s} {wilson(sum(hit), len(hit)):28s} {wilson(sum(helps), len(helps)):28s} "
+              f"{wilson(sum(r.get('harmful', False) for r in rs), len(rs)):24s}"
               f" {wilson(sum(r['agree'] for r in rs), len(rs)):24s} {med}")
     t = sorted(r["seconds"] for _, r in rows)
     print(f"  diagnosis time: median {t[len(t) // 2]:.1f} s, largest {t[-1]:.1f} s over {len(t)} trips")

@@ -2,9 +2,9 @@
 
 Rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
 ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds that explain the
-largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the base. One that passes but is fitted against the
-direction its physics states (ident.diagnosis.size.against_physics) is NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS):
-what it gains is not that effect. Of the others that pass, the one with
+largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the base. One that passes but whose fold models fit it
+against the direction its physics states, beyond their spread (ident.diagnosis.size.against_physics), is
+NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS): what it gains is not that effect. Of the others that pass, the one with
 the largest mean paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a
 generic form of a bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
 on a bus signal that engine speed and torque determine (Settings.min_share_beyond_inputs) is
@@ -99,17 +99,17 @@ def refitted(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyMod
         return refit_with_effects(model, ds, [spec], defined=defined, memo=memo)
 
 
-def _built_size(c: Candidate, model: PolyModel | None, scored: Scored, ds) -> EffectSize | None:
-    """c's size in the model built with it on all of ds (an engine-model base), else in its fold models: the
-    median of their values (fitted without each fold, run over all of ds)."""
-    if model is not None:
-        return effect_size(model, ds, c.definition)
-    sizes = [z for z in (effect_size(m, ds, c.definition) for m in scored.models) if z is not None]
+def _fold_sizes(c: Candidate, scored: Scored, ds) -> list[EffectSize]:
+    """c's size (ident.diagnosis.size) in each of its fold models (fitted without that fold, run over all of ds)."""
+    return [z for z in (effect_size(m, ds, c.definition) for m in scored.models) if z is not None]
+
+
+def _median(sizes: list[EffectSize]) -> EffectSize | None:
+    """The sizes' median, figure by figure; None without any."""
     if not sizes:
         return None
-    return dataclasses.replace(sizes[0], value=float(np.median([z.value for z in sizes])),
-                               percent=float(np.median([z.percent for z in sizes])),
-                               rms=float(np.median([z.rms for z in sizes])))
+    median = {f: float(np.median([getattr(z, f) for z in sizes])) for f in ("value", "relative", "percent", "rms")}
+    return dataclasses.replace(sizes[0], **median)
 
 
 def _joint(model: PolyModel) -> bool:
@@ -186,11 +186,12 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                     pool.remove(c)
                 continue
             c.held_out = compare(base, scored[c.effect], folds, settings)
-            c.size = _built_size(c, candidate_models.get(c.effect), scored[c.effect], ds) \
-                if c.held_out.passes and c is not term else None
+            fold_sizes = _fold_sizes(c, scored[c.effect], ds) if c.held_out.passes and c is not term else []
+            c.size = (effect_size(candidate_models[c.effect], ds, c.definition) if c.effect in candidate_models
+                      else _median(fold_sizes))
             if not c.held_out.passes:  # open: a later round's base (without what masked it) may show its gain
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
-            elif against_physics(c.definition, c.size):  # open too: another base may fit it the physical way
+            elif against_physics(c.definition, fold_sizes, settings.margin_se):  # open: another base may differ
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.AGAINST_ITS_PHYSICS)
             else:
                 passing.append(c)

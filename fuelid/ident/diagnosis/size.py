@@ -8,16 +8,17 @@ valid segment after its first n_start samples:
 
 ŷ₀ = ŷ − c the model's simulation with the effect's columns at 0, and x the effect's first column. The figure its
 form states (least squares over those samples):
-- a state (a regime I, I·ñ, I·T̃; a bus signal's states): the mean of c while on [output unit], and that in % of
-  ŷ₀ there where ŷ₀ is at least as large as the change (a relative change of a smaller baseline, such as the
-  fuel in overrun, says nothing);
+- a state (a regime I, I·ñ, I·T̃; a bus signal's states): the mean of c while on [output unit], its relative
+  change over the mean of ŷ₀ there, and that in % where ŷ₀ is at least as large as the change (a percentage of a
+  smaller baseline, such as the fuel in overrun, says nothing);
 - scales_fuel, y (1 + m x): m from c ≈ m · x · ŷ₀ [1 per unit of x], percent = 100 m;
 - torque: the torque k per unit of x the fuel burns for through the torque path, c ≈ k · 1/A · B_T/F_T x [torque
   unit per unit of x];
 - additive: the fuel g per unit of x, c ≈ g x [output unit per unit of x];
 - shift (the fuel signal's delay): τ [s], c = ŷ(t − τ) − ŷ(t).
-rms is the RMS of c [output unit]. Its sign is what the physics of a catalogued or defined effect states
-(Effect.sign): a candidate fitted the other way is not that effect (`against_physics`).
+rms is the RMS of c [output unit]. The sign of the size (of the relative change, for an effect that scales the fuel) is
+what the physics of a catalogued or defined effect states (Effect.sign): a candidate fitted the other way is not that
+effect (`against_physics`, beyond the spread of the folds' fits).
 """
 from __future__ import annotations
 
@@ -32,15 +33,20 @@ from fuelid.ident.fueldelay import shift_signal
 from fuelid.ident.modeldata import fuel_shift_s, model_data
 from fuelid.ident.polymodel import PolyModel, simulate
 
+NAN = float("nan")
+
 
 @dataclass(frozen=True)
 class EffectSize:
-    """An effect's size (module docstring): value in value_unit (per its form), percent (NaN where the form has
-    none), rms [unit] of its fuel contribution, unit the fuel's, x_unit the unit of its first column."""
+    """An effect's size (module docstring): value in value_unit (per its form), relative the fuel's relative change
+    (a state: mean change over ŷ₀ while on; scales_fuel: m; NaN for the other forms), percent 100 × relative where
+    it is stated (NaN where not), rms [unit] of its fuel contribution, unit the fuel's, x_unit the unit of its first
+    column."""
 
     form: str  # "state", "scales_fuel", "torque", "additive" or "shift"
     value: float
     value_unit: str
+    relative: float
     percent: float
     rms: float
     unit: str
@@ -57,7 +63,7 @@ def _columns(model: PolyModel, effect_id: str) -> list[int]:
 def _fit(c: np.ndarray, x: np.ndarray) -> float:
     """The least-squares k in c ≈ k x (NaN when x is 0 throughout)."""
     xx = float(x @ x)
-    return float(c @ x) / xx if xx > 0 else float("nan")
+    return float(c @ x) / xx if xx > 0 else NAN
 
 
 def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
@@ -73,7 +79,7 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
         tau = fuel_shift_s(model)
         c = [shift_signal(y, -tau / ds.Ts) - y for y in (simulate(model, u[s]) for s in segments)]
         c = np.concatenate([ci[n0:] for ci in c])
-        return EffectSize("shift", tau, "s", float("nan"), float(np.sqrt(np.mean(c ** 2))), unit, "s")
+        return EffectSize("shift", tau, "s", NAN, NAN, float(np.sqrt(np.mean(c ** 2))), unit, "s")
     cols = _columns(model, effect.id)
     if not cols:
         return None
@@ -94,21 +100,34 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
     x_unit = model.input_units[cols[0]] or "1"  # a dimensionless bus signal (a gear ratio) has no DBC unit
     if effect.form == "regime":
         if not on.any():
-            return EffectSize("state", float("nan"), unit, float("nan"), rms, unit, "1")
+            return EffectSize("state", NAN, unit, NAN, NAN, rms, unit, "1")
         change, baseline = float(c[on].mean()), float(y0[on].mean())
-        percent = 100.0 * change / baseline if baseline >= abs(change) else float("nan")
-        return EffectSize("state", change, unit, percent, rms, unit, "1")
+        relative = change / baseline if baseline != 0 else NAN
+        return EffectSize("state", change, unit, relative, 100.0 * relative if baseline >= abs(change) else NAN,
+                          rms, unit, "1")
     if effect.enters == "scales_fuel":
         m = _fit(c, x * y0)
-        return EffectSize("scales_fuel", m, f"1 per {x_unit}", 100.0 * m, rms, unit, x_unit)
+        return EffectSize("scales_fuel", m, f"1 per {x_unit}", m, 100.0 * m, rms, unit, x_unit)
     if effect.enters == "torque":
-        return EffectSize("torque", _fit(c, cT), f"{model.input_units[1]} per {x_unit}", float("nan"), rms, unit, x_unit)
-    return EffectSize("additive", _fit(c, x), f"{unit} per {x_unit}", float("nan"), rms, unit, x_unit)
+        return EffectSize("torque", _fit(c, cT), f"{model.input_units[1]} per {x_unit}", NAN, NAN, rms, unit, x_unit)
+    return EffectSize("additive", _fit(c, x), f"{unit} per {x_unit}", NAN, NAN, rms, unit, x_unit)
 
 
-def against_physics(effect: fx.Effect, z: EffectSize | None) -> bool:
-    """Whether a built model fits `effect` against the direction its physics states (Effect.sign: +1 more fuel as
-    its x grows or while it is on, a lag for a shift; −1 less; 0 either way): what the model gains from it then is not
-    this effect."""
-    return z is not None and effect.sign != 0 and math.isfinite(z.value) and z.value * effect.sign < 0
+def against_physics(effect: fx.Effect, sizes: list[EffectSize], margin: float) -> bool:
+    """Whether the models built with `effect` fit it against the direction its physics states (Effect.sign: +1 more
+    fuel as its x grows or while it is on, a lag for a shift; −1 less; 0 either way), beyond the spread of fits:
+    with d_k its size in the model fitted without fold k (of an effect that scales the fuel, its relative change: a
+    cut-off that lifts a linear model's negative fuel in overrun to 0 adds fuel, yet scales it by −100 %), when
 
+        sign · d̄ < −margin · SE,    SE² = (K − 1)/K · Σ_k (d_k − d̄)²
+
+    (the delete-a-group jackknife's standard error; B. Efron, R. Tibshirani, An Introduction to the Bootstrap, 1993,
+    ch. 11). What the model gains from it then is not this effect."""
+    if effect.sign == 0:
+        return False
+    d = np.array([z.relative if effect.enters == "scales_fuel" else z.value for z in sizes], float)
+    d = d[np.isfinite(d)]
+    if d.size < 2:
+        return False
+    se = math.sqrt((d.size - 1) / d.size * float(np.sum((d - d.mean()) ** 2)))
+    return effect.sign * float(d.mean()) < -margin * se

@@ -8,7 +8,7 @@ import pytest
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.size import effect_size
+from fuelid.ident.diagnosis.size import EffectSize, against_physics, effect_size
 from fuelid.ident.effectfile import read_effects_file
 from fuelid.ident.identify import identify_model
 from tests.ident import hidden
@@ -51,3 +51,19 @@ def test_a_recommended_effect_says_its_size_and_a_defined_one_fills_its_template
                      top["explanation"])
     assert said and abs(int(said[1]) - top["size"]["percent"]) <= 0.5
     assert all(c["size"] is None for c in d.to_json()["candidates"][1:])
+
+
+def _sizes(values, relative=None):
+    rel = relative or [float("nan")] * len(values)
+    return [EffectSize("state", v, "L/h", r, float("nan"), 1.0, "L/h", "1") for v, r in zip(values, rel)]
+
+
+def test_against_its_physics_only_when_the_folds_agree_beyond_their_spread():
+    gear_shift, cutoff = fx.EFFECTS["gear_shift"], fx.EFFECTS["overrun_cutoff"]  # more fuel; scales it to less
+    assert against_physics(gear_shift, _sizes([-0.50, -0.52, -0.49, -0.51, -0.50]), margin=2.0)
+    assert not against_physics(gear_shift, _sizes([-0.5, 0.4, -0.6, 0.5, -0.3]), margin=2.0)  # within the spread
+    assert not against_physics(gear_shift, _sizes([0.50, 0.52, 0.49, 0.51, 0.50]), margin=2.0)
+    # a scaling effect is judged by its relative change: lifting a negative fuel to 0 adds fuel but scales it down
+    assert not against_physics(cutoff, _sizes([0.3] * 5, relative=[-1.0, -0.9, -1.1, -1.0, -0.95]), margin=2.0)
+    assert against_physics(cutoff, _sizes([0.3] * 5, relative=[0.9, 1.0, 1.1, 0.95, 1.05]), margin=2.0)
+    assert not against_physics(fx.EFFECTS["idle_fuelling"], _sizes([-1.0] * 5), margin=2.0)  # sign 0: either way
