@@ -108,7 +108,8 @@ def _median(sizes: list[EffectSize]) -> EffectSize | None:
     """The sizes' median, figure by figure; None without any."""
     if not sizes:
         return None
-    median = {f: float(np.median([getattr(z, f) for z in sizes])) for f in ("value", "relative", "percent", "rms")}
+    figures = ("value", "relative", "percent", "rms", "baseline")
+    median = {f: float(np.median([getattr(z, f) for z in sizes])) for f in figures}
     return dataclasses.replace(sizes[0], **median)
 
 

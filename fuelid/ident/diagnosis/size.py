@@ -41,7 +41,7 @@ class EffectSize:
     """An effect's size (module docstring): value in value_unit (per its form), relative the fuel's relative change
     (a state: mean change over ŷ₀ while on; scales_fuel: m; NaN for the other forms), percent 100 × relative where
     it is stated (NaN where not), rms [unit] of its fuel contribution, unit the fuel's, x_unit the unit of its first
-    column."""
+    column, baseline [unit] the mean of ŷ₀ while a state is on (NaN for the other forms)."""
 
     form: str  # "state", "scales_fuel", "torque", "additive" or "shift"
     value: float
@@ -51,6 +51,7 @@ class EffectSize:
     rms: float
     unit: str
     x_unit: str
+    baseline: float = NAN
 
     def to_json(self) -> dict:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
@@ -104,7 +105,7 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
         change, baseline = float(c[on].mean()), float(y0[on].mean())
         relative = change / baseline if baseline != 0 else NAN
         return EffectSize("state", change, unit, relative, 100.0 * relative if baseline >= abs(change) else NAN,
-                          rms, unit, "1")
+                          rms, unit, "1", baseline)
     if effect.enters == "scales_fuel":
         m = _fit(c, x * y0)
         return EffectSize("scales_fuel", m, f"1 per {x_unit}", m, 100.0 * m, rms, unit, x_unit)
@@ -113,11 +114,19 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
     return EffectSize("additive", _fit(c, x), f"{unit} per {x_unit}", NAN, NAN, rms, unit, x_unit)
 
 
+def _direction(effect: fx.Effect, z: EffectSize) -> float:
+    """The figure whose sign Effect.sign states (`against_physics`)."""
+    if effect.enters != "scales_fuel":
+        return z.value
+    return z.value * float(np.sign(z.baseline)) if z.form == "state" else z.relative
+
+
 def against_physics(effect: fx.Effect, sizes: list[EffectSize], margin: float) -> bool:
     """Whether the models built with `effect` fit it against the direction its physics states (Effect.sign: +1 more
     fuel as its x grows or while it is on, a lag for a shift; −1 less; 0 either way), beyond the spread of fits:
-    with d_k its size in the model fitted without fold k (of an effect that scales the fuel, its relative change: a
-    cut-off that lifts a linear model's negative fuel in overrun to 0 adds fuel, yet scales it by −100 %), when
+    with d_k its size in the model fitted without fold k — of an effect that scales the fuel, the direction of its
+    relative change: m, or for a state its change while on times the sign of the fuel ŷ₀ it scales (a cut-off that
+    lifts a linear model's negative fuel in overrun to 0 adds fuel, yet scales it down) — when
 
         sign · d̄ < −margin · SE,    SE² = (K − 1)/K · Σ_k (d_k − d̄)²
 
@@ -125,7 +134,7 @@ def against_physics(effect: fx.Effect, sizes: list[EffectSize], margin: float) -
     ch. 11). What the model gains from it then is not this effect."""
     if effect.sign == 0:
         return False
-    d = np.array([z.relative if effect.enters == "scales_fuel" else z.value for z in sizes], float)
+    d = np.array([_direction(effect, z) for z in sizes], float)
     d = d[np.isfinite(d)]
     if d.size < 2:
         return False

@@ -53,9 +53,9 @@ def test_a_recommended_effect_says_its_size_and_a_defined_one_fills_its_template
     assert all(c["size"] is None for c in d.to_json()["candidates"][1:])
 
 
-def _sizes(values, relative=None):
-    rel = relative or [float("nan")] * len(values)
-    return [EffectSize("state", v, "L/h", r, float("nan"), 1.0, "L/h", "1") for v, r in zip(values, rel)]
+def _sizes(values, baseline=None):
+    base = baseline or [10.0] * len(values)
+    return [EffectSize("state", v, "L/h", v / b, 100 * v / b, 1.0, "L/h", "1", b) for v, b in zip(values, base)]
 
 
 def test_against_its_physics_only_when_the_folds_agree_beyond_their_spread():
@@ -63,7 +63,9 @@ def test_against_its_physics_only_when_the_folds_agree_beyond_their_spread():
     assert against_physics(gear_shift, _sizes([-0.50, -0.52, -0.49, -0.51, -0.50]), margin=2.0)
     assert not against_physics(gear_shift, _sizes([-0.5, 0.4, -0.6, 0.5, -0.3]), margin=2.0)  # within the spread
     assert not against_physics(gear_shift, _sizes([0.50, 0.52, 0.49, 0.51, 0.50]), margin=2.0)
-    # a scaling effect is judged by its relative change: lifting a negative fuel to 0 adds fuel but scales it down
-    assert not against_physics(cutoff, _sizes([0.3] * 5, relative=[-1.0, -0.9, -1.1, -1.0, -0.95]), margin=2.0)
-    assert against_physics(cutoff, _sizes([0.3] * 5, relative=[0.9, 1.0, 1.1, 0.95, 1.05]), margin=2.0)
+    # a scaling effect by the direction of its relative change: lifting a negative fuel to 0 adds fuel but scales it
+    # down; adding fuel to a fuel near 0 is no cut-off, however large the ratio's spread
+    assert not against_physics(cutoff, _sizes([0.3, 0.31, 0.29, 0.3, 0.3], baseline=[-0.3] * 5), margin=2.0)
+    assert against_physics(cutoff, _sizes([0.3, 0.31, 0.29, 0.3, 0.3], baseline=[0.01, 0.05, 0.002, 0.03, 0.02]),
+                           margin=2.0)
     assert not against_physics(fx.EFFECTS["idle_fuelling"], _sizes([-1.0] * 5), margin=2.0)  # sign 0: either way
