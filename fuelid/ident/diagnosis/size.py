@@ -88,15 +88,14 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
     def through(i: int, x: np.ndarray) -> np.ndarray:  # 1/A · B_i/F_i x, from rest
         return lfilter([1.0], model.A, lfilter(model.B[i], model.F[i], x))
 
-    c, y0, x, on, cT = [], [], [], [], []
+    c, y0, x, on = [], [], [], []
     for s in segments:
         cs = sum(through(i, u[s, i]) for i in cols)
         c.append(cs[n0:])
         y0.append((simulate(model, u[s]) - cs)[n0:])
         x.append(u[s, cols[0]][n0:])
         on.append((u[s][:, cols] != 0).any(axis=1)[n0:])
-        cT.append(through(1, u[s, cols[0]])[n0:])
-    c, y0, x, on, cT = map(np.concatenate, (c, y0, x, on, cT))
+    c, y0, x, on = map(np.concatenate, (c, y0, x, on))
     rms = float(np.sqrt(np.mean(c ** 2)))
     x_unit = model.input_units[cols[0]] or "1"  # a dimensionless bus signal (a gear ratio) has no DBC unit
     if effect.form == "regime":
@@ -109,7 +108,8 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
     if effect.enters == "scales_fuel":
         m = _fit(c, x * y0)
         return EffectSize("scales_fuel", m, f"1 per {x_unit}", m, 100.0 * m, rms, unit, x_unit)
-    if effect.enters == "torque":
+    if effect.enters == "torque":  # x through the torque path, as the fuel burns for a torque
+        cT = np.concatenate([through(1, u[s, cols[0]])[n0:] for s in segments])
         return EffectSize("torque", _fit(c, cT), f"{model.input_units[1]} per {x_unit}", NAN, NAN, rms, unit, x_unit)
     return EffectSize("additive", _fit(c, x), f"{unit} per {x_unit}", NAN, NAN, rms, unit, x_unit)
 
