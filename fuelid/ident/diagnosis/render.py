@@ -28,7 +28,7 @@ def signals_text(effect) -> str:
 
 
 def size_text(z: EffectSize) -> str:
-    """A recommended effect's size (ident.diagnosis.size) in words, with its units."""
+    """An effect's size in a model built with it (ident.diagnosis.size) in words, with its units."""
     said = {
         "state": lambda: f"{z.value:+.3g} {z.unit} while on" + (f" ({z.percent:+.1f} %)" * math.isfinite(z.percent)),
         "scales_fuel": lambda: f"the fuel scaled by {z.percent:+.3g} % per {z.x_unit}",

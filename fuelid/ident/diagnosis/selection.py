@@ -187,9 +187,10 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                     pool.remove(c)
                 continue
             c.held_out = compare(base, scored[c.effect], folds, settings)
-            fold_sizes = _fold_sizes(c, scored[c.effect], ds) if c.held_out.passes and c is not term else []
-            c.size = (effect_size(candidate_models[c.effect], ds, c.definition) if c.effect in candidate_models
-                      else _median(fold_sizes))
+            sized = c.held_out.passes and c is not term  # its size: evidence once it helps
+            fold_sizes = _fold_sizes(c, scored[c.effect], ds) if sized else []
+            c.size = None if not sized else (effect_size(candidate_models[c.effect], ds, c.definition)
+                                             if c.effect in candidate_models else _median(fold_sizes))
             if not c.held_out.passes:  # open: a later round's base (without what masked it) may show its gain
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
             elif against_physics(c.definition, fold_sizes, settings.margin_se):  # open: another base may differ
