@@ -99,7 +99,8 @@ class HeldOut:
 class Candidate:
     """One candidate effect and what the diagnosis concluded (status, reason, explained_by), with its evidence.
     spec: what `fuelid identify --effect` takes (a fuel delay with its τ); round: the forward-selection round of its
-    last screening (1 the model as given); size: its size in the model built with it (ident.diagnosis.size), once it passed the yardstick."""
+    last screening (1 the model as given); size: its size in the model built with it (ident.diagnosis.size), once it
+    passed the yardstick."""
 
     definition: fx.Effect
     status: Status = Status.NOT_TESTABLE

@@ -1,5 +1,6 @@
-"""`diagnose`: the model run, where it fails, the folds and the base model's refits (the ones the candidates are held
-to, and the held-out figures reported), the engine map, forward selection, and the Diagnosis (ident.diagnosis.render)."""
+"""`diagnose`: the model run, where it fails, the folds and the base model's refits (the ones the candidates are
+held to, and the held-out figures reported), the engine map, forward selection, and the Diagnosis
+(ident.diagnosis.render)."""
 from __future__ import annotations
 
 from fuelid.blas import in_one_blas_thread

@@ -1,12 +1,13 @@
 """Forward selection with the one yardstick; the engine map as a term of its own.
 
 Rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
-ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds that explain the
-largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the base. One that passes but whose fold models fit it
-against the direction its physics states, beyond their spread (ident.diagnosis.size.against_physics), is
-NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS): what it gains is not that effect. Of the others that pass, the one with
-the largest mean paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a
-generic form of a bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
+ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds that
+explain the largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the
+base. One that passes but whose fold models fit it against the direction its physics states, beyond their spread
+(ident.diagnosis.size.against_physics), is NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS): what it gains is not that
+effect. Of the others that pass, the one with the largest mean paired gain is accepted (an effect with stated
+physics — catalogued or the engineer's — before a generic form of a bus signal, which can stand in for it on one
+trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
 on a bus signal that engine speed and torque determine (Settings.min_share_beyond_inputs) is
 NAMED_NOT_RECOMMENDED (DETERMINED_BY_INPUTS) without a build: it can only stand in for the engine's map. A candidate
 that passed the screening (significant and relevant) in an earlier round and no longer does is EXPLAINED_BY the one
