@@ -35,6 +35,10 @@ def test_the_front_door_keeps_the_engine_model_names_the_regeneration_and_the_er
     assert result["missing_effects"][0] == "dpf_regeneration", result["verdict"]
     recommended = [c["effect"] for c in result["candidates"] if c.get("recommended")]
     assert recommended[0] == "dpf_regeneration", result["verdict"]
+    # the held-out error reported is the base's the first candidate was held to (one base, built as identify builds)
+    assert result["candidates"][0]["held_out"]["rmse_without"] == pytest.approx(result["held_out"]["rmse"], rel=0.02)
+    regen = result["candidates"][0]["size"]  # the simulator hides +10 % while the filter regenerates
+    assert regen["form"] == "state" and 6 < regen["percent"] < 14 and regen["unit"] == "L/h"
     determined = [c for c in result["candidates"] if c.get("reason") == "determined_by_inputs"]
     assert {"level:EEC2.EngPercentLoadAtCurrentSpeed", "level:EEC1.EngDemandPercentTorque"} <= \
         {c["effect"] for c in determined} and not any(c.get("recommended") for c in determined)
