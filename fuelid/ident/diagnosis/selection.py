@@ -128,10 +128,10 @@ def base_refits(model: PolyModel, ds, folds: Folds, settings: Settings, defined,
 
 
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
-           settings: Settings, defined=(), memo: FitMemo | None = None) -> tuple[list[Candidate], EngineMap]:
+           settings: Settings, defined, memo: FitMemo) -> tuple[list[Candidate], EngineMap]:
     """Forward selection (module docstring) over `candidates` (their status set here) from `model` (run: its Run,
-    base: `base_refits`, None when they failed; memo: the FitMemo base_refits used); returns (those recommended in
-    the order accepted, the engine map's status)."""
+    base: `base_refits`, None when they failed; defined: the engineer's effects; memo: the FitMemo base_refits used,
+    which the builds share); returns (those recommended in the order accepted, the engine map's status)."""
     pool = [c for c in candidates if c.status is not Status.ALREADY_IN_MODEL]
     in_model = bool(set(CURVATURE) & {fx.parse_effect(e)[0] for e in model.effects})
     term = None if in_model else Candidate(fx.EFFECTS[MAP_EFFECT])  # the engine map, while not accepted
@@ -139,7 +139,6 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     passed_before: set[str] = set()
     scored: dict[str, Scored] = {}  # its refits without each fold
     candidate_models: dict[str, PolyModel] = {}  # built on all the data as identify builds them (engine-model base)
-    memo = FitMemo() if memo is None else memo  # the builds' PEM fits, shared: the base's and the effects' stages recur
     for rnd in range(1, settings.max_rounds + 1):
         found = screen([c.definition for c in pool], model, ds, run, settings.alpha)
         if term is not None:
@@ -189,9 +188,11 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 continue
             c.held_out = compare(base, scored[c.effect], folds, settings)
             sized = c.held_out.passes and c is not term  # its size: evidence once it helps
-            fold_sizes = _fold_sizes(c, scored[c.effect], ds) if sized else []
-            c.size = None if not sized else (effect_size(candidate_models[c.effect], ds, c.definition)
-                                             if c.effect in candidate_models else _median(fold_sizes))
+            whole = candidate_models.get(c.effect)  # built on all the data (an engine-model base)
+            # the fold models' sizes: the physics' direction judged on their spread, and a linear base's size
+            fold_sizes = _fold_sizes(c, scored[c.effect], ds) if sized and (c.definition.sign or whole is None) else []
+            c.size = None if not sized else (effect_size(whole, ds, c.definition) if whole is not None
+                                             else _median(fold_sizes))
             if not c.held_out.passes:  # open: a later round's base (without what masked it) may show its gain
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
             elif against_physics(c.definition, fold_sizes, settings.margin_se):  # open: another base may differ
@@ -209,7 +210,8 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
         best.decide(Status.RECOMMENDED)
-        best.size = None if best is term else effect_size(model, ds, best.definition)  # in the model accepted
+        if best is not term and best.effect not in candidate_models:  # a linear base's: in its refit accepted
+            best.size = effect_size(model, ds, best.definition)
         base = scored[best.effect]
         accepted.append(best)
         if best is term:

@@ -54,7 +54,7 @@ class EffectSize:
     baseline: float = NAN
 
     def to_json(self) -> dict:
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
+        return asdict(self)  # NaN becomes null where the JSON is written (fuelid.output.json_safe)
 
 
 def _columns(model: PolyModel, effect_id: str) -> list[int]:
