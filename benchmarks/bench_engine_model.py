@@ -16,7 +16,9 @@ as a candump log and converted (`fuelid convert`). On the identification trip: `
 (`--model auto` when `fuelid identify --help` offers --model; otherwise today's default, the paper's orders), the
 linear paper model (`--model linear`, or the same default), and `fuelid compare` on the validation trip with the
 static baselines map, eb, ebstar built from the identification trip (`--map-from`); with --also, one more model,
-`also`, identified with those `fuelid identify` options (e.g. "--model engine --effect fuel_delay=0.1"). The commands
+`also`, identified with those `fuelid identify` options (e.g. "--model engine --effect fuel_delay=0.1" or
+"--fuel-lag auto"; a model identified with a fuel lag is scored on the data built with it, `fuelid compare`'s
+default, and the baselines on the default model's). The commands
 run in the worker process (fuelid.cli.main), --jobs processes at a time (at most 2).
 
 Reported per engine, over the seeds: the RMS simulation error [L/h] on the validation trip (median and min-max)
@@ -136,7 +138,8 @@ def _valid_floor(mcap: Path, trip) -> float:
 
 
 def measured_rmse(model_path: Path, mcap: Path) -> float:
-    """RMS simulation error [fuel unit] of the model against the fuel the bus reported on the dataset of mcap: the
+    """RMS simulation error [fuel unit] of the model against the fuel the bus reported on the dataset of mcap (built
+    with the model's fuel lag): the
     simulation of each valid stretch from zero state (its first n_start samples left out, as `fuelid compare`),
     delayed by the model's fuel_delay τ [s] (ident.fueldelay.shift_signal by −τ/Ts) when it has one."""
     import warnings
@@ -149,10 +152,10 @@ def measured_rmse(model_path: Path, mcap: Path) -> float:
     from fuelid.ident.modelfile import load_model
     from fuelid.ident.polymodel import simulate
 
+    model = load_model(model_path)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ds = build_dataset([mcap])
-    model = load_model(model_path)
+        ds = build_dataset([mcap], fuel_lag_s=model.fuel_lag_s)
     tau = float(model.info.get("effect_parameters", {}).get("fuel_delay", 0.0))
     u, _ = model_data(model, ds)
     n0 = model.structure.n_start
@@ -162,6 +165,7 @@ def measured_rmse(model_path: Path, mcap: Path) -> float:
 
 def run_case(label: str, engine: str, seed: int, noise: float, options: dict) -> dict:
     """One engine and seed: simulate, identify every model, compare on the validation trip (module docstring)."""
+    from fuelid.ident.modelfile import load_model
     from fuelid.sim.catalog import validation_pair
 
     truth = "diesel_p320" if label == PAPER else "map"
@@ -178,24 +182,36 @@ def run_case(label: str, engine: str, seed: int, noise: float, options: dict) ->
                 path = folder / f"model{len(fitted)}.json"
                 fitted[tuple(opts)] = (path, _cli_json("identify", ident_mcap, "-o", path, *opts))
         files = [path for path, _ in fitted.values()]
-        cmp = _cli_json("compare", *files, valid_mcap, "--baselines", ",".join(BASELINES), "--map-from",
-                        ident_mcap)
+        # one `fuelid compare` per fuel lag the models were identified with (each on the data built its way); the
+        # baselines from the default model's
+        lag_of = {path: load_model(path).fuel_lag_s for path in files}
+        by_lag = {}
+        for path in files:
+            by_lag.setdefault(lag_of[path], []).append(path)
+        scored = {lag: _cli_json("compare", *group, valid_mcap, "--baselines", ",".join(BASELINES), "--map-from",
+                                 ident_mcap) for lag, group in by_lag.items()}
         floor = _valid_floor(valid_mcap, valid_trip)
         measured = [measured_rmse(path, valid_mcap) for path in files]
     row = {"engine": label, "seed": seed, "valid_seed": valid_cfg.seed, "noise_floor_l_h": floor,
            "noise_floor_trip_l_h": valid_trip.summary["noise_floor"]["rms"], "simulate_s": t_sim,
            "identify_s": {}, "fit_s": {}}
-    scores = {b: cmp["baselines"][b] for b in BASELINES}
+    default_lag = lag_of[fitted[tuple(options["default"])][0]]
+    scores = {b: scored[default_lag]["baselines"][b] for b in BASELINES}
     for name, opts in options.items():
         path, result = fitted[tuple(opts)]
-        scores[name] = cmp["models"][files.index(path)]
+        lag = lag_of[path]
+        scores[name] = scored[lag]["models"][by_lag[lag].index(path)]
         row["identify_s"][name], row["fit_s"][name] = result["wall_time_s"]["total"], result["wall_time_s"]["pem"]
+        row.setdefault("fuel_lag_s", {})[name] = result["training"].get("fuel_lag_s", 0.0)
     for name, s in scores.items():
         row[name] = ({"error": s["error"]} if "error" in s else
                      {"rmse_l_h": s["rmse"]["simulation"], "fit_percent": s["fit_percent"]["simulation"]})
     for name, opts in options.items():
         if "error" not in row[name]:
             row[name]["measured_rmse_l_h"] = measured[files.index(fitted[tuple(opts)][0])]
+            # the baselines built and scored on the data as this model's (its fuel lag)
+            group = scored[lag_of[fitted[tuple(opts)][0]]]["baselines"]
+            row[name]["baselines_same_data"] = {b: group[b].get("rmse", {}).get("simulation") for b in BASELINES}
     return row
 
 
@@ -227,7 +243,13 @@ def summarise(label: str, rows: list[dict], models) -> dict:
                   "measured_rmse_l_h": _stats([r[m].get("measured_rmse_l_h") for r in rows]),
                   "fit_percent": _stats([r[m].get("fit_percent") for r in rows]),
                   "errors": sum("error" in r[m] for r in rows)}
-    out["default"]["ratio_to_floor"] = _stats(ratio)
+    for m in models:
+        out[m]["ratio_to_floor"] = _stats([rmse(r, m) / r["noise_floor_l_h"] if rmse(r, m) else None for r in rows])
+        out[m]["beats_all_same_data"] = sum(
+            rmse(r, m) is not None and all(v is not None and rmse(r, m) < v
+                                           for v in r[m].get("baselines_same_data", {}).values()) for r in rows)
+        lags = [r.get("fuel_lag_s", {}).get(m, 0.0) for r in rows]
+        out[m]["fuel_lag_s"] = {f"{v:g}": lags.count(v) for v in sorted(set(lags))}
     out["default_beats"] = {b: sum(rmse(r, b) is not None and rmse(r, "default") < rmse(r, b) for r in rows)
                             for b in BASELINES}
     out["beats_all"] = {m: sum(all(rmse(r, b) is not None and rmse(r, m) < rmse(r, b) for b in BASELINES)
@@ -274,6 +296,14 @@ def table(summaries: list[dict], models: str, noise: float) -> str:
     lines.append("RMS against the measured fuel (a fuel_delay model's simulation delayed by its tau), median [min-max]:")
     for s in summaries:
         lines.append(f"  {s['engine']}: " + "; ".join(f"{m} {mm(s[m]['measured_rmse_l_h'])}" for m in s["models"]))
+    for s in summaries:
+        for m in s["models"]:
+            if m not in ("default", "linear"):
+                lines.append(f"  {s['engine']}: {m} RMS {mm(s[m]['rmse_l_h'])} L/h, /floor "
+                             f"{mm(s[m]['ratio_to_floor'], '{:.2f}')}, fit {mm(s[m]['fit_percent'], '{:.1f}')} %, "
+                             f"beats map, eb and ebstar on {s['beats_all'][m]}/{s['seeds']} (built on its data: "
+                             f"{s[m]['beats_all_same_data']}/{s['seeds']}); fuel lag [s]: seeds "
+                             + ", ".join(f"{k} on {v}" for k, v in s[m]["fuel_lag_s"].items()))
     lines.append("acceptance (issue 55):")
     for s in summaries:
         a, n = s["acceptance"], s["seeds"]

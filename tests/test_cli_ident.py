@@ -215,3 +215,20 @@ def test_identify_adds_the_effects_a_diagnosis_named(recording, tmp_path, capsys
     assert main(["identify", str(recording), "--effects-from", str(diagnosis), "-o", str(model)]) == 1
     err = capsys.readouterr().err
     assert "not a `fuelid diagnose --json` result" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_fuel_lag_is_kept_in_the_model_and_used_to_compare(recording, tmp_path, capsys):
+    spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
+    on_time, late = tmp_path / "on_time.json", tmp_path / "late.json"
+    assert main(["identify", str(recording), "--orders", spec, "-o", str(on_time), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["training"]["fuel_lag_s"] == 0.0
+    assert main(["identify", str(recording), "--orders", spec, "--fuel-lag", "0.1", "-o", str(late)]) == 0
+    assert "fuel binned 0.1 s earlier than logged" in capsys.readouterr().out
+    assert load_model(late).training["fuel_lag_s"] == 0.1
+    assert main(["compare", str(late), str(recording), "--json"]) == 0  # built with the model's lag
+    capsys.readouterr()
+    for args in (["compare", str(late), str(recording), "--fuel-lag", "0"],
+                 ["compare", str(late), str(on_time), str(recording)]):
+        assert main(args) == 1
+        err = capsys.readouterr().err
+        assert "--fuel-lag" in err and len(err.strip().splitlines()) == 1

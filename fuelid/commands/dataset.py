@@ -1,4 +1,5 @@
 """fuelid dataset: MCAP recordings to a resampled identification data set (.csv or .mat) for cross-checks."""
+import argparse
 import sys
 import warnings
 
@@ -8,12 +9,28 @@ from fuelid.ident.dataset import build_dataset, csv_sidecar, save_dataset
 from fuelid.output import print_json
 
 
+def lag_argument(text: str) -> float:
+    """--fuel-lag: seconds ≥ 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be at least 0 s, got {text}")
+    return value
+
+
 def add_dataset_arguments(p):
     """The data-set options shared by the commands that read recordings into a Dataset."""
     p.add_argument("--ts", type=float, metavar="S",
                    help="sampling interval [s] (default 0.3, as Madhusudhanan et al.; compare: the model's)")
     p.add_argument("--fuel", choices=["auto", "flowmeter", "lfe1"], default="auto",
                    help="output signal: the flow meter [kg/h], LFE1 fuel rate [L/h], or auto (meter when logged)")
+    p.add_argument("--fuel-lag", type=lag_argument, metavar="S",
+                   help="the fuel signal's reporting lag [s], below --ts: each fuel sample is binned at its log time "
+                        "minus it, e.g. 0.1 for an ECU that reports the mean fuel of its last 100 ms "
+                        "(docs/guide/identify-and-compare.md); default 0, and for compare, diagnose, report and "
+                        "online with a prior the models'")
     p.add_argument("--max-gap", type=float, default=1.0, metavar="S",
                    help="longest gap [s] a signal is held over; longer gaps split the data (default 1)")
     p.add_argument("--cycle", type=float, default=1800.0, metavar="S",
@@ -30,7 +47,7 @@ def add_dataset_arguments(p):
 def build(args, paths):
     """The Dataset of `paths` with the options of add_dataset_arguments (cached, see ident.datacache)."""
     options = {"Ts": args.ts or 0.3, "fuel": args.fuel, "max_gap_s": args.max_gap, "cycle_s": args.cycle,
-               "skip_damaged": args.skip_damaged}
+               "skip_damaged": args.skip_damaged, "fuel_lag_s": args.fuel_lag or 0.0}
     with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
         warnings.simplefilter("ignore", UserWarning)
         return cached_dataset(paths, options, lambda: build_dataset(paths, **options),
@@ -38,14 +55,21 @@ def build(args, paths):
 
 
 def build_for_models(args, paths, models):
-    """The Dataset of `paths` to evaluate `models` [(path, PolyModel)] on: --ts defaults to the models' Ts and
-    --fuel auto to the signal of their output unit (meter for kg/h, LFE1 for L/h); every model's Ts must be
-    the data's (FuelidError otherwise)."""
+    """The Dataset of `paths` to evaluate `models` [(path, PolyModel)] on: --ts and --fuel-lag default to the
+    models' Ts and fuel lag (training.fuel_lag_s, 0 for a model without it) and --fuel auto to the signal of their
+    output unit (meter for kg/h, LFE1 for L/h); every model's Ts and fuel lag must be the data's (FuelidError
+    otherwise)."""
     ts = {m.Ts for _, m in models}
     if args.ts is None:
         if len(ts) > 1:
             raise FuelidError(f"the models have different sampling intervals {sorted(ts)} s; choose one with --ts")
         args.ts = ts.pop()
+    lags = {m.fuel_lag_s for _, m in models}
+    if args.fuel_lag is None:
+        if len(lags) > 1:
+            raise FuelidError(f"the models were identified with different fuel lags {sorted(lags)} s; "
+                              "choose one with --fuel-lag")
+        args.fuel_lag = lags.pop()
     if args.fuel == "auto":
         units = {m.output_unit for _, m in models}
         args.fuel = {"kg/h": "flowmeter", "L/h": "lfe1"}.get(units.pop(), "auto") if len(units) == 1 else "auto"
@@ -53,7 +77,11 @@ def build_for_models(args, paths, models):
     for path, model in models:
         if abs(model.Ts - ds.Ts) > 1e-9:
             raise FuelidError(f"{path}: model Ts {model.Ts:g} s differs from the data's {ds.Ts:g} s")
+        if abs(model.fuel_lag_s - ds.fuel_lag_s) > 1e-9:
+            raise FuelidError(f"{path}: the model was identified with --fuel-lag {model.fuel_lag_s:g}, the data "
+                              f"are built with --fuel-lag {ds.fuel_lag_s:g}")
     return ds
+
 
 
 def add_arguments(p):

@@ -100,7 +100,7 @@ def run(args) -> int:
         "structure": dataclasses.asdict(structure),
         "effects": list(model.effects),
         "model_choice": choice,
-        "training": {"samples": n_train, "stretches": n_segs, "Ts": ds.Ts,
+        "training": {"samples": n_train, "stretches": n_segs, "Ts": ds.Ts, "fuel_lag_s": ds.fuel_lag_s,
                      "operating_point": {"u0": [float(v) for v in ds.u0], "y0": float(ds.y0)},
                      "warnings": ds.notes + list(model.info.get("warnings", [])) + plain,
                      "advice": plain + ([summary] if summary else [])},
@@ -117,7 +117,9 @@ def run(args) -> int:
         print_json(result)
     else:
         print(f"{args.output}: BJ {structure.nb}/{structure.nf}/{structure.nk} nc={structure.nc} nd={structure.nd}"
-              f" on {n_train * ds.Ts / 60:.1f} min ({n_segs} stretches), {t_end - t_start:.1f} s")
+              f" on {n_train * ds.Ts / 60:.1f} min ({n_segs} stretches)"
+              + (f", fuel binned {ds.fuel_lag_s:g} s earlier than logged" if ds.fuel_lag_s else "")
+              + f", {t_end - t_start:.1f} s")
         print(ModelChoice.from_json(choice).line(ds.output_unit))
         print(format_table([(args.output, metrics)], ds.output_unit))
         for w in ds.notes + plain:

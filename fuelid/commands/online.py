@@ -51,7 +51,12 @@ def run(args) -> int:
     if args.forgetting is not None and not 0.0 < args.forgetting <= 1.0:
         raise FuelidError(f"--forgetting must be in (0, 1], got {args.forgetting}")
 
+    if prior is not None and args.fuel_lag is None:
+        args.fuel_lag = prior.fuel_lag_s
     ds = build(args, args.inputs)
+    if prior is not None and abs(prior.fuel_lag_s - ds.fuel_lag_s) > 1e-9:
+        raise FuelidError(f"the prior was identified with --fuel-lag {prior.fuel_lag_s:g}, the data are built "
+                          f"with --fuel-lag {ds.fuel_lag_s:g}")
     if prior is not None and (tuple(prior.input_units[:2]) != tuple(ds.input_units) or prior.output_unit != ds.output_unit):
         raise FuelidError(f"prior units {list(prior.input_units[:2])} -> {prior.output_unit} do not match the data's "
                           f"{list(ds.input_units)} -> {ds.output_unit}")

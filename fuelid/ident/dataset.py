@@ -19,6 +19,9 @@ clock, computed in integer ns so that a sample on a boundary always opens the ne
   fast, continuous signals the models use (EEC1 comes every 10–50 ms, LFE1/CCVS1/the meter every ~100 ms);
 - held (the last valid sample before the bin's end): every other signal ("extras", named MESSAGE.Signal),
   which is exact for states and enumerations (gear, switches) and right for slow broadcasts;
+- the fuel signal's samples (LFE1 or the meter) are binned at their log time minus `fuel_lag_s` (default 0): an ECU
+  that reports the mean fuel of its last update period sends it one period late, and with the lag given the fuel of
+  a bin is the fuel of the same interval as its speed and torque (benchmarks/bench_engine_oracle.py measures it);
 - a bin without a sample of an averaged signal holds the previous value if it is at most `max_gap_s` old at
   the bin's end; after a longer gap the samples are NaN and invalid. Extras hold up to
   max(max_gap_s, 3 × their median period) and never decide validity.
@@ -90,7 +93,7 @@ class Dataset:
     Ts [s]; t [s] bin start times on the log clock (N); u (N×2) [rpm, Nm or %]; y (N) [output_unit];
     u0 (2) and y0 the idle operating point in the same units; valid (N) bool; cycle (N) int drive-cycle id
     (−1 = none); extra MESSAGE.Signal → (N) array in the DBC unit; sources signal → source address used;
-    notes the warnings raised while building.
+    notes the warnings raised while building; fuel_lag_s [s] the fuel signal's reporting lag taken out.
     """
     Ts: float
     t: np.ndarray
@@ -107,6 +110,7 @@ class Dataset:
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     sources: dict[str, int | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    fuel_lag_s: float = 0.0
 
     def __len__(self) -> int:
         return len(self.t)
@@ -135,6 +139,7 @@ class Dataset:
         segs = self.segments()
         return {
             "Ts": self.Ts,
+            "fuel_lag_s": self.fuel_lag_s,
             "samples": len(self),
             "valid_samples": int(self.valid.sum()),
             "valid_duration_s": float(self.valid.sum() * self.Ts),
@@ -567,13 +572,15 @@ class _Signals:
     """Every signal's _Binned per source address. With `in_order` False the samples are kept whole and
     time-sorted at the end (a recording whose clock stepped back): exact, but memory grows with the records."""
 
-    def __init__(self, ts_ns: int, in_order: bool):
-        self._ts, self._in_order = ts_ns, in_order
+    def __init__(self, ts_ns: int, in_order: bool, lag_ns: dict[str, int] | None = None):
+        self._ts, self._in_order, self._lag = ts_ns, in_order, lag_ns or {}
         self.by_key: dict[tuple[str, int | None], _Binned] = {}
         self._kept: dict[tuple, list] = {}
 
     def add(self, found: list[_Found]) -> None:
         for f in found:
+            if f.name in self._lag:
+                f.t = f.t - self._lag[f.name]
             key = (f.name, f.sa)
             binned = self.by_key.get(key)
             if binned is None:
@@ -597,12 +604,12 @@ class _Signals:
         return sig
 
 
-def _read(sources, ts_ns: int, damaged: list | None, in_order: bool) -> dict[str, dict]:
+def _read(sources, ts_ns: int, damaged: list | None, in_order: bool, lag_ns: dict[str, int]) -> dict[str, dict]:
     """The signals of MCAP paths and/or lists of (topic, log_time_ns, record) records, see _Signals.finish.
     A file is read from its message columns when it has them, else from its JSON channels chunk batch by chunk
     batch (with a progress bar on a terminal). A damaged chunk of a file read so raises FuelidError, or, when a
     `damaged` list is given, is skipped and appended to it."""
-    signals = _Signals(ts_ns, in_order)
+    signals = _Signals(ts_ns, in_order, lag_ns)
     spans = {}  # path -> (first, last) log time [ns]: files are parts of one timeline and must not overlap
     arrival = 0
     topics = ["/flowmeter"] + [f"/j1939/{m}" for m in Decoder().message_names()]  # not /can/raw
@@ -743,12 +750,14 @@ def build_dataset(
     cycle_s: float = 1800.0,
     min_cycle_s: float = 60.0,
     skip_damaged: bool = False,
+    fuel_lag_s: float = 0.0,
 ) -> Dataset:
     """Build a Dataset from MCAP paths and/or iterables of (topic, log_time_ns, record) records.
 
     Ts [s] grid step; fuel 'auto' (the flow meter when it has valid readings, else LFE1), 'flowmeter'
     [kg/h] or 'lfe1' [L/h]; max_gap_s [s] the longest stretch a model signal is held; idle_rpm,
-    idle_tol_rpm [rpm], idle_min_s [s] the operating point; cycle_s, min_cycle_s [s] the drive cycles.
+    idle_tol_rpm [rpm], idle_min_s [s] the operating point; cycle_s, min_cycle_s [s] the drive cycles; fuel_lag_s
+    [s] (≥ 0) the fuel signal's reporting lag, taken out of its samples' times before binning.
     A file's damaged chunk (failing its CRC) raises FuelidError naming the bytes; with skip_damaged it is
     left out (a gap in the data) and noted. Raises FuelidError when engine speed, torque or the fuel
     signal is missing. Method: module docstring.
@@ -757,14 +766,17 @@ def build_dataset(
         raise FuelidError(f"sampling interval must be positive, got {Ts} s")
     if fuel not in ("auto", *FUEL_SIGNALS):
         raise FuelidError(f"fuel must be auto, flowmeter or lfe1, got {fuel!r}")
+    if not 0 <= fuel_lag_s < Ts:
+        raise FuelidError(f"the fuel signal's lag must be at least 0 and below Ts = {Ts:g} s, got {fuel_lag_s} s")
     ts_ns = int(round(Ts * 1e9))
+    lag_ns = {name: int(round(fuel_lag_s * 1e9)) for name, _ in FUEL_SIGNALS.values()}
     sources = _sources(sources)
     try:
         damaged = [] if skip_damaged else None
-        sig = _read(sources, ts_ns, damaged, in_order=True)
+        sig = _read(sources, ts_ns, damaged, in_order=True, lag_ns=lag_ns)
     except _OutOfOrder:
         damaged = [] if skip_damaged else None
-        sig = _read(sources, ts_ns, damaged, in_order=False)
+        sig = _read(sources, ts_ns, damaged, in_order=False, lag_ns=lag_ns)
     chosen, used = _choose(sig, source_preference)
     del sig  # the other source addresses' samples: only the chosen ones are gridded
     if fuel == "auto":
@@ -829,6 +841,7 @@ def build_dataset(
         input_names=(SPEED, "EngTorque"), input_units=("rpm", torque_unit),
         output_name=fuel_name, output_unit=fuel_unit, u0=u0, y0=y0, valid=valid,
         cycle=np.full(len(k_rows), -1, dtype=np.int64), extra=extra, sources=used, notes=notes,
+        fuel_lag_s=float(fuel_lag_s),
     )
     ds.cycle = _cycles(ds.segments(), len(ds), Ts, cycle_s, min_cycle_s)
     return ds
@@ -842,7 +855,7 @@ def _meta(ds: Dataset) -> dict:
         "input_names": list(ds.input_names), "input_units": list(ds.input_units),
         "output_name": ds.output_name, "output_unit": ds.output_unit,
         "u0": [float(v) for v in ds.u0], "y0": ds.y0, "sources": ds.sources, "notes": ds.notes,
-        "extra": list(ds.extra),
+        "extra": list(ds.extra), "fuel_lag_s": ds.fuel_lag_s,
     }
 
 
@@ -995,5 +1008,5 @@ def load_dataset(path) -> Dataset:
         u0=np.asarray(meta["u0"], float), y0=float(meta["y0"]),
         valid=np.asarray(cols["valid"]).astype(bool), cycle=np.asarray(cols["cycle"]).astype(np.int64),
         extra={k: np.asarray(v, float) for k, v in cols.items() if k not in fixed},
-        sources=meta["sources"], notes=meta["notes"],
+        sources=meta["sources"], notes=meta["notes"], fuel_lag_s=float(meta.get("fuel_lag_s", 0.0)),
     )

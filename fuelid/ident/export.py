@@ -76,6 +76,7 @@ def matlab_script(model: PolyModel, source: str = "") -> str:
         "% zeros of each B are its input delay in samples (InputDelay stays 0).",
         "% The model works on deviations from the operating point: y = y0 + sim(sys, u - u0).",
         f"Ts = {_num(model.Ts)};  % sampling interval [s]",
+        f"fuel_lag_s = {_num(model.fuel_lag_s)};  % the fuel's samples were binned at their log time minus this [s]",
         f"A = {_row(model.A)};",
         "B = " + _cell(_row(b) for b in model.B) + ";",
         f"C = {_row(model.C)};",
@@ -165,7 +166,7 @@ def mat_variables(model: PolyModel) -> dict:
     """The variables of the .mat export: the same names as the MATLAB script, B and F as 1×m cell arrays."""
     lam = noise_variance(model)
     return {
-        "Ts": model.Ts, "A": model.A, "B": _cell_array(model.B), "C": model.C, "D": model.D, "F": _cell_array(model.F),
+        "Ts": model.Ts, "fuel_lag_s": model.fuel_lag_s, "A": model.A, "B": _cell_array(model.B), "C": model.C, "D": model.D, "F": _cell_array(model.F),
         "nk": np.asarray(model.nk, float), "NoiseVariance": np.nan if lam is None else lam,
         "u0": np.asarray(model.u0, float), "y0": model.y0,
         "InputName": np.array(model.input_names, dtype=object), "InputUnit": np.array(model.input_units, dtype=object),

@@ -5,7 +5,9 @@
 as ident.dataset does offline: bins [t0 + kTs, t0 + (k+1)Ts), each signal averaged over its valid samples in
 the bin, a bin without one not available (NaN; the estimator holds inputs for up to max_gap_s). Torque [Nm] =
 EEC1.ActualEngPercentTorque [%] × EC1.EngReferenceTorque [Nm] / 100 (a model in % uses the percentage). Fuel:
-/flowmeter flow_kg_h for a model in kg/h, else LFE1.EngFuelRate [L/h]. Only the engine's records (source
+/flowmeter flow_kg_h for a model in kg/h, else LFE1.EngFuelRate [L/h], each record in the bin of its receive time
+minus the fuel signal's reporting lag `fuel_lag_s` (a prior model's `training.fuel_lag_s`; ident.fuellag), so a bin
+closes that much later. Only the engine's records (source
 address engine_sa, default 0x00) are used; null (not available) values are no sample. A silence longer than
 max_gap_s (engine off, logger restart) restarts the estimator's filters.
 
@@ -191,7 +193,7 @@ class LiveEstimator:
                  fuel: str = "lfe1", engine_sa: int = 0, names=None, snapshot_path=None,
                  snapshot_every_s: float = 600.0, parameters_every_s: float = 10.0, max_gap_s: float = 1.0,
                  speed: float = 1.0, idle_rpm: float = 600.0, idle_tol_rpm: float = 50.0, idle_min_s: float = 3.0,
-                 engine_map=None):
+                 engine_map=None, fuel_lag_s: float = 0.0):
         if torque_unit not in ("Nm", "%") or fuel not in ("lfe1", "flowmeter"):
             raise ValueError("torque_unit must be 'Nm' or '%', fuel 'lfe1' or 'flowmeter'")
         if (estimator is None) == (start is None) or (start is not None and Ts is None):
@@ -200,6 +202,8 @@ class LiveEstimator:
             raise ValueError(f"speed must be > 0, got {speed}")
         self.est, self._start = estimator, start
         self.Ts = estimator.Ts if estimator is not None else float(Ts)
+        if not 0.0 <= fuel_lag_s < self.Ts:
+            raise ValueError(f"fuel_lag_s must be in [0, Ts = {self.Ts} s), got {fuel_lag_s}")
         self.torque_unit, self.fuel, self.engine_sa = torque_unit, fuel, engine_sa
         self.unit = "kg/h" if fuel == "flowmeter" else "L/h"
         self.names = list(names) if names is not None else None
@@ -208,6 +212,7 @@ class LiveEstimator:
         # the grid on the receive-time axis in integer ns (log times are ns): a record on a bin edge is never
         # put in the bin before by float rounding
         self._step_ns, self._max_gap = round(self.Ts / speed * 1e9), max_gap_s / speed
+        self._lag_ns = round(fuel_lag_s / speed * 1e9)  # a fuel record at t is the fuel of t − lag
         self._idle = (idle_rpm, idle_tol_rpm, max(1, math.ceil(idle_min_s / self.Ts)))
         self._idle_bins: list[np.ndarray] = []  # [speed, torque, fuel] of the current idle stretch (from scratch)
         self._gain0 = None  # the prior's G_i(1), the reference of fuel_change_pct
@@ -217,8 +222,10 @@ class LiveEstimator:
         self.ref_torque = None  # [Nm], from EC1
         self._bin = None  # index k of the open bin
         self._t0_ns = None
-        self._sums = np.zeros(3)  # speed, torque %, fuel
-        self._counts = np.zeros(3)
+        # speed, torque %, fuel of the open bin k (row 0) and bin k + 1 (row 1: speed and torque that arrive
+        # while bin k still waits for its fuel, up to the fuel's lag later)
+        self._sums = np.zeros((2, 3))
+        self._counts = np.zeros((2, 3))
         self._last_data_t = -math.inf
         self._next_parameters = self._next_snapshot = None
         self.engine_map = engine_map
@@ -228,7 +235,8 @@ class LiveEstimator:
     @classmethod
     def from_model(cls, model, *, method: str = "rpem", forgetting: float | None = 0.9995, drift: float = 3e-4,
                    adapt: str = "gain", **kwargs):
-        """A LiveEstimator starting from a PolyModel (e.g. load_model('fleet.json')), units from the model.
+        """A LiveEstimator starting from a PolyModel (e.g. load_model('fleet.json')), units and the fuel signal's
+        reporting lag (training.fuel_lag_s) from the model.
 
         method 'rpem' (constant forgetting λ = forgetting; None: λ = 1) or 'kalman' (random-walk fuel gain,
         relative drift per sample `drift`); adapt 'gain' (ident.kalman.GainTracker: only the common fuel gain,
@@ -240,6 +248,7 @@ class LiveEstimator:
         if "engine_map" in model.effects:  # SciPy (the map's splines) only for an engine model
             from fuelid.ident.enginemap import EngineMap
             emap = EngineMap.from_dict(model.info["effect_parameters"]["engine_map"])
+        kwargs.setdefault("fuel_lag_s", model.fuel_lag_s)
         return cls(est, torque_unit=model.input_units[1] or "Nm", fuel=fuel,
                    names=parameter_names(model.structure), engine_map=emap, **kwargs)
 
@@ -269,20 +278,24 @@ class LiveEstimator:
             self._t0_ns, self._bin = round(t * 1e9), 0
             self._next_parameters = t + self.parameters_every_s
             self._next_snapshot = t + self.snapshot_every_s
-        k = (round(t * 1e9) - self._t0_ns) // self._step_ns
+        # bin k is complete once its fuel can no longer come: at (k + 1) Ts + lag
+        k = (round(t * 1e9) - self._t0_ns - self._lag_ns) // self._step_ns
         if k > self._bin:
             out += self._close(self._bin)
             if t - self._last_data_t > self._max_gap:  # silence: no bins in between, filters restart
                 out += self._flush()
                 self._restart()
+                self._sums[:], self._counts[:] = 0.0, 0.0
             else:
                 for empty in range(self._bin + 1, k):
                     out += self._close(empty)
             self._bin = k
-        if k >= self._bin:  # a record from an already closed bin (out of order) is dropped
-            for channel, v in values:
-                self._sums[channel] += v
-                self._counts[channel] += 1
+        for channel, v in values:
+            own = k if channel == 2 else (round(t * 1e9) - self._t0_ns) // self._step_ns
+            row = own - self._bin
+            if row in (0, 1):  # a record from an already closed bin (out of order) is dropped
+                self._sums[row, channel] += v
+                self._counts[row, channel] += 1
         self._last_data_t = max(self._last_data_t, t)
         return out
 
@@ -311,8 +324,9 @@ class LiveEstimator:
 
     def _close(self, k: int) -> list[tuple[str, float, dict]]:
         """Run the estimator on bin k and make its records."""
-        mean = np.where(self._counts > 0, self._sums / np.maximum(self._counts, 1), np.nan)
-        self._sums[:], self._counts[:] = 0.0, 0.0
+        mean = np.where(self._counts[0] > 0, self._sums[0] / np.maximum(self._counts[0], 1), np.nan)
+        self._sums[0], self._counts[0] = self._sums[1], self._counts[1]
+        self._sums[1], self._counts[1] = 0.0, 0.0
         speed, pct, fuel = mean
         if self.torque_unit == "%":
             torque = pct

@@ -193,6 +193,11 @@ class PolyModel:
             self.covariance = np.asarray(self.covariance, float)
 
     @property
+    def fuel_lag_s(self) -> float:
+        """The fuel signal's reporting lag [s] its data were binned with (training.fuel_lag_s; 0 without it)."""
+        return float(self.training.get("fuel_lag_s", 0.0))
+
+    @property
     def structure(self) -> Structure:
         return Structure(
             nb=tuple(b.size - k for b, k in zip(self.B, self.nk)),

@@ -57,6 +57,8 @@ def test_the_second_build_is_read_back_identical(mcap):
 def test_another_byte_option_or_file_list_builds_again(mcap, tmp_path):
     counted([mcap], {"Ts": 0.3})
     assert counted([mcap], {"Ts": 0.2})[1] == 1  # another option
+    lagged, built = counted([mcap], {"Ts": 0.2, "fuel_lag_s": 0.1})
+    assert built == 1 and counted([mcap], {"Ts": 0.2, "fuel_lag_s": 0.1})[0].fuel_lag_s == 0.1 == lagged.fuel_lag_s
     other = write_mcap(tmp_path / "b.mcap", recording(1_700_000_300.0, 30.0, 2))
     assert counted([mcap, other], {"Ts": 0.2})[1] == 1  # another file list
     data = bytearray(mcap.read_bytes())

@@ -56,6 +56,22 @@ def test_grid_means_units_and_extras():
     assert ds.sources["EEC1.EngSpeed"] == 0
 
 
+def test_a_fuel_lag_bins_the_fuel_with_the_interval_it_describes():
+    # an ECU that reports at t the mean fuel of [t - 0.1, t): with the lag taken out, bin k holds the
+    # fuel of [0.3k, 0.3k + 0.3), the interval of its speed and torque
+    fuel = lambda t: 2.0 + 0.1 * t  # noqa: E731  injected fuel [L/h]
+    recs = [r for r in trip() if r[0] != "/j1939/LFE1"]
+    recs += [lfe1(i / 10, fuel(i / 10 - 0.05)) for i in range(1, 600)]  # the mean over the last 0.1 s
+    plain, lagged = build_dataset(recs, Ts=0.3), build_dataset(recs, Ts=0.3, fuel_lag_s=0.1)
+    k = 50
+    assert lagged.fuel_lag_s == 0.1 and lagged.summary()["fuel_lag_s"] == 0.1
+    assert lagged.y[lagged.t == plain.t[k]][0] == pytest.approx(fuel(plain.t[k] + 0.15), abs=1e-9)
+    assert plain.y[k] == pytest.approx(fuel(plain.t[k] + 0.05), abs=1e-9)  # a third of a bin late
+    np.testing.assert_array_equal(lagged.u[lagged.t == plain.t[k]], plain.u[[k]])
+    with pytest.raises(FuelidError, match="lag"):
+        build_dataset(recs, Ts=0.3, fuel_lag_s=0.3)
+
+
 def test_long_gap_is_not_interpolated_and_splits_segments():
     ds = build_dataset(trip(gap=(20.0, 25.0)), Ts=0.3, max_gap_s=1.0)
     inside = (ds.t >= 21.2) & (ds.t < 24.7)
@@ -157,9 +173,9 @@ def test_drive_cycles():
 
 @pytest.mark.parametrize("suffix", [".csv", ".mat"])
 def test_export_round_trip(tmp_path, suffix):
-    ds = build_dataset(trip(t_end=20.0, gap=(10.0, 12.0)), Ts=0.3)
+    ds = build_dataset(trip(t_end=20.0, gap=(10.0, 12.0)), Ts=0.3, fuel_lag_s=0.1)
     back = load_dataset(save_dataset(ds, tmp_path / f"d{suffix}"))
-    assert back.Ts == ds.Ts and back.input_units == ds.input_units and back.output_name == ds.output_name
+    assert back.Ts == ds.Ts and back.fuel_lag_s == 0.1 and back.input_units == ds.input_units and back.output_name == ds.output_name
     np.testing.assert_allclose(back.t, ds.t)
     np.testing.assert_allclose(back.u, ds.u, equal_nan=True)
     np.testing.assert_allclose(back.y, ds.y, equal_nan=True)

@@ -48,6 +48,7 @@ def test_mat_file_reproduces_the_simulation(fitted, tmp_path):
         B, F = [v["B"][0, i] for i in range(len(model.B))], [v["F"][0, i] for i in range(len(model.F))]
         np.testing.assert_array_equal(exported_simulation(v["A"], B, F, v["u0"], v["y0"], u), simulate(model, u))
         assert v["Ts"][0, 0] == model.Ts and list(v["nk"].ravel()) == list(model.nk)
+        assert v["fuel_lag_s"][0, 0] == model.fuel_lag_s == 0.0  # the fuel as logged
         assert [str(s[0]) for s in v["InputUnit"].ravel()] == list(model.input_units)
         if model.covariance is not None:
             np.testing.assert_array_equal(v["P"], model.covariance)

@@ -56,6 +56,27 @@ def test_live_estimator_tracks_and_writes(tmp_path):
     assert load_model(snap).structure == truth.structure
 
 
+def test_a_fuel_reported_late_is_binned_with_its_own_speed_and_torque():
+    """A model identified on fuel binned 0.1 s earlier than logged (training.fuel_lag_s) bins the live fuel so too:
+    the same bins as an ECU that reports on time."""
+    truth = diesel_truth()
+    truth.input_units, truth.output_unit, truth.u0 = ("rpm", "%"), "L/h", (600.0, 0.0)
+    u, y, _ = paper_data(truth, n=600, seed=5, sigma_e=SIGMA_E)
+    late = sorted(((topic, t + (0.1 if topic == "/j1939/LFE1" else 0.0), rec) for topic, t, rec in records(u, y)),
+                  key=lambda r: r[1])
+    lagged = dataclasses.replace(truth, training={"fuel_lag_s": 0.1})
+    runs = []
+    for model, feed in ((truth, records(u, y)), (lagged, late)):
+        live = LiveEstimator.from_model(model, forgetting=0.9995)
+        runs.append([r for rec in feed for topic, _, r in live.feed(*rec) if topic == "/ident/prediction"])
+    on_time, reported_late = runs
+    assert len(on_time) == len(reported_late) == len(y) - 1
+    assert [r["measured"] for r in on_time] == [r["measured"] for r in reported_late]
+    assert [r["predicted"] for r in on_time] == pytest.approx([r["predicted"] for r in reported_late], rel=1e-9)
+    with pytest.raises(ValueError, match="fuel_lag_s"):
+        LiveEstimator.from_model(truth, fuel_lag_s=0.3)
+
+
 @pytest.fixture(scope="module")
 def prior():
     return dataclasses.replace(fleet_prior(diesel_truth()), input_units=("rpm", "%"), output_unit="L/h",
