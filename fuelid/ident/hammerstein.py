@@ -17,7 +17,12 @@ Bai 1998) of PEM's criterion V = ½ Σ ε², ε = D/C (ỹ − Σ_i G_i ũ_i) (L
 output-error sense:
 
 (a) the map starts from its static penalised fit to the time-aligned fuel (ident.effects.static_engine_map), m
-    beyond its least-squares plane over the data;
+    beyond its least-squares plane over the data; the dynamics from two starts, each continued by PEM (b) and the
+    one `keep` picks kept: the given model (the linear model's dynamics with the map's path fitted beside them) and
+    the static map alone (`static_start`: the whole map through B_m = 1, every other path at zero, the given noise
+    model), from which PEM adds only the dynamics the data ask for beside the map; from the linear model's
+    dynamics alone it can stop where the paths' slow poles hold part of the map, with a larger V and a simulation
+    worse than the map's own (docs/explanation/engine-model.md, "What limits the accuracy");
 (b) with the map fixed, PEM of every transfer function and the noise model (ident.pem.pem, warm-started);
 (c) with the dynamics fixed, the simulation error is affine in the map's coefficients c — x_map = φ c − ℓ with
     ℓ = y0 + g_n ñ + g_T T̃ the paths' plane at the current gains, and the transient column r·s/f_scale = r φ c/f_scale:
@@ -232,13 +237,31 @@ def simulation_error(model: PolyModel, u: np.ndarray, y: np.ndarray, segments) -
     return float(np.sqrt(np.mean(err ** 2)))
 
 
+def static_start(model: PolyModel) -> PolyModel:
+    """The engine model `model` started from its static map alone: the map's column carries the whole map (its plane
+    (y0, 0, 0), so x_map = s − y0) through B_m = 1, F_m = 1; every other input's path at zero (B = 0, F = 1: the
+    speed and torque paths, the transient columns, other effects); the noise model as given. Its simulation is
+    y = s(n, T)."""
+    emap = engine_map_of(model)
+    j = model.input_names.index(MAP_COLUMN)
+    B = [np.zeros_like(b) for b in model.B]
+    F = [np.r_[1.0, np.zeros(f.size - 1)] for f in model.F]
+    B[j][model.nk[j]] = 1.0
+    flat = emap.with_coefficients(emap.coef, (emap.plane[0], 0.0, 0.0))
+    params = {**model.info["effect_parameters"], MAP_EFFECT: flat.to_dict()}
+    return dataclasses.replace(model, B=B, F=F, covariance=None, info={**model.info, "effect_parameters": params})
+
+
 def joint_fit(model: PolyModel, ds, segments, *, keep, fit=pem, rounds: int = JOINT_ROUNDS, tol: float = JOINT_TOL,
-              max_iter: int = JOINT_MAX_ITER) -> PolyModel:
+              max_iter: int = JOINT_MAX_ITER, from_static: bool = True) -> PolyModel:
     """The engine model `model` (with the engine_map effect, its dynamics fitted by PEM with its map fixed) refined by
     the block-coordinate descent of the module docstring on the slices `segments` of dataset ds; fit: `pem` or a
     FitMemo's; rounds, tol: at most that many rounds, while V or the simulation error falls by more than tol of
     itself (the rounds alternate two criteria: step (b) lowers V, step (c) the simulation error); max_iter: step
-    (b)'s PEM iterations. Of the start and the rounds' models the one `keep(models, simulation errors)` picks is kept
+    (b)'s PEM iterations; from_static: also start from the static map (`static_start`, step (a)), False when the
+    model is to be continued from where it is (a truck's previous model: another start could move it to another
+    minimum, a drift the data do not show). Of the start and the rounds' models the one
+    `keep(models, simulation errors)` picks is kept
     (ident.identify.kept_fit: the lowest V unless another simulates the data grossly better — a round can lower V
     while the noise model takes up a drift the simulation then shows), its step (b) continued to FINAL_MAX_ITER when
     it stopped at its limit (its convergence is PEM's own), then renormalised so that its map is its steady state
@@ -246,11 +269,22 @@ def joint_fit(model: PolyModel, ds, segments, *, keep, fit=pem, rounds: int = JO
     column's share of a large plane change, or speeds beyond the knot box, where the renormalisation is not exact;
     its steady state is then the paths' gains and its map, `steady_state_map`). info["joint"] records V (`loss`) and
     the simulation error (`simulation_error`) of the start and each round, the round kept, why the rounds stopped and
-    what the steady state is."""
+    what the steady state is, and info["joint"]["starts"] V and the simulation error each start reached."""
     u, y = model_data(model, ds)
     V, sim = loss(model, u, y, segments), simulation_error(model, u, y, segments)
     model.info["loss_V"] = V
-    tried, history, sims, stop = [(model, u, y, None)], [V], [sim], "rounds"
+    starts = {"given": (V, sim)}
+    first = None  # the PEM start of the model the rounds start from, when PEM fitted it here
+    if from_static:
+        start = static_start(model)
+        u_s, y_s = model_data(start, ds)
+        static = _fitted(fit, u_s, y_s, start, ds.Ts, segments, max_iter)
+        V_s, sim_s = loss(static, u_s, y_s, segments), simulation_error(static, u_s, y_s, segments)
+        static.info["loss_V"] = V_s
+        starts["static map"] = (V_s, sim_s)
+        if keep([model, static], [sim, sim_s]) == 1:
+            model, u, y, V, sim, first = static, u_s, y_s, V_s, sim_s, start
+    tried, history, sims, stop = [(model, u, y, first)], [V], [sim], "rounds"
     for _ in range(rounds):
         start = refit_map(model, ds, segments)
         if start is None:
@@ -280,6 +314,7 @@ def joint_fit(model: PolyModel, ds, segments, *, keep, fit=pem, rounds: int = JO
     else:  # the transient column's share of the plane, or speeds beyond the knot box, would change the simulation
         steady = (f"the paths' gains and its map (renormalised, the simulation error would rise from {before:.3g} "
                   f"to {after:.3g} {model.output_unit})")
-    model.info["joint"] = {"loss_V": history, "simulation_rmse": sims, "kept_round": k, "stop": stop,
+    model.info["joint"] = {"starts": {name: {"loss_V": v, "simulation_rmse": e} for name, (v, e) in starts.items()},
+                           "loss_V": history, "simulation_rmse": sims, "kept_round": k, "stop": stop,
                            "tolerance": tol, "steady_state": steady}
     return model

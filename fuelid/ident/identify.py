@@ -153,14 +153,14 @@ def estimate_fuel_delay(ds, u, structure, shifts_s=None) -> dict:
         return sweep_fuel_shift(score, shifts_s)
 
 
-def effect_inputs(ds, effects, structure: Structure, defined=()) -> EffectInputs:
+def effect_inputs(ds, effects, structure: Structure, defined=(), parameters: dict | None = None) -> EffectInputs:
     """apply_effects for a fit of `structure` (speed, torque inputs) with `effects` (built-in, or among `defined`,
-    effects the engineer defined); a fuel delay asked for without its value is
+    effects the engineer defined) and apply_effects' `parameters`; a fuel delay asked for without its value is
     estimated by `estimate_fuel_delay` on the structure with the other effects' inputs."""
     def sweep(others: EffectInputs) -> float:
         return estimate_fuel_delay(ds, np.hstack([ds.u, others.u]), others.extend(structure))["best_s"]
 
-    return apply_effects(ds, effects, estimate_shift=sweep, defined=defined)
+    return apply_effects(ds, effects, parameters, estimate_shift=sweep, defined=defined)
 
 
 def training_segments(ds, u, y, min_s: float) -> list[slice]:
@@ -179,7 +179,9 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     dataset ds, with names, units, training summary (`files` recorded) and validation metrics filled in.
 
     init: a model of the final structure (with the effects' inputs) to start PEM from instead of the ARX /
-    Steiglitz–McBride initialisation, e.g. the truck's previous model; ignored when its structure differs.
+    Steiglitz–McBride initialisation, e.g. the truck's previous model; ignored when its structure differs. An
+    engine model's map is the map's start too, and with its structure the joint fit goes on from it (no static
+    start: ident.hammerstein.joint_fit).
     base: the model of `structure` without the effects (e.g. the one diagnosed) for the second start (module
     docstring); identified here on the same samples when not given or of another structure.
     defined: effects the engineer defined (ident.effectfile) that `effects` may name; the model carries the
@@ -191,7 +193,10 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     With the engine_map effect the map and the dynamics are then refined jointly (ident.hammerstein.joint_fit, at
     most joint_rounds rounds).
     Raises FuelidError for an unusable effect, too little valid data, or a failed estimation."""
-    fx = effect_inputs(ds, effects, structure, defined)
+    # a given engine model goes on from its own map (a fresh static fit would be another start: ident.hammerstein)
+    kept_map = (init.info.get("effect_parameters") or {}).get(MAP_EFFECT) if init is not None else None
+    fx = effect_inputs(ds, effects, structure, defined,
+                       {MAP_EFFECT: kept_map} if kept_map and MAP_EFFECT in map(str, effects) else None)
     u, y = np.hstack([ds.u, fx.u]), fx.y
     extended = fx.extend(structure)
     segs = training_segments(ds, u, y, min_segment_s)
@@ -231,7 +236,7 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     if MAP_EFFECT in fx.effects:  # the engine's map and the dynamics jointly (ident.hammerstein)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
-            model = joint_fit(model, ds, segs, keep=kept_fit, fit=fit, rounds=joint_rounds)
+            model = joint_fit(model, ds, segs, keep=kept_fit, fit=fit, rounds=joint_rounds, from_static=given is None)
     model = dataclasses.replace(model, validation=evaluate(model, ds))
     model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
                                                 n_train - len(segs) * extended.n_start)

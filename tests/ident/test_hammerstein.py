@@ -1,8 +1,10 @@
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
 from fuelid.ident.hammerstein import MAP_COLUMN, engine_map_of, static_gain, steady_state_map
-from fuelid.ident.identify import identify_model
+from fuelid.ident.identify import identify_model, kept_fit
 from fuelid.ident.modelfile import from_dict, to_dict
 from fuelid.ident.validation import evaluate
 from tests.ident import engine_data
@@ -30,6 +32,27 @@ def test_the_joint_identification_recovers_a_hammerstein_engines_steady_state_ma
     assert static_gain(model.B[j], model.F[j]) == pytest.approx(1.0, abs=1e-9)
     history = model.info["joint"]["loss_V"]
     assert history[-1] < history[0]
+
+
+def test_the_joint_fit_starts_from_the_linear_dynamics_and_from_the_static_map_and_keeps_the_lower_loss(engine):
+    """Both starts of step (a) are recorded; the rounds go on from the one identify's rule keeps (the lower V unless
+    the other simulates grossly better), and end no higher than it."""
+    _, model, _ = engine
+    starts = model.info["joint"]["starts"]
+    assert list(starts) == ["given", "static map"]
+    fits = [SimpleNamespace(info={"loss_V": v["loss_V"]}) for v in starts.values()]
+    kept = list(starts.values())[kept_fit(fits, [v["simulation_rmse"] for v in starts.values()])]
+    assert model.info["joint"]["loss_V"][0] == pytest.approx(kept["loss_V"], rel=1e-12)
+    assert min(model.info["joint"]["loss_V"]) <= kept["loss_V"]
+
+
+def test_a_model_refitted_from_itself_goes_on_from_its_own_map(engine):
+    """identify_model with init = an engine model: the map inputs are the model's (not a fresh static fit) and the
+    joint fit has no static start, so a refit on the same data starts at the model's own loss."""
+    ds, model, _ = engine
+    again = identify_model(ds, STRUCTURE, ["engine_map"], init=model)
+    assert set(again.info["joint"]["starts"]) == {"given"}
+    assert again.info["joint"]["loss_V"][0] <= 1.01 * model.info["loss_V"]
 
 
 def test_the_model_s_steady_state_is_its_fitted_map(engine):

@@ -138,7 +138,7 @@ def test_effects_are_added_in_turn_so_each_one_added_never_raises_the_loss(lm_on
     stages, starts = both.info["starts"]["stages"], both.info["starts"]
     assert [s["effects"] for s in stages] == [["engine_map"]]
     # the same fits, the same one kept (map_only then refined jointly with its map: ident.hammerstein)
-    assert stages[0]["loss_V"] == pytest.approx(map_only.info["joint"]["loss_V"][0], rel=1e-9)
+    assert stages[0]["loss_V"] == pytest.approx(map_only.info["joint"]["starts"]["given"]["loss_V"], rel=1e-9)
     assert starts["kept"] == min(starts["loss_V"], key=starts["loss_V"].get), starts
     assert both.info["loss_V"] <= map_only.info["loss_V"]
     rmse = {name: evaluate(m, other_day)["rmse"]["simulation"] for name, m in (("map", map_only), ("both", both))}
