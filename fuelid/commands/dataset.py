@@ -83,7 +83,6 @@ def build_for_models(args, paths, models):
     return ds
 
 
-
 def add_arguments(p):
     p.add_argument("inputs", nargs="+", metavar="DATA.mcap", help="MCAP recordings (fuelid convert / fuelid log)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="data set to write: .csv or .mat")
