@@ -17,7 +17,7 @@ as a candump log and converted (`fuelid convert`). On the identification trip: `
 linear paper model (`--model linear`, or the same default), and `fuelid compare` on the validation trip with the
 static baselines map, eb, ebstar built from the identification trip (`--map-from`); with --also, one more model,
 `also`, identified with those `fuelid identify` options (e.g. "--model engine --effect fuel_delay=0.1" or
-"--fuel-lag auto"; a model identified with a fuel lag is scored on the data built with it, `fuelid compare`'s
+"--fuel-lag 0.1"; a model identified with a fuel lag is scored on the data built with it, `fuelid compare`'s
 default, and the baselines on the default model's). The commands
 run in the worker process (fuelid.cli.main), --jobs processes at a time (at most 2).
 
@@ -202,7 +202,7 @@ def run_case(label: str, engine: str, seed: int, noise: float, options: dict) ->
         lag = lag_of[path]
         scores[name] = scored[lag]["models"][by_lag[lag].index(path)]
         row["identify_s"][name], row["fit_s"][name] = result["wall_time_s"]["total"], result["wall_time_s"]["pem"]
-        row.setdefault("fuel_lag_s", {})[name] = result["training"].get("fuel_lag_s", 0.0)
+        row.setdefault("fuel_lag_s", {})[name] = lag
     for name, s in scores.items():
         row[name] = ({"error": s["error"]} if "error" in s else
                      {"rmse_l_h": s["rmse"]["simulation"], "fit_percent": s["fit_percent"]["simulation"]})

@@ -6,7 +6,7 @@ as ident.dataset does offline: bins [t0 + kTs, t0 + (k+1)Ts), each signal averag
 the bin, a bin without one not available (NaN; the estimator holds inputs for up to max_gap_s). Torque [Nm] =
 EEC1.ActualEngPercentTorque [%] × EC1.EngReferenceTorque [Nm] / 100 (a model in % uses the percentage). Fuel:
 /flowmeter flow_kg_h for a model in kg/h, else LFE1.EngFuelRate [L/h], each record in the bin of its receive time
-minus the fuel signal's reporting lag `fuel_lag_s` (a prior model's `training.fuel_lag_s`; ident.fuellag), so a bin
+minus the fuel signal's reporting lag `fuel_lag_s` (a prior model's `training.fuel_lag_s`), so a bin
 closes that much later. Only the engine's records (source
 address engine_sa, default 0x00) are used; null (not available) values are no sample. A silence longer than
 max_gap_s (engine off, logger restart) restarts the estimator's filters.
@@ -278,8 +278,9 @@ class LiveEstimator:
             self._t0_ns, self._bin = round(t * 1e9), 0
             self._next_parameters = t + self.parameters_every_s
             self._next_snapshot = t + self.snapshot_every_s
+        since_ns = round(t * 1e9) - self._t0_ns
         # bin k is complete once its fuel can no longer come: at (k + 1) Ts + lag
-        k = (round(t * 1e9) - self._t0_ns - self._lag_ns) // self._step_ns
+        k = (since_ns - self._lag_ns) // self._step_ns
         if k > self._bin:
             out += self._close(self._bin)
             if t - self._last_data_t > self._max_gap:  # silence: no bins in between, filters restart
@@ -290,9 +291,9 @@ class LiveEstimator:
                 for empty in range(self._bin + 1, k):
                     out += self._close(empty)
             self._bin = k
+        k_inputs = since_ns // self._step_ns  # speed and torque are the bin's of their own receive time
         for channel, v in values:
-            own = k if channel == 2 else (round(t * 1e9) - self._t0_ns) // self._step_ns
-            row = own - self._bin
+            row = (k if channel == 2 else k_inputs) - self._bin
             if row in (0, 1):  # a record from an already closed bin (out of order) is dropped
                 self._sums[row, channel] += v
                 self._counts[row, channel] += 1
