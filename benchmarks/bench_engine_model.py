@@ -120,6 +120,18 @@ def _recording(cfg, folder: Path, name: str):
     return mcap, trip
 
 
+def on_bins(ds, per_bin, start_unix_s: float):
+    """A per-bin array of a simulated trip (the truth file's 0.3 s bins from the trip's start) on the samples of a
+    dataset built from its recording, NaN where the sample is not valid or lies outside the trip."""
+    import numpy as np
+
+    k = np.rint((ds.t - start_unix_s) / ds.Ts).astype(int)
+    ok = ds.valid & (k >= 0) & (k < len(per_bin))
+    out = np.full(len(ds.t), np.nan)
+    out[ok] = per_bin[k[ok]]
+    return out
+
+
 def _valid_floor(mcap: Path, trip) -> float:
     """RMS of the trip's per-bin fuel noise over the valid samples of the dataset built from mcap [L/h]."""
     import warnings
@@ -131,10 +143,8 @@ def _valid_floor(mcap: Path, trip) -> float:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ds = build_dataset([mcap])
-    noise = trip.truth["fuel_noise_bin"]
-    k = np.rint((ds.t - trip.config.start_unix_s) / ds.Ts).astype(int)
-    ok = ds.valid & (k >= 0) & (k < len(noise))
-    return float(np.sqrt(np.mean(noise[k[ok]] ** 2)))
+    noise = on_bins(ds, trip.truth["fuel_noise_bin"], trip.config.start_unix_s)
+    return float(np.sqrt(np.nanmean(noise ** 2)))
 
 
 def measured_rmse(model_path: Path, mcap: Path) -> float:

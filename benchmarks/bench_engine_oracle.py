@@ -70,14 +70,11 @@ def run_case(label: str, engine: str, seed: int, noise: float) -> dict:
     eng = mapfuel.sim_engine(v)
     to_l_h = 1.0 / (1000.0 * v.fuel_density_kg_l)
     noise_bin = trip.truth["fuel_noise_bin"]
-    k = np.rint((ds.t - valid_cfg.start_unix_s) / ds.Ts).astype(int)
-    ok = ds.valid & (k >= 0) & (k < len(noise_bin))
 
     def on_ds(per_bin: np.ndarray) -> np.ndarray:
-        out = np.full(len(ds.t), np.nan)
-        out[ok] = per_bin[k[ok]]
-        return out
+        return bem.on_bins(ds, per_bin, valid_cfg.start_unix_s)
 
+    ok = np.isfinite(on_ds(noise_bin))
     clean = ds.y - on_ds(noise_bin)
     n, T = ds.u[:, 0], ds.u[:, 1]  # rpm, the model's torque unit
     T_nm = T if ds.input_units[1] == "Nm" else T / 100.0 * eng.reference_torque_nm
@@ -120,10 +117,8 @@ def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float) -> dict:
     from fuelid.ident.modelrun import run_model
     from fuelid.ident.polymodel import Structure, parse_orders
 
-    k = np.rint((valid.t - start_unix_s) / valid.Ts).astype(int)
-    ok = valid.valid & (k >= 0) & (k < len(noise_bin))
-    noise = np.full(len(valid.t), np.nan)
-    noise[ok] = noise_bin[k[ok]]
+    noise = bem.on_bins(valid, noise_bin, start_unix_s)
+    ok = np.isfinite(noise)
     v = ident.valid
     static = fit_map(ident.u[v, 0], ident.u[v, 1], ident.y[v], ident.u0, ident.y0,
                      ("rpm", ident.input_units[1], ident.output_unit))
