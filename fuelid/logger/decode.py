@@ -26,9 +26,8 @@ from collections import Counter
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import can
 import cantools
 import numpy as np
 import orjson
@@ -38,6 +37,9 @@ from fuelid.errors import FuelidError
 from fuelid.logger.frame_block import FrameBlock
 from fuelid.logger.j1939 import parse_id, parse_ids
 from fuelid.logger.json_rows import Field, records, text_matrix, texts_by_value
+
+if TYPE_CHECKING:  # the decoder takes python-can frames but needs nothing of python-can itself
+    import can
 
 INVALID_STATUSES = ("not_available", "error", "reserved", "missing")
 """Why a signal is null: J1939 not-available or error indicator, a reserved raw value, or a frame too
@@ -193,7 +195,7 @@ class Decoder:
         invalid = counts.pop("invalid")
         return {**counts, **invalid}
 
-    def decode(self, msg: can.Message) -> Decoded | None:
+    def decode(self, msg: "can.Message") -> Decoded | None:
         """Decode one frame; None for error/remote/11-bit frames and PGNs not in the DBC."""
         stats = self.stats
         stats.frames += 1
