@@ -6,7 +6,7 @@ data against their error bars.
 
 Per engine and seed: `fuelid simulate --truth map --engine E.veng` drives a mixed trip (no hidden effect), `fuelid
 convert` records it, and the model is the one a fleet job and `fuelid identify` build by default
-(ident.modelchoice.identify_chosen, `--model auto`, the paper's orders), its reference values taken from the trip
+(ident.fuellag.identify_lag_chosen: `--fuel-lag auto --model auto`, the paper's orders), its reference values taken from the trip
 as a fleet job takes them (ident.steady.data_reference). Made once into benchmarks/.cache/steady/ (git-ignored).
 --quick: seeds 1 2 3 of 30-minute trips.
 
@@ -67,9 +67,10 @@ def steady_run(engine_file: Path, speed_rpm: float, torque_nm: float, seconds: f
 
 def trip_models(engine_file: Path, seed: int, minutes: float):
     """(dataset, {"default", "refit", "linear": model with its reference values}) of a simulated trip, made once:
-    the default model (`fuelid identify`), the same model identified again with PEM started from it (its engine
-    map started again from the static fit), and the linear model (`--model linear`)."""
+    the default model (`fuelid identify`), the same model identified again with PEM started from it (from its own
+    engine map), and the linear model (`--model linear`), both on the default model's data (its fuel lag)."""
     from fuelid.ident.dataset import build_dataset
+    from fuelid.ident.fuellag import identify_lag_chosen
     from fuelid.ident.identify import MIN_SEGMENT_S, identify_model
     from fuelid.ident.modelchoice import ModelKind, identify_chosen
     from fuelid.ident.modelfile import load_model, save_model
@@ -86,27 +87,31 @@ def trip_models(engine_file: Path, seed: int, minutes: float):
                        cwd=REPO, stdout=subprocess.DEVNULL)
         subprocess.run([*run, "convert", str(log), "-o", str(mcap), "--json"], check=True, cwd=REPO,
                        stdout=subprocess.DEVNULL)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        ds = build_dataset([mcap])
+    def build(lag: float):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            return build_dataset([mcap], fuel_lag_s=lag)
+
     structure = Structure(**parse_orders("paper"))
-    fits = {"default": lambda done: identify_chosen(ds, structure, min_segment_s=MIN_SEGMENT_S, files=[str(mcap)]),
-            "refit": lambda done: identify_model(ds, structure, list(done["default"].effects), init=done["default"],
-                                                 min_segment_s=MIN_SEGMENT_S, files=[str(mcap)]),
-            "linear": lambda done: identify_chosen(ds, structure, kind=ModelKind.LINEAR, min_segment_s=MIN_SEGMENT_S,
-                                                   files=[str(mcap)])}
-    models = {}
-    for name, fit in fits.items():
+    fit = dict(min_segment_s=MIN_SEGMENT_S, files=[str(mcap)])
+    fits = {"default": lambda ds, done: identify_lag_chosen(build, structure, **fit)[0],
+            "refit": lambda ds, done: identify_model(ds, structure, list(done["default"].effects),
+                                                     init=done["default"], **fit),
+            "linear": lambda ds, done: identify_chosen(ds, structure, kind=ModelKind.LINEAR, **fit)}
+    models, ds = {}, None
+    for name, make in fits.items():
         path = CACHE / f"{stem}.{name}.model.json"
         if path.exists():
             models[name] = load_model(path)
-            continue
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            model = fit(models)
-        model.info["steady_reference"] = data_reference(model, ds)
-        save_model(model, path)
-        models[name] = model
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                models[name] = make(ds, models)
+        if ds is None:  # the data of the default model: the others are fitted on the same
+            ds = build(models["default"].fuel_lag_s)
+        if not path.exists():
+            models[name].info["steady_reference"] = data_reference(models[name], ds)
+            save_model(models[name], path)
     return ds, models
 
 

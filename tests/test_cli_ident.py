@@ -198,7 +198,7 @@ def test_identify_rejects_bad_orders(recording, tmp_path, capsys):
 
 def test_identify_adds_the_effects_a_diagnosis_named(recording, tmp_path, capsys):
     diagnosis = tmp_path / "diagnosis.json"  # as `fuelid diagnose --json` writes it, cut to what identify reads
-    diagnosis.write_text(json.dumps({"candidates": [
+    diagnosis.write_text(json.dumps({"data": {"fuel_lag_s": 0.1}, "candidates": [
         {"effect": "power_nonlinearity", "significant": True, "recommended": True},
         {"effect": "fuel_delay", "spec": "fuel_delay=0.3", "significant": True, "recommended": True},
         {"effect": "ambient", "significant": True},  # named, but not verified on held-out trips: never added
@@ -210,6 +210,7 @@ def test_identify_adds_the_effects_a_diagnosis_named(recording, tmp_path, capsys
     out = json.loads(capsys.readouterr().out)
     assert out["effects"] == ["power_nonlinearity", "fuel_delay"], out["effects"]
     assert load_model(model).info["effect_parameters"] == {"fuel_delay": 0.3}  # the shift the diagnosis found
+    assert out["training"]["fuel_lag_s"] == 0.1 and out["fuel_lag_choice"] is None  # the data it diagnosed
 
     diagnosis.write_text('{"verdict": "no candidates here"}')
     assert main(["identify", str(recording), "--effects-from", str(diagnosis), "-o", str(model)]) == 1
@@ -221,7 +222,9 @@ def test_a_fuel_lag_is_kept_in_the_model_and_used_to_compare(recording, tmp_path
     spec = "nb=2,2;nf=1,1;nk=1,0;nc=1;nd=1"
     on_time, late = tmp_path / "on_time.json", tmp_path / "late.json"
     assert main(["identify", str(recording), "--orders", spec, "-o", str(on_time), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["training"]["fuel_lag_s"] == 0.0
+    out = json.loads(capsys.readouterr().out)  # --fuel-lag auto: this ECU's fuel is on time, binned as logged
+    assert out["training"]["fuel_lag_s"] == 0.0 and out["fuel_lag_choice"]["reason"] == "not_better"
+    assert out["fuel_lag_choice"]["candidate_s"] == pytest.approx(0.1)  # LFE1's report period
     assert main(["identify", str(recording), "--orders", spec, "--fuel-lag", "0.1", "-o", str(late)]) == 0
     assert "fuel binned 0.1 s earlier than logged" in capsys.readouterr().out
     assert load_model(late).training["fuel_lag_s"] == 0.1

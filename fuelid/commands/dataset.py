@@ -20,17 +20,36 @@ def lag_argument(text: str) -> float:
     return value
 
 
-def add_dataset_arguments(p):
-    """The data-set options shared by the commands that read recordings into a Dataset."""
+def lag_or_auto(text: str) -> float | str:
+    """identify's --fuel-lag: seconds ≥ 0, or auto."""
+    if text == "auto":
+        return text
+    try:
+        return lag_argument(text)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (or auto)") from None
+
+
+LAG_HELP = ("the fuel signal's reporting lag [s], below --ts: each fuel sample is binned at its log time minus it, "
+            "e.g. 0.1 for an ECU that reports the mean fuel of its last 100 ms (docs/guide/identify-and-compare.md)")
+
+
+def add_dataset_arguments(p, lag_auto: bool = False):
+    """The data-set options shared by the commands that read recordings into a Dataset; lag_auto: --fuel-lag also
+    takes auto, its default (identify)."""
     p.add_argument("--ts", type=float, metavar="S",
                    help="sampling interval [s] (default 0.3, as Madhusudhanan et al.; compare: the model's)")
     p.add_argument("--fuel", choices=["auto", "flowmeter", "lfe1"], default="auto",
                    help="output signal: the flow meter [kg/h], LFE1 fuel rate [L/h], or auto (meter when logged)")
-    p.add_argument("--fuel-lag", type=lag_argument, metavar="S",
-                   help="the fuel signal's reporting lag [s], below --ts: each fuel sample is binned at its log time "
-                        "minus it, e.g. 0.1 for an ECU that reports the mean fuel of its last 100 ms "
-                        "(docs/guide/identify-and-compare.md); default 0, and for compare, diagnose, report and "
-                        "online with a prior the models'")
+    if lag_auto:
+        p.add_argument("--fuel-lag", type=lag_or_auto, default="auto", metavar="S|auto",
+                       help=LAG_HELP + "; auto (default): 0 or the fuel signal's report period, whichever the model "
+                                       "simulates held-out blocks of the data better with, by more than the fits' "
+                                       "spread")
+    else:
+        p.add_argument("--fuel-lag", type=lag_argument, metavar="S",
+                       help=LAG_HELP + "; default 0, and for compare, diagnose, report and online with a prior the "
+                                       "models'")
     p.add_argument("--max-gap", type=float, default=1.0, metavar="S",
                    help="longest gap [s] a signal is held over; longer gaps split the data (default 1)")
     p.add_argument("--cycle", type=float, default=1800.0, metavar="S",
@@ -44,10 +63,13 @@ def add_dataset_arguments(p):
                         "file's content or an option differs; FUELID_DATASET_CACHE=0 turns it off too)")
 
 
-def build(args, paths):
-    """The Dataset of `paths` with the options of add_dataset_arguments (cached, see ident.datacache)."""
+def build(args, paths, fuel_lag_s: float | None = None):
+    """The Dataset of `paths` with the options of add_dataset_arguments (cached, see ident.datacache), the fuel
+    binned fuel_lag_s [s] earlier (default: --fuel-lag's seconds, 0 without)."""
+    if fuel_lag_s is None:
+        fuel_lag_s = args.fuel_lag or 0.0
     options = {"Ts": args.ts or 0.3, "fuel": args.fuel, "max_gap_s": args.max_gap, "cycle_s": args.cycle,
-               "skip_damaged": args.skip_damaged, "fuel_lag_s": args.fuel_lag or 0.0}
+               "skip_damaged": args.skip_damaged, "fuel_lag_s": fuel_lag_s}
     with warnings.catch_warnings():  # the notes are reported in the summary, not as Python warnings
         warnings.simplefilter("ignore", UserWarning)
         return cached_dataset(paths, options, lambda: build_dataset(paths, **options),

@@ -9,6 +9,7 @@ from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis import effects_to_add
 from fuelid.ident.effectfile import defined_effects
+from fuelid.ident.fuellag import LagChoice, identify_lag_chosen
 from fuelid.ident.identify import MIN_SEGMENT_S
 from fuelid.ident.modelchoice import ModelChoice, ModelKind, identify_chosen
 from fuelid.ident.modelfile import save_model
@@ -38,10 +39,10 @@ def add_arguments(p):
     p.add_argument("--effects-from", metavar="DIAGNOSIS.json",
                    help="also add every effect a saved `fuelid diagnose --json` result recommends (`recommended: true`; "
                         "named but not recommended ones are left out), and the engine map when it advises the "
-                        "engine model")
+                        "engine model; --fuel-lag then defaults to the lag of the data it diagnosed")
     p.add_argument("--min-segment", type=float, default=MIN_SEGMENT_S, metavar="S",
                    help=f"leave out valid stretches shorter than this [s] (default {MIN_SEGMENT_S:g})")
-    add_dataset_arguments(p)
+    add_dataset_arguments(p, lag_auto=True)
     p.add_argument("--verbose", action="store_true",
                    help="print the estimator's details (pole-zero cancellations, stability bound, stopping)")
     p.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -59,12 +60,14 @@ def estimator_summary(info: dict) -> str | None:
             "and zeros); consider --orders auto")
 
 
-def significant_effects(path: str) -> list[str]:
-    """The effects a saved `fuelid diagnose --json` result says to add (ident.diagnosis.effects_to_add: the engine
-    map when it advises the engine model, then the candidates with `recommended` true; a result without that field
-    recommends none)."""
+def diagnosed(path: str) -> tuple[list[str], float]:
+    """(the effects a saved `fuelid diagnose --json` result says to add, the fuel lag [s] of the data it diagnosed):
+    the effects as ident.diagnosis.effects_to_add gives them (the engine map when it advises the engine model, then
+    the candidates with `recommended` true; a result without that field recommends none), the lag its data
+    summary's fuel_lag_s (0 for a result without one)."""
     try:
-        return effects_to_add(json.loads(Path(path).read_text()))
+        result = json.loads(Path(path).read_text())
+        return effects_to_add(result), float(result["data"].get("fuel_lag_s", 0.0))
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise FuelidError(f"--effects-from {path}: not a `fuelid diagnose --json` result ({exc})") from exc
 
@@ -72,17 +75,24 @@ def significant_effects(path: str) -> list[str]:
 def run(args) -> int:
     t_start = time.perf_counter()
     if args.effects_from:
-        args.effect += [e for e in significant_effects(args.effects_from) if e not in args.effect]
+        effects, lag = diagnosed(args.effects_from)
+        args.effect += [e for e in effects if e not in args.effect]
+        if args.fuel_lag == "auto":  # the effects were found on the data binned so
+            args.fuel_lag = lag
     structure = None if args.orders == "auto" else Structure(**parse_orders(args.orders))
     defined = defined_effects(args.effects_file)
-    ds = build(args, args.inputs)
+    ds = build(args, args.inputs, 0.0 if args.fuel_lag == "auto" else None)
     t_data = time.perf_counter()
     search = None
     if structure is None:  # the lowest orders passing the paper's residual tests, then the fit with effects
         search = search_dataset_orders(ds, args.min_segment)
         structure = search.structure
-    model = identify_chosen(ds, structure, args.effect, kind=ModelKind(args.model_kind), min_segment_s=args.min_segment,
-                            files=args.inputs, defined=defined)
+    fit = dict(kind=ModelKind(args.model_kind), min_segment_s=args.min_segment, files=args.inputs, defined=defined)
+    if args.fuel_lag == "auto":
+        model, ds = identify_lag_chosen(lambda lag: ds if lag == 0 else build(args, args.inputs, lag), structure,
+                                        args.effect, **fit)
+    else:
+        model = identify_chosen(ds, structure, args.effect, **fit)
     choice = model.info["model_choice"]
     save_model(model, args.output)
     t_end = time.perf_counter()
@@ -100,6 +110,7 @@ def run(args) -> int:
         "structure": dataclasses.asdict(structure),
         "effects": list(model.effects),
         "model_choice": choice,
+        "fuel_lag_choice": model.info.get("fuel_lag_choice"),
         "training": {"samples": n_train, "stretches": n_segs, "Ts": ds.Ts, "fuel_lag_s": ds.fuel_lag_s,
                      "operating_point": {"u0": [float(v) for v in ds.u0], "y0": float(ds.y0)},
                      "warnings": ds.notes + list(model.info.get("warnings", [])) + plain,
@@ -121,6 +132,8 @@ def run(args) -> int:
               + (f", fuel binned {ds.fuel_lag_s:g} s earlier than logged" if ds.fuel_lag_s else "")
               + f", {t_end - t_start:.1f} s")
         print(ModelChoice.from_json(choice).line(ds.output_unit))
+        if "fuel_lag_choice" in model.info:
+            print(LagChoice.from_json(model.info["fuel_lag_choice"]).line(ds.output_unit))
         print(format_table([(args.output, metrics)], ds.output_unit))
         for w in ds.notes + plain:
             print(f"warning: {w}", file=sys.stderr)

@@ -1,8 +1,9 @@
 """Per-truck identification jobs and fleet-wide refits on Dask.
 
 `identify_truck` is one job: the truck's MCAP files → dataset (ident.dataset) → the model `fuelid identify` builds by
-default, through its own code path (ident.modelchoice.identify_chosen: the engine model, the engine's map under the
-paper's Box-Jenkins dynamics, when it simulates held-out blocks better, else the paper's linear model) → diagnosis (ident.diagnosis.diagnose) →
+default, through its own code path (ident.fuellag.identify_lag_chosen: the fuel binned one report period earlier
+when that simulates held-out blocks better, and ident.modelchoice's engine model, the engine's map under the paper's
+Box-Jenkins dynamics, when it simulates held-out blocks better, else the paper's linear model) → diagnosis (ident.diagnosis.diagnose) →
 model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
@@ -43,6 +44,7 @@ from fuelid.fleet import effectlist
 from fuelid.ident.dataset import Dataset, build_dataset
 from fuelid.ident.diagnosis import diagnose, effects_to_add
 from fuelid.ident.identify import MIN_SEGMENT_S
+from fuelid.ident.fuellag import identify_lag_chosen
 from fuelid.ident.modelchoice import ModelKind, identify_chosen
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parse_orders
@@ -77,6 +79,13 @@ class JobError(FuelidError):
     """A truck's data cannot give a model (no files, no fuel signal, too little valid data...): one line why."""
 
 
+def _dataset(paths: list[str], fuel_lag_s: float) -> Dataset:
+    """The truck's dataset, the fuel binned fuel_lag_s [s] earlier (its warnings kept in ds.notes)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return build_dataset(paths, fuel_lag_s=fuel_lag_s)
+
+
 def _write_json(path: Path, obj) -> None:
     """obj as strict JSON (NaN → null) through a temporary file renamed over path: no reader sees half a file."""
     tmp = path.with_name(path.name + ".tmp")
@@ -103,7 +112,8 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
 
     orders: 'paper' or a SPEC as `fuelid identify --orders`. previous_model: the truck's current model.json;
     PEM starts from it when it has the same structure (a refit then needs fewer iterations) and its metrics on
-    the same data are returned as previous_metrics (is the new version better?). names: the files' names as
+    the same data (when binned with its Ts and fuel lag) are returned as previous_metrics (is the new version
+    better?). names: the files' names as
     uploaded, for the model, the diagnosis and the report (default: the paths).
     Returns (JSON-ready) {"truck", "model_path", "diagnosis_path", "report_path" (None when the report failed: see warnings),
     "metrics": {"fit_percent": {simulation, prediction} [%], "rmse": {simulation, prediction} [unit],
@@ -139,13 +149,14 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     with threadpool_limits(1):  # one BLAS/OpenMP thread: the cluster runs one job per core
         try:
             structure = Structure(**parse_orders(orders))
-            with warnings.catch_warnings():  # the dataset keeps its warnings in ds.notes
-                warnings.simplefilter("ignore", UserWarning)
-                ds = build_dataset(paths)
+            logged = _dataset(paths, 0.0)
             lap("dataset")
             previous = load_model(previous_model) if previous_model else None
-            # the model `fuelid identify` builds: the engine model when it simulates held-out blocks better
-            model = identify_chosen(ds, structure, min_segment_s=MIN_SEGMENT_S, files=names, init=previous)
+            # the model `fuelid identify` builds: the fuel lag and the engine model when they simulate held-out
+            # blocks better
+            model, ds = identify_lag_chosen(lambda lag: logged if lag == 0 else _dataset(paths, lag), structure,
+                                            min_segment_s=MIN_SEGMENT_S, files=names, init=previous)
+            del logged
             lap("identify")
             sample = diagnosis_sample(ds)
             found = diagnose(model, sample)
@@ -156,11 +167,12 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             kind = ModelKind.ENGINE if "engine_map" in effects else ModelKind(model.info["model_choice"]["chosen"])
             stored = identify_chosen(ds, structure, effects, kind=kind, min_segment_s=MIN_SEGMENT_S, files=names,
                                      init=previous, base=model) if effects else model
+            stored.info["fuel_lag_choice"] = model.info["fuel_lag_choice"]  # the effects' data are binned so too
             lap("identify with effects")
         except FuelidError as exc:
             raise JobError(f"{truck}: {' '.join(str(exc).split())}") from None
         previous_metrics = None
-        if previous is not None and abs(previous.Ts - ds.Ts) < 1e-9:
+        if previous is not None and abs(previous.Ts - ds.Ts) < 1e-9 and abs(previous.fuel_lag_s - ds.fuel_lag_s) < 1e-9:
             try:
                 previous_metrics = evaluate(previous, ds)
             except FuelidError:  # another fuel unit or effects whose signals this data lacks: not comparable

@@ -108,7 +108,8 @@ def _load(where: Path, key: str) -> Dataset | None:
                 input_units=tuple(meta["input_units"]), output_name=meta["output_name"],
                 output_unit=meta["output_unit"], u0=z["u0"], y0=meta["y0"], valid=z["valid"], cycle=z["cycle"],
                 extra={name: z[f"extra{i}"] for i, name in enumerate(meta["extra"])},
-                sources=meta["sources"], notes=meta["notes"], fuel_lag_s=meta.get("fuel_lag_s", 0.0))
+                sources=meta["sources"], notes=meta["notes"], fuel_lag_s=meta["fuel_lag_s"],
+                fuel_period_s=meta["fuel_period_s"])
         os.utime(where)  # used now: the last to be cleaned
         return ds
     except (OSError, ValueError, KeyError, TypeError, EOFError):  # none yet, or not a cache file: build
@@ -119,7 +120,7 @@ def _store(where: Path, key: str, ds: Dataset) -> None:
     meta = {"format": FORMAT, "key": key, "Ts": ds.Ts, "input_names": ds.input_names,
             "input_units": ds.input_units, "output_name": ds.output_name, "output_unit": ds.output_unit,
             "y0": ds.y0, "sources": ds.sources, "notes": ds.notes, "extra": list(ds.extra),
-            "fuel_lag_s": ds.fuel_lag_s}
+            "fuel_lag_s": ds.fuel_lag_s, "fuel_period_s": ds.fuel_period_s}
     tmp = where.with_name(f"{where.name}.{os.getpid()}.tmp")
     try:
         where.parent.mkdir(parents=True, exist_ok=True)

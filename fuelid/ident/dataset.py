@@ -92,7 +92,8 @@ class Dataset:
     Ts [s]; t [s] bin start times on the log clock (N); u (N×2) [rpm, Nm or %]; y (N) [output_unit];
     u0 (2) and y0 the idle operating point in the same units; valid (N) bool; cycle (N) int drive-cycle id
     (−1 = none); extra MESSAGE.Signal → (N) array in the DBC unit; sources signal → source address used;
-    notes the warnings raised while building; fuel_lag_s [s] the fuel signal's reporting lag taken out.
+    notes the warnings raised while building; fuel_lag_s [s] the fuel signal's reporting lag taken out;
+    fuel_period_s [s] the median interval between the fuel signal's samples as logged (0: fewer than two).
     """
     Ts: float
     t: np.ndarray
@@ -110,6 +111,7 @@ class Dataset:
     sources: dict[str, int | None] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     fuel_lag_s: float = 0.0
+    fuel_period_s: float = 0.0
 
     def __len__(self) -> int:
         return len(self.t)
@@ -139,6 +141,7 @@ class Dataset:
         return {
             "Ts": self.Ts,
             "fuel_lag_s": self.fuel_lag_s,
+            "fuel_period_s": self.fuel_period_s,
             "samples": len(self),
             "valid_samples": int(self.valid.sum()),
             "valid_duration_s": float(self.valid.sum() * self.Ts),
@@ -808,6 +811,7 @@ def build_dataset(
     ref_torque = chosen[REF_TORQUE].median_value() if REF_TORQUE in chosen else None
     if idle_rpm is None:
         idle_rpm = chosen[IDLE_SPEED].median_value() if IDLE_SPEED in chosen else 600.0
+    fuel_period_s = chosen[fuel_name].median_step() * 1e-9 if chosen[fuel_name].n > 1 else 0.0
     speed, pct, y = grid(SPEED), grid(TORQUE_PCT), grid(fuel_name)
     if ref_torque is not None:
         torque, torque_unit = pct * ref_torque / 100.0, "Nm"
@@ -840,7 +844,7 @@ def build_dataset(
         input_names=(SPEED, "EngTorque"), input_units=("rpm", torque_unit),
         output_name=fuel_name, output_unit=fuel_unit, u0=u0, y0=y0, valid=valid,
         cycle=np.full(len(k_rows), -1, dtype=np.int64), extra=extra, sources=used, notes=notes,
-        fuel_lag_s=float(fuel_lag_s),
+        fuel_lag_s=float(fuel_lag_s), fuel_period_s=float(fuel_period_s),
     )
     ds.cycle = _cycles(ds.segments(), len(ds), Ts, cycle_s, min_cycle_s)
     return ds
@@ -854,7 +858,7 @@ def _meta(ds: Dataset) -> dict:
         "input_names": list(ds.input_names), "input_units": list(ds.input_units),
         "output_name": ds.output_name, "output_unit": ds.output_unit,
         "u0": [float(v) for v in ds.u0], "y0": ds.y0, "sources": ds.sources, "notes": ds.notes,
-        "extra": list(ds.extra), "fuel_lag_s": ds.fuel_lag_s,
+        "extra": list(ds.extra), "fuel_lag_s": ds.fuel_lag_s, "fuel_period_s": ds.fuel_period_s,
     }
 
 
@@ -1012,4 +1016,5 @@ def load_dataset(path) -> Dataset:
         valid=np.asarray(cols["valid"]).astype(bool), cycle=np.asarray(cols["cycle"]).astype(np.int64),
         extra={k: np.asarray(v, float) for k, v in cols.items() if k not in fixed},
         sources=meta["sources"], notes=meta["notes"], fuel_lag_s=float(meta.get("fuel_lag_s", 0.0)),
+        fuel_period_s=float(meta.get("fuel_period_s", 0.0)),
     )

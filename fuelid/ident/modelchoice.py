@@ -170,36 +170,63 @@ def identify_chosen(ds, structure: Structure, effects=(), *, kind: ModelKind = M
     (`ModelChoice.to_json`). effects: the other effects asked for (engine_map among them asks for the engine model;
     InputError with kind LINEAR). init, base: as ident.identify.identify_model's, for the linear model on all of ds
     (e.g. a truck's previous model to start from; ignored when of another structure)."""
+    kind, effects = asked_kind(kind, effects)
+    if kind is not ModelKind.AUTO:
+        choice = ModelChoice(kind, kind, Reason.ASKED)
+    elif masks := blocks(ds, min_segment_s):
+        choice = held_out_choice(ds, masks, structure, effects, kind, min_segment_s=min_segment_s, files=files,
+                                 defined=defined)
+    else:
+        choice = ModelChoice(ModelKind.LINEAR, kind, Reason.TOO_SHORT)
+    return chosen_model(ds, structure, effects, choice, min_segment_s=min_segment_s, files=files, defined=defined,
+                        init=init, base=base)
+
+
+def asked_kind(kind: ModelKind, effects) -> tuple[ModelKind, list[str]]:
+    """(kind, the other effects): engine_map among the effects asks for the engine model (InputError with LINEAR)."""
     if MAP_EFFECT in effects:
         if kind is ModelKind.LINEAR:
             raise InputError("--effect engine_map asks for the engine model, --model linear for the linear one")
         kind = ModelKind.ENGINE
-    effects = [e for e in effects if e != MAP_EFFECT]
+    return kind, [e for e in effects if e != MAP_EFFECT]
+
+
+def held_out_choice(ds, masks: list[np.ndarray], structure: Structure, effects, kind: ModelKind, *,
+                    min_segment_s: float, files=(), defined=()) -> ModelChoice:
+    """The held-out stage on the blocks `masks` (module docstring): the models fitted on the first half of the
+    blocks and their RMS simulation errors on each block of the second half. kind AUTO: the decision; LINEAR or
+    ENGINE: that model, reason ASKED, with its errors (rmse_linear or rmse_engine) and no decision."""
     fit = dict(min_segment_s=min_segment_s, files=files, defined=defined)
-    linear = identify_model(ds, structure, effects, init=init, base=base, **fit)
-    if kind is ModelKind.LINEAR:
-        return _chosen(linear, ModelChoice(kind, kind, Reason.ASKED))
-    if kind is ModelKind.ENGINE:
-        return _chosen(engine_model(ds, structure, effects, linear, **fit), ModelChoice(kind, kind, Reason.ASKED))
-    masks = blocks(ds, min_segment_s)
-    if not masks:
-        return _chosen(linear, ModelChoice(ModelKind.LINEAR, kind, Reason.TOO_SHORT))
     half = len(masks) // 2
     fitted_on = _on(ds, np.any(masks[:half], axis=0))
+    rmse_lin = ()
     try:
         lin = identify_model(fitted_on, structure, effects, **fit)
+        rmse_lin = tuple(block_rmse(lin, ds, mask) for mask in masks[half:]) if kind is not ModelKind.ENGINE else ()
+        if kind is ModelKind.LINEAR:
+            return ModelChoice(kind, kind, Reason.ASKED, rmse_lin)
         eng = engine_model(fitted_on, structure, effects, lin, joint_rounds=FOLD_ROUNDS, **fit)
     except InputError as exc:
-        return _chosen(linear, ModelChoice(ModelKind.LINEAR, kind, Reason.ENGINE_FAILED, detail=str(exc)))
-    rmse_lin = [block_rmse(lin, ds, mask) for mask in masks[half:]]
-    rmse_eng = [block_rmse(eng, ds, mask) for mask in masks[half:]]
+        if kind is not ModelKind.AUTO:
+            raise
+        return ModelChoice(ModelKind.LINEAR, kind, Reason.ENGINE_FAILED, rmse_lin, detail=str(exc))
+    rmse_eng = tuple(block_rmse(eng, ds, mask) for mask in masks[half:])
+    if kind is not ModelKind.AUTO:
+        return ModelChoice(kind, kind, Reason.ASKED, rmse_lin, rmse_eng)
     d = 1.0 - np.array(rmse_eng) / np.array(rmse_lin)
     mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
     better = mean > SE_FACTOR * se and mean > MIN_IMPROVEMENT
-    choice = ModelChoice(ModelKind.ENGINE if better else ModelKind.LINEAR, kind,
-                         Reason.BETTER if better else Reason.NOT_BETTER, tuple(rmse_lin), tuple(rmse_eng),
-                         tuple(float(v) for v in d), mean, se)
-    if not better:
+    return ModelChoice(ModelKind.ENGINE if better else ModelKind.LINEAR, kind,
+                       Reason.BETTER if better else Reason.NOT_BETTER, rmse_lin, rmse_eng,
+                       tuple(float(v) for v in d), mean, se)
+
+
+def chosen_model(ds, structure: Structure, effects, choice: ModelChoice, *, min_segment_s: float, files=(),
+                 defined=(), init: PolyModel | None = None, base: PolyModel | None = None) -> PolyModel:
+    """The model of choice.kind identified on all of ds (`identify_chosen`'s), with the choice in its info."""
+    fit = dict(min_segment_s=min_segment_s, files=files, defined=defined)
+    linear = identify_model(ds, structure, effects, init=init, base=base, **fit)
+    if choice.kind is ModelKind.LINEAR:
         return _chosen(linear, choice)
     return _chosen(engine_model(ds, structure, effects, linear, **fit), choice)
 

@@ -160,7 +160,7 @@ def test_the_diagnosis_sample_is_whole_cycles_evenly_spaced_and_bounded():
 
 def test_a_truck_with_a_curved_map_gets_the_engine_model_and_its_steady_fuel_is_the_measured_one(tmp_path):
     """A truck with a VECTO engine map: the job builds the model `fuelid identify` builds by default, the engine
-    model (its held-out choice), and the fleet's steady-state fuel at the default reference points (fleet.drift)
+    model with the fuel binned one report period earlier (its held-out choices), and the fleet's steady-state fuel at the default reference points (fleet.drift)
     is within 15 % of the fuel measured near each (the mean of the nearest samples) and within 10 % on their mean."""
     from fuelid.fleet.drift import DEFAULT_POINTS, steady_fuel
     from fuelid.ident.dataset import build_dataset
@@ -172,6 +172,8 @@ def test_a_truck_with_a_curved_map_gets_the_engine_model_and_its_steady_fuel_is_
     res = identify_truck("map", [str(mcap)], str(tmp_path / "job"))
     model = load_model(res["model_path"])
     assert model.effects[0] == "engine_map" and model.info["model_choice"]["chosen"] == "engine"
+    # the simulated ECU reports the mean fuel of its last 100 ms: the job, as `fuelid identify`, bins it so
+    assert model.info["fuel_lag_choice"]["lag_s"] == pytest.approx(0.1) == model.fuel_lag_s
     ds = build_dataset([str(mcap)])
     steady = steady_fuel(model, DEFAULT_POINTS)
     measured = [fuel_measured_near(ds, point) for point in DEFAULT_POINTS]

@@ -65,6 +65,7 @@ def test_a_fuel_lag_bins_the_fuel_with_the_interval_it_describes():
     plain, lagged = build_dataset(recs, Ts=0.3), build_dataset(recs, Ts=0.3, fuel_lag_s=0.1)
     k = 50
     assert lagged.fuel_lag_s == 0.1 and lagged.summary()["fuel_lag_s"] == 0.1
+    assert plain.fuel_period_s == pytest.approx(0.1) == lagged.summary()["fuel_period_s"]  # LFE1 every 100 ms
     assert lagged.y[lagged.t == plain.t[k]][0] == pytest.approx(fuel(plain.t[k] + 0.15), abs=1e-9)
     assert plain.y[k] == pytest.approx(fuel(plain.t[k] + 0.05), abs=1e-9)  # a third of a bin late
     np.testing.assert_array_equal(lagged.u[lagged.t == plain.t[k]], plain.u[[k]])
@@ -175,7 +176,8 @@ def test_drive_cycles():
 def test_export_round_trip(tmp_path, suffix):
     ds = build_dataset(trip(t_end=20.0, gap=(10.0, 12.0)), Ts=0.3, fuel_lag_s=0.1)
     back = load_dataset(save_dataset(ds, tmp_path / f"d{suffix}"))
-    assert back.Ts == ds.Ts and back.fuel_lag_s == 0.1 and back.input_units == ds.input_units and back.output_name == ds.output_name
+    assert back.Ts == ds.Ts and back.fuel_lag_s == 0.1 and back.fuel_period_s == ds.fuel_period_s > 0
+    assert back.input_units == ds.input_units and back.output_name == ds.output_name
     np.testing.assert_allclose(back.t, ds.t)
     np.testing.assert_allclose(back.u, ds.u, equal_nan=True)
     np.testing.assert_allclose(back.y, ds.y, equal_nan=True)

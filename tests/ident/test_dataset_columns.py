@@ -46,7 +46,7 @@ def assert_same(a, b):
     assert (a.input_names, a.input_units, a.output_name, a.output_unit) == (b.input_names, b.input_units,
                                                                             b.output_name, b.output_unit)
     assert list(a.extra) == list(b.extra) and a.sources == b.sources and a.notes == b.notes and a.y0 == b.y0
-    assert a.fuel_lag_s == b.fuel_lag_s
+    assert a.fuel_lag_s == b.fuel_lag_s and a.fuel_period_s == b.fuel_period_s
     for name in ("t", "u", "y", "valid", "cycle", "u0"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)  # bit for bit
     for name, values in a.extra.items():

@@ -1,0 +1,145 @@
+"""Which fuel lag `fuelid identify --fuel-lag auto` keeps: the fuel as logged, or the fuel binned one report
+period earlier, judged on held-out blocks by the model `fuelid identify` builds.
+
+An ECU that reports the mean fuel rate of the interval since its last report (J1939 LFE1 every 100 ms) sends the
+fuel of [t − p, t] at t: binned at its log time, a 0.3 s bin mixes two intervals, and no model of the bins'
+means recovers it. Binned at t − p, the reports of a bin tile the bin's own interval (ident.dataset, `fuel_lag_s`).
+Whether an ECU averages so is not on the bus; an ECU (or a meter) that samples its fuel at t is right as logged.
+So the data decide between two lags, 0 and the candidate p = the fuel signal's median report period
+(`Dataset.fuel_period_s`, when 0 < p < Ts), by the yardstick of ident.modelchoice:
+
+Both datasets are cut into the same held-out blocks (the blocks of the dataset as logged, `modelchoice.blocks`;
+the same bins of the other). At each lag the model `identify --model KIND` keeps is fitted on the first half of
+the blocks (ident.modelchoice.held_out_choice, with --model auto its own choice at that lag) and simulated on each
+block of the second half; per block b the paired improvement of the lagged model over the one as logged, each scored
+against its own dataset's fuel (the same measured samples, binned at other times),
+
+    d_b = 1 − e_p,b / e_0,b,
+
+and the lag p is kept when mean(d) > SE_FACTOR · sd(d)/√B and mean(d) > MIN_IMPROVEMENT (the margins of
+ident.modelchoice), else the fuel as logged. The kept lag's model is then identified on all of its dataset as
+`fuelid identify --fuel-lag S` would. The held-out fits cost one more set of half-data fits than `--model auto`.
+"""
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from fuelid.ident.dataset import Dataset
+from fuelid.ident.modelchoice import (MIN_IMPROVEMENT, SE_FACTOR, ModelChoice, ModelKind, asked_kind, blocks,
+                                      chosen_model, held_out_choice, identify_chosen)
+from fuelid.ident.polymodel import PolyModel, Structure
+
+
+class LagReason(str, enum.Enum):
+    """Why a fuel lag was kept."""
+
+    BETTER = "the fuel binned one report period earlier simulates held-out blocks better by more than the margin"
+    NOT_BETTER = "the fuel binned one report period earlier does not simulate held-out blocks better by more than " \
+                 "the margin"
+    TOO_SHORT = "too little data for held-out blocks"
+    NO_CANDIDATE = "the fuel signal's report period is not below Ts"
+
+
+@dataclass(frozen=True)
+class LagChoice:
+    """The decision, typed: lag_s kept [s], candidate_s (the fuel signal's report period [s], None without one),
+    reason; with the held-out figures when judged: rmse_logged, rmse_lagged per block [fuel unit], improvement d_b
+    per block [1], its mean and standard error [1] and the margin's se_factor and min_improvement."""
+
+    lag_s: float
+    candidate_s: float | None
+    reason: LagReason
+    rmse_logged: tuple[float, ...] = ()
+    rmse_lagged: tuple[float, ...] = ()
+    improvement: tuple[float, ...] = ()
+    mean: float | None = None
+    se: float | None = None
+    se_factor: float = SE_FACTOR
+    min_improvement: float = MIN_IMPROVEMENT
+
+    def to_json(self) -> dict:
+        """model.info["fuel_lag_choice"]."""
+        return {"lag_s": self.lag_s, "candidate_s": self.candidate_s, "reason": self.reason.name.lower(),
+                "held_out": None if self.mean is None else {
+                    "blocks": len(self.improvement), "rmse_logged": list(self.rmse_logged),
+                    "rmse_lagged": list(self.rmse_lagged), "improvement": list(self.improvement),
+                    "improvement_mean": self.mean, "improvement_se": self.se},
+                "margin": {"se_factor": self.se_factor, "min_improvement": self.min_improvement}}
+
+    @classmethod
+    def from_json(cls, d: dict) -> LagChoice:
+        """The choice of a `to_json` content."""
+        held = d["held_out"] or {}
+        return cls(d["lag_s"], d["candidate_s"], LagReason[d["reason"].upper()], tuple(held.get("rmse_logged", ())),
+                   tuple(held.get("rmse_lagged", ())), tuple(held.get("improvement", ())),
+                   held.get("improvement_mean"), held.get("improvement_se"), d["margin"]["se_factor"],
+                   d["margin"]["min_improvement"])
+
+    def line(self, unit: str) -> str:
+        """One line saying which lag was kept and why."""
+        kept = f"fuel lag {self.lag_s:g} s" + (" (as logged)" if self.lag_s == 0 else "")
+        if self.mean is None:
+            return f"{kept}: {self.reason.value}"
+        return (f"{kept}: {self.reason.value} (report period {self.candidate_s:g} s; held-out RMS error "
+                f"{np.mean(self.rmse_lagged):.3g} vs {np.mean(self.rmse_logged):.3g} {unit} over "
+                f"{len(self.improvement)} blocks: {100 * self.mean:+.1f} % ± {100 * self.se:.1f} %, margin "
+                f"{self.se_factor:g} SE and {100 * self.min_improvement:g} %)")
+
+
+def candidate_lag_s(ds: Dataset) -> float | None:
+    """The lag worth judging [s]: the fuel signal's median report period when it is above 0 and below Ts."""
+    return ds.fuel_period_s if 0.0 < ds.fuel_period_s < ds.Ts else None
+
+
+def same_bins(ds: Dataset, other: Dataset, mask: np.ndarray) -> np.ndarray:
+    """The mask over ds's samples of the bins (times) `mask` selects in `other` (both on the same Ts grid)."""
+    k = np.rint(ds.t / ds.Ts).astype(np.int64)
+    wanted = np.rint(other.t[mask] / other.Ts).astype(np.int64)
+    at = np.clip(np.searchsorted(wanted, k), 0, max(len(wanted) - 1, 0))
+    return (wanted[at] == k) if len(wanted) else np.zeros(len(k), bool)
+
+
+def _kept_errors(choice: ModelChoice) -> np.ndarray:
+    return np.array(choice.rmse_engine if choice.kind is ModelKind.ENGINE else choice.rmse_linear)
+
+
+def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure, effects=(), *,
+                        kind: ModelKind = ModelKind.AUTO, min_segment_s: float, files=(), defined=(),
+                        init: PolyModel | None = None) -> tuple[PolyModel, Dataset]:
+    """(model, its dataset) of `fuelid identify --fuel-lag auto --model KIND` (module docstring): build(lag_s) gives
+    the dataset with the fuel binned lag_s [s] earlier; the model's info["fuel_lag_choice"] is the decision
+    (`LagChoice.to_json`) and info["model_choice"] the model choice at the kept lag. init: as identify_chosen's,
+    for the final fit."""
+    kind, effects = asked_kind(kind, effects)
+    fit = dict(min_segment_s=min_segment_s, files=files, defined=defined)
+    logged = build(0.0)
+    candidate = candidate_lag_s(logged)
+    masks = blocks(logged, min_segment_s) if candidate is not None else []
+    if not masks:
+        reason = LagReason.NO_CANDIDATE if candidate is None else LagReason.TOO_SHORT
+        model = identify_chosen(logged, structure, effects, kind=kind, init=init, **fit)
+        return _with_lag(model, LagChoice(0.0, candidate, reason)), logged
+    lagged = build(candidate)
+    choices = {0.0: held_out_choice(logged, masks, structure, effects, kind, **fit),
+               candidate: held_out_choice(lagged, [same_bins(lagged, logged, m) for m in masks], structure, effects,
+                                          kind, **fit)}
+    e0, ep = _kept_errors(choices[0.0]), _kept_errors(choices[candidate])
+    d = 1.0 - ep / e0
+    mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
+    better = mean > SE_FACTOR * se and mean > MIN_IMPROVEMENT
+    lag = candidate if better else 0.0
+    decision = LagChoice(lag, candidate, LagReason.BETTER if better else LagReason.NOT_BETTER,
+                         tuple(float(v) for v in e0), tuple(float(v) for v in ep), tuple(float(v) for v in d),
+                         mean, se)
+    ds = lagged if better else logged
+    del logged, lagged  # the dataset not kept is let go before the final fit
+    return _with_lag(chosen_model(ds, structure, effects, choices[lag], init=init, **fit), decision), ds
+
+
+def _with_lag(model: PolyModel, decision: LagChoice) -> PolyModel:
+    model.info["fuel_lag_choice"] = decision.to_json()
+    return model
