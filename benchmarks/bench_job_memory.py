@@ -1,6 +1,7 @@
-"""Peak memory and CPU of one fleet refit job's phases on many files of one truck: the dataset, PEM (paper
-orders) on all of it, the diagnosis on the job's bounded sample (fleet.jobs.diagnosis_sample), and PEM again
-with the effects the diagnosis recommends, in one process, for 1.5 h files of the shipped trip
+"""Peak memory and CPU of one fleet refit job's phases on many files of one truck: the dataset, the model
+`fuelid identify` builds on all of it (ident.fuellag.identify_lag_chosen, paper orders: the fuel lag and the model
+kind judged on held-out blocks, one dataset held at a time), the diagnosis on the job's bounded sample
+(fleet.jobs.diagnosis_sample), and the model again with the effects the diagnosis recommends, in one process, for 1.5 h files of the shipped trip
 (bench_dataset.long_recording), so memory per hour of data and per file can be read off. Limit: a truck-week
 (70 h) within 1 GB.
 
@@ -25,7 +26,9 @@ from threadpoolctl import threadpool_limits
 from fuelid.ident.dataset import build_dataset
 from fuelid.fleet.jobs import diagnosis_sample
 from fuelid.ident.diagnosis import confirmed_effects, diagnose
-from fuelid.ident.identify import identify_model
+from fuelid.ident.fuellag import identify_lag_chosen
+from fuelid.ident.identify import MIN_SEGMENT_S
+from fuelid.ident.modelchoice import ModelKind, identify_chosen
 from fuelid.ident.polymodel import Structure, parse_orders
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,15 +54,18 @@ def one_job(paths: list[str]) -> dict:
     structure = Structure(**parse_orders("paper"))
     with threadpool_limits(1), warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ds = build_dataset(paths)
+        built = {0.0: build_dataset(paths)}  # as fleet.jobs.identify_truck: handed over once
         phases["dataset"] = (peak_rss_mb(), time.process_time() - t0)
-        model = identify_model(ds, structure)
+        model, ds = identify_lag_chosen(
+            lambda lag: built.pop(lag) if lag in built else build_dataset(paths, fuel_lag_s=lag), structure,
+            min_segment_s=MIN_SEGMENT_S)
         phases["identify"] = (peak_rss_mb(), time.process_time() - t0)
         sample = diagnosis_sample(ds)
         effects = confirmed_effects(diagnose(model, sample).to_json()["candidates"])
         phases["diagnose"] = (peak_rss_mb(), time.process_time() - t0)
         if effects:
-            identify_model(ds, structure, effects, base=model)
+            identify_chosen(ds, structure, effects, kind=ModelKind(model.info["model_choice"]["chosen"]),
+                            min_segment_s=MIN_SEGMENT_S, base=model)
         phases["identify with effects"] = (peak_rss_mb(), time.process_time() - t0)
     return {"files": len(paths), "samples": int(ds.t.size), "diagnosed_samples": int(sample.t.size),
             "effects": effects, "phases": phases}

@@ -149,14 +149,13 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     with threadpool_limits(1):  # one BLAS/OpenMP thread: the cluster runs one job per core
         try:
             structure = Structure(**parse_orders(orders))
-            logged = _dataset(paths, 0.0)
+            built = {0.0: _dataset(paths, 0.0)}  # handed over once: the lag choice holds one dataset at a time
             lap("dataset")
             previous = load_model(previous_model) if previous_model else None
             # the model `fuelid identify` builds: the fuel lag and the engine model when they simulate held-out
             # blocks better
-            model, ds = identify_lag_chosen(lambda lag: logged if lag == 0 else _dataset(paths, lag), structure,
+            model, ds = identify_lag_chosen(lambda lag: built.pop(lag) if lag in built else _dataset(paths, lag), structure,
                                             min_segment_s=MIN_SEGMENT_S, files=names, init=previous)
-            del logged
             lap("identify")
             sample = diagnosis_sample(ds)
             found = diagnose(model, sample)

@@ -95,10 +95,10 @@ def candidate_lag_s(ds: Dataset) -> float | None:
     return ds.fuel_period_s if 0.0 < ds.fuel_period_s < ds.Ts else None
 
 
-def same_bins(ds: Dataset, other: Dataset, mask: np.ndarray) -> np.ndarray:
-    """The mask over ds's samples of the bins (times) `mask` selects in `other` (both on the same Ts grid)."""
+def at_times(ds: Dataset, t: np.ndarray) -> np.ndarray:
+    """The mask over ds's samples of the bins that start at the times t [s] (ascending, on ds's Ts grid)."""
     k = np.rint(ds.t / ds.Ts).astype(np.int64)
-    wanted = np.rint(other.t[mask] / other.Ts).astype(np.int64)
+    wanted = np.rint(np.asarray(t) / ds.Ts).astype(np.int64)
     at = np.clip(np.searchsorted(wanted, k), 0, max(len(wanted) - 1, 0))
     return (wanted[at] == k) if len(wanted) else np.zeros(len(k), bool)
 
@@ -111,7 +111,8 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
                         kind: ModelKind = ModelKind.AUTO, min_segment_s: float, files=(), defined=(),
                         init: PolyModel | None = None) -> tuple[PolyModel, Dataset]:
     """(model, its dataset) of `fuelid identify --fuel-lag auto --model KIND` (module docstring): build(lag_s) gives
-    the dataset with the fuel binned lag_s [s] earlier; the model's info["fuel_lag_choice"] is the decision
+    the dataset with the fuel binned lag_s [s] earlier (called again for 0 when the fuel as logged is kept: at most
+    one dataset is held at a time); the model's info["fuel_lag_choice"] is the decision
     (`LagChoice.to_json`) and info["model_choice"] the model choice at the kept lag. init: as identify_chosen's,
     for the final fit."""
     kind, effects = asked_kind(kind, effects)
@@ -123,10 +124,13 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
         reason = LagReason.NO_CANDIDATE if candidate is None else LagReason.TOO_SHORT
         model = identify_chosen(logged, structure, effects, kind=kind, init=init, **fit)
         return _with_lag(model, LagChoice(0.0, candidate, reason)), logged
+    # one dataset at a time (a truck-week's costs a fleet job most of its memory): the blocks travel as bin times
+    times = [logged.t[m] for m in masks]
+    choices = {0.0: held_out_choice(logged, masks, structure, effects, kind, **fit)}
+    del logged, masks
     lagged = build(candidate)
-    choices = {0.0: held_out_choice(logged, masks, structure, effects, kind, **fit),
-               candidate: held_out_choice(lagged, [same_bins(lagged, logged, m) for m in masks], structure, effects,
-                                          kind, **fit)}
+    choices[candidate] = held_out_choice(lagged, [at_times(lagged, t) for t in times], structure, effects, kind,
+                                         **fit)
     e0, ep = _kept_errors(choices[0.0]), _kept_errors(choices[candidate])
     d = 1.0 - ep / e0
     mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
@@ -135,8 +139,11 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
     decision = LagChoice(lag, candidate, LagReason.BETTER if better else LagReason.NOT_BETTER,
                          tuple(float(v) for v in e0), tuple(float(v) for v in ep), tuple(float(v) for v in d),
                          mean, se)
-    ds = lagged if better else logged
-    del logged, lagged  # the dataset not kept is let go before the final fit
+    if better:
+        ds = lagged
+    else:
+        del lagged
+        ds = build(0.0)
     return _with_lag(chosen_model(ds, structure, effects, choices[lag], init=init, **fit), decision), ds
 
 

@@ -11,6 +11,7 @@ from fuelid.cli import main
 from fuelid.ident.dataset import build_dataset
 from fuelid.ident.identify import MIN_SEGMENT_S, identify_model
 from fuelid.ident.diagnosis import diagnose, effects_to_add
+from fuelid.ident.fuellag import identify_lag_chosen
 from fuelid.ident.modelchoice import ModelKind, identify_chosen
 from fuelid.ident.polymodel import Structure, parse_orders
 from fuelid.ident.steady import data_reference
@@ -98,9 +99,9 @@ def front_door(tmp_path_factory):
     reference values a fleet job records."""
     mcap = tmp_path_factory.mktemp("drift") / "trip.mcap"
     assert main(["convert", str(TRIP), "-o", str(mcap), "--json"]) == 0
-    ds = build_dataset([mcap])
     structure = Structure(**parse_orders("paper"))
-    before = identify_chosen(ds, structure, min_segment_s=MIN_SEGMENT_S)
+    before, ds = identify_lag_chosen(lambda lag: build_dataset([mcap], fuel_lag_s=lag), structure,
+                                     min_segment_s=MIN_SEGMENT_S)
     effects = effects_to_add(diagnose(before, ds).to_json())
     model = identify_chosen(ds, structure, effects, kind=ModelKind(before.info["model_choice"]["chosen"]),
                             min_segment_s=MIN_SEGMENT_S, base=before)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fuelid.ident.dataset import Dataset
-from fuelid.ident.fuellag import LagChoice, LagReason, candidate_lag_s, identify_lag_chosen, same_bins
+from fuelid.ident.fuellag import LagChoice, LagReason, at_times, candidate_lag_s, identify_lag_chosen
 from fuelid.ident.modelchoice import ModelKind
 from tests.ident import engine_data
 from tests.ident.hidden import STRUCTURE, _held, _lag
@@ -75,7 +75,6 @@ def test_the_candidate_is_a_report_period_below_ts():
 def test_blocks_are_the_same_bins_on_a_grid_that_starts_elsewhere():
     ds = engine_data.trip(n=100)
     later = dataclasses.replace(ds, t=ds.t[3:], valid=ds.valid[3:], y=ds.y[3:], u=ds.u[3:])
-    mask = np.zeros(100, bool)
-    mask[10:20] = True
-    on_later = same_bins(later, ds, mask)
-    np.testing.assert_array_equal(later.t[on_later], ds.t[mask])
+    block = ds.t[10:20]
+    np.testing.assert_array_equal(later.t[at_times(later, block)], block)
+    assert not at_times(later, ds.t[:3]).any()  # bins the other grid does not have
