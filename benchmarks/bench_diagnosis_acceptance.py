@@ -9,7 +9,8 @@ favour each effect), at two magnitudes, over seeds, on the paper-linear engine a
 
 Each case: a 20-minute trip (sim.catalog.ALL_EFFECT_TRIPS's route; three for ambient air) simulated and decoded by
 fuelid's recorder (tests/ident/hidden.py), the model `fuelid identify` builds by default identified (the paper's
-orders, `--model auto`: the engine model where it wins on held-out blocks), diagnosed; then, on another day's trip of
+orders, `--model auto --fuel-lag auto`: the engine model and the fuel binned one report period earlier where
+they win on held-out blocks), diagnosed; then, on another day's trip of
 the same routes (seed + VALIDATION_SEED), the RMS simulation error of three models of that kind (engine or linear;
 engine when the diagnosis advises the map) identified on the first trip: the base, the base with what is recommended
 (as `fuelid identify --effects-from` adds it), and the oracle, the base with the true effects. Reported per engine
@@ -48,6 +49,7 @@ from fuelid.errors import FuelidError  # noqa: E402
 from fuelid.ident import diagnosis as dg  # noqa: E402
 from fuelid.ident.effectfile import read_effects_file  # noqa: E402
 from fuelid.ident.identify import MIN_SEGMENT_S  # noqa: E402
+from fuelid.ident.fuellag import identify_lag_chosen  # noqa: E402
 from fuelid.ident.modelchoice import ModelKind, identify_chosen  # noqa: E402
 from fuelid.ident.validation import evaluate  # noqa: E402
 from fuelid.sim.catalog import EFFECT_TRIPS  # noqa: E402
@@ -90,11 +92,11 @@ def cases(selected) -> list[dict]:
     return out
 
 
-def simulated(case: dict, seed: int, truth: str, engine: str):
+def simulated(case: dict, seed: int, truth: str, engine: str, fuel_lag_s: float = 0.0):
     effect = case["hidden"] if len(case["hidden"]) != 1 else case["hidden"][0]
     magnitude = None if len(case["hidden"]) != 1 else ALL_EFFECTS[effect].default * case["scale"]
     return hidden.simulated(effect or None, seed, magnitude=magnitude, routes_of=case["routes_of"], truth=truth,
-                            engine=engine)[0]
+                            engine=engine, fuel_lag_s=fuel_lag_s)[0]
 
 
 def found(case: dict, result: dict, engine_model: bool) -> bool:
@@ -130,10 +132,12 @@ def rmse_on(ds, effects, kind: ModelKind, valid, defined) -> float:
 
 
 def one_case(case: dict, seed: int, truth: str, engine: str, defined) -> dict:
-    ds = simulated(case, seed, truth, engine)
-    valid = simulated(case, seed + VALIDATION_SEED, truth, engine)
     effects = defined if case["kind"] == "defined" else ()
-    base_model = identified(ds, (), defined)
+    # the model `fuelid identify` builds by default, its fuel lag chosen; every later model on the same data, and
+    # the other day's trip binned the same way (as `identify --effects-from` and `compare` do)
+    base_model, ds = identify_lag_chosen(lambda lag: simulated(case, seed, truth, engine, lag), hidden.PAPER,
+                                         min_segment_s=MIN_SEGMENT_S, defined=defined)
+    valid = simulated(case, seed + VALIDATION_SEED, truth, engine, ds.fuel_lag_s)
     t = time.perf_counter()
     result = dg.diagnose(base_model, ds, effects=effects).to_json()
     seconds = time.perf_counter() - t

@@ -1,7 +1,8 @@
-"""Peak memory and CPU of one fleet refit job's phases on many files of one truck: the dataset, the model
-`fuelid identify` builds on all of it (ident.fuellag.identify_lag_chosen, paper orders: the fuel lag and the model
-kind judged on held-out blocks, one dataset held at a time), the diagnosis on the job's bounded sample
-(fleet.jobs.diagnosis_sample), and the model again with the effects the diagnosis recommends, in one process, for 1.5 h files of the shipped trip
+"""Peak memory and CPU of one fleet refit job's phases on many files of one truck: the dataset (fleet.jobs.job_dataset:
+built from every file, then at most IDENTIFY_HOURS of whole drive cycles kept), the model `fuelid identify` builds on
+it (ident.fuellag.identify_lag_chosen, paper orders: the fuel lag and the model kind judged on held-out blocks, one
+dataset held at a time), the diagnosis on the job's smaller sample (fleet.jobs.cycles_sample, DIAGNOSIS_HOURS), and
+the model again with the effects the diagnosis recommends, in one process, for 1.5 h files of the shipped trip
 (bench_dataset.long_recording), so memory per hour of data and per file can be read off. Limit: a truck-week
 (70 h) within 1 GB.
 
@@ -23,8 +24,7 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
-from fuelid.ident.dataset import build_dataset
-from fuelid.fleet.jobs import diagnosis_sample
+from fuelid.fleet.jobs import DIAGNOSIS_HOURS, cycles_sample, job_dataset
 from fuelid.ident.diagnosis import confirmed_effects, diagnose
 from fuelid.ident.fuellag import identify_lag_chosen
 from fuelid.ident.identify import MIN_SEGMENT_S
@@ -54,13 +54,13 @@ def one_job(paths: list[str]) -> dict:
     structure = Structure(**parse_orders("paper"))
     with threadpool_limits(1), warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        built = {0.0: build_dataset(paths)}  # as fleet.jobs.identify_truck: handed over once
+        built = {0.0: job_dataset(paths, 0.0)}  # as fleet.jobs.identify_truck: handed over once
         phases["dataset"] = (peak_rss_mb(), time.process_time() - t0)
         model, ds = identify_lag_chosen(
-            lambda lag: built.pop(lag) if lag in built else build_dataset(paths, fuel_lag_s=lag), structure,
+            lambda lag: built.pop(lag) if lag in built else job_dataset(paths, lag), structure,
             min_segment_s=MIN_SEGMENT_S)
         phases["identify"] = (peak_rss_mb(), time.process_time() - t0)
-        sample = diagnosis_sample(ds)
+        sample = cycles_sample(ds, DIAGNOSIS_HOURS)
         effects = confirmed_effects(diagnose(model, sample).to_json()["candidates"])
         phases["diagnose"] = (peak_rss_mb(), time.process_time() - t0)
         if effects:

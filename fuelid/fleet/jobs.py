@@ -7,13 +7,14 @@ Box-Jenkins dynamics, when it simulates held-out blocks better, else the paper's
 model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
-Bounded memory: the model is identified on all the truck's data, but what the diagnosis, its verification and the
-report hold grows with the samples they see, so they see a bounded sample of it (`diagnosis_sample`): whole drive
-cycles (ident.dataset's, 30 min), evenly spaced over the data, at most DIAGNOSIS_HOURS of them — a truck-week
-costs a job what DIAGNOSIS_HOURS of data cost, whatever the hours.
+Bounded memory: what the identification (the engine model's map step holds a few N × 81 arrays), the diagnosis, its
+verification and the report hold grows with the samples they see, so they see bounded samples of the truck's data
+(`cycles_sample`): whole drive cycles (ident.dataset's, 30 min), evenly spaced over the data, at most IDENTIFY_HOURS
+of them for the model and DIAGNOSIS_HOURS of those for the diagnosis — a truck-week costs a job what its dataset's
+build and IDENTIFY_HOURS of data cost, whatever the hours.
 
-Held-out evidence: the model is fitted on all the truck's data (the newest file included) and the diagnosis
-runs on (a sample of) the same data, because its score tests are by construction tests at the fitted model; what needs
+Held-out evidence: the model is fitted on the truck's data (its sample; the newest file among them whenever the data
+fit in IDENTIFY_HOURS) and the diagnosis runs on (a sample of) the same data, because its score tests are by construction tests at the fitted model; what needs
 unseen data is measured by refits: diagnose holds candidate effects to PEM refits scored on the blocks (or trips)
 each fold leaves out of the fit, and scores the model itself the same way (the diagnosis's `held_out`),
 reported as metrics["held_out"] next to the in-sample metrics.
@@ -54,10 +55,11 @@ from fuelid.ident.validation import evaluate
 from fuelid.output import json_safe
 
 
+IDENTIFY_HOURS = 12.0  # the most data the models of one job are identified on [h]
 DIAGNOSIS_HOURS = 6.0  # the most data the diagnosis and the report of one job see [h]
 
 
-def diagnosis_sample(ds: Dataset, hours: float = DIAGNOSIS_HOURS) -> Dataset:
+def cycles_sample(ds: Dataset, hours: float) -> Dataset:
     """ds itself when its drive cycles last at most `hours` [h] in all; else a Dataset of the samples of whole
     drive cycles (ds.cycle ≥ 0), k of the K cycles at evenly spaced positions (k the most whose total stays within
     `hours`), the rest of the fields as ds's."""
@@ -79,11 +81,12 @@ class JobError(FuelidError):
     """A truck's data cannot give a model (no files, no fuel signal, too little valid data...): one line why."""
 
 
-def _dataset(paths: list[str], fuel_lag_s: float) -> Dataset:
-    """The truck's dataset, the fuel binned fuel_lag_s [s] earlier (its warnings kept in ds.notes)."""
+def job_dataset(paths: list[str], fuel_lag_s: float) -> Dataset:
+    """The truck's dataset, the fuel binned fuel_lag_s [s] earlier (its warnings kept in ds.notes), at most
+    IDENTIFY_HOURS of its whole drive cycles (the rest let go here)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        return build_dataset(paths, fuel_lag_s=fuel_lag_s)
+        return cycles_sample(build_dataset(paths, fuel_lag_s=fuel_lag_s), IDENTIFY_HOURS)
 
 
 def _write_json(path: Path, obj) -> None:
@@ -149,15 +152,15 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     with threadpool_limits(1):  # one BLAS/OpenMP thread: the cluster runs one job per core
         try:
             structure = Structure(**parse_orders(orders))
-            built = {0.0: _dataset(paths, 0.0)}  # handed over once: the lag choice holds one dataset at a time
+            built = {0.0: job_dataset(paths, 0.0)}  # handed over once: the lag choice holds one dataset at a time
             lap("dataset")
             previous = load_model(previous_model) if previous_model else None
             # the model `fuelid identify` builds: the fuel lag and the engine model when they simulate held-out
             # blocks better
-            model, ds = identify_lag_chosen(lambda lag: built.pop(lag) if lag in built else _dataset(paths, lag), structure,
-                                            min_segment_s=MIN_SEGMENT_S, files=names, init=previous)
+            model, ds = identify_lag_chosen(lambda lag: built.pop(lag) if lag in built else job_dataset(paths, lag),
+                                            structure, min_segment_s=MIN_SEGMENT_S, files=names, init=previous)
             lap("identify")
-            sample = diagnosis_sample(ds)
+            sample = cycles_sample(ds, DIAGNOSIS_HOURS)
             found = diagnose(model, sample)
             lap("diagnose")
             diagnosis = found.to_json()

@@ -91,8 +91,10 @@ class LagChoice:
 
 
 def candidate_lag_s(ds: Dataset) -> float | None:
-    """The lag worth judging [s]: the fuel signal's median report period when it is above 0 and below Ts."""
-    return ds.fuel_period_s if 0.0 < ds.fuel_period_s < ds.Ts else None
+    """The lag worth judging [s]: the fuel signal's median report period, to the millisecond (a logger's clock
+    jitters by microseconds; J1939 periods are whole milliseconds), when it is above 0 and below Ts."""
+    period = round(ds.fuel_period_s, 3)
+    return period if 0.0 < period < ds.Ts else None
 
 
 def at_times(ds: Dataset, t: np.ndarray) -> np.ndarray:
@@ -132,9 +134,11 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
     choices[candidate] = held_out_choice(lagged, [at_times(lagged, t) for t in times], structure, effects, kind,
                                          **fit)
     e0, ep = _kept_errors(choices[0.0]), _kept_errors(choices[candidate])
+    scored = np.isfinite(e0) & np.isfinite(ep)  # a block with no sample left to score at one lag is left out
+    e0, ep = e0[scored], ep[scored]
     d = 1.0 - ep / e0
-    mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
-    better = mean > SE_FACTOR * se and mean > MIN_IMPROVEMENT
+    mean, se = (float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))) if len(d) > 1 else (np.nan, np.nan)
+    better = bool(mean > SE_FACTOR * se and mean > MIN_IMPROVEMENT)
     lag = candidate if better else 0.0
     decision = LagChoice(lag, candidate, LagReason.BETTER if better else LagReason.NOT_BETTER,
                          tuple(float(v) for v in e0), tuple(float(v) for v in ep), tuple(float(v) for v in d),

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fuelid.fleet.effectlist import ENGINE_PROPERTIES
-from fuelid.fleet.jobs import JobError, JobRunner, diagnosis_sample, identify_truck
+from fuelid.fleet.jobs import JobError, JobRunner, cycles_sample, identify_truck
 from fuelid.ident.dataset import Dataset
 from fuelid.cli import main
 from fuelid.ident.modelfile import load_model
@@ -141,7 +141,7 @@ def test_a_linear_model_whose_diagnosis_advises_the_engine_map_is_refitted_as_th
     assert load_model(res["model_path"]).effects[0] == "engine_map"
 
 
-def test_the_diagnosis_sample_is_whole_cycles_evenly_spaced_and_bounded():
+def test_the_samples_of_a_job_are_whole_cycles_evenly_spaced_and_bounded():
     """A 10-hour truck: the job diagnoses at most DIAGNOSIS_HOURS of it, whole 30-min drive cycles spread over the
     whole time; a short truck is diagnosed on all of its data."""
     ts, n = 0.3, int(10 * 3600 / 0.3)
@@ -150,12 +150,12 @@ def test_the_diagnosis_sample_is_whole_cycles_evenly_spaced_and_bounded():
     ds = Dataset(Ts=ts, t=t, u=np.column_stack([t, t]), y=t.copy(), input_names=("n", "T"), input_units=("rpm", "Nm"),
                  output_name="fuel", output_unit="L/h", u0=np.zeros(2), y0=0.0, valid=np.ones(n, bool), cycle=cycle,
                  extra={"ET1.EngCoolantTemp": t.copy()})
-    sample = diagnosis_sample(ds, hours=3.0)
+    sample = cycles_sample(ds, hours=3.0)
     kept = np.unique(sample.cycle)
     assert len(kept) == 6 and kept[0] == 0 and kept[-1] == 19 and np.all(np.diff(kept) >= 3)
     assert len(sample.t) == 6 * 6000 and np.array_equal(sample.extra["ET1.EngCoolantTemp"], sample.t)
     assert len(sample.segments()) == 6  # the gaps between the cycles split the data
-    assert diagnosis_sample(ds, hours=12.0) is ds
+    assert cycles_sample(ds, hours=12.0) is ds
 
 
 def test_a_truck_with_a_curved_map_gets_the_engine_model_and_its_steady_fuel_is_the_measured_one(tmp_path):

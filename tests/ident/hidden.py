@@ -154,7 +154,7 @@ def _records(cfg):
 @functools.lru_cache(maxsize=None)
 def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float = 1200.0,
               magnitude: float | None = None, routes_of: str | None = None, truth: str = "diesel_p320",
-              engine: str = "", days: int = 1):
+              engine: str = "", days: int = 1, fuel_lag_s: float = 0.0):
     """(Dataset, truth arrays at Ts (truth.npz), truth summary (truth.json)) of simulated diesel trips with the
     hidden `effect` (its default magnitude unless given; a catalogued or a generic one, sim.effects.ALL_EFFECTS;
     a tuple of ids hides them all) on the routes the trips of effect `routes_of` (default: `effect`, the first of
@@ -163,8 +163,21 @@ def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float
     then the next day's), decoded by fuelid's recorder; the truth
     arrays of several trips are concatenated, the summary is the first trip's; cached. `truth`: the engine's
     fuel truth (the paper's diesel model, or "map": a VECTO engine's map, sim.mapfuel); `engine`: the map truth's
-    VECTO engine set (a .veng path or a shipped set's name; default the 325 kW engine)."""
+    VECTO engine set (a .veng path or a shipped set's name; default the 325 kW engine); fuel_lag_s [s]: the dataset's
+    (ident.dataset.build_dataset)."""
     from fuelid.ident.dataset import build_dataset
+
+    records, trips = _trip_records(effect, seed, duration_s, magnitude, routes_of, truth, engine, days)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ds = build_dataset(records, fuel_lag_s=fuel_lag_s)
+    arrays = {k: np.concatenate([t.truth[k] for t in trips]) for k in trips[0].truth}
+    return ds, arrays, trips[0].summary
+
+
+@functools.lru_cache(maxsize=2)  # records are large: the last two trip sets, for the datasets of another fuel lag
+def _trip_records(effect, seed, duration_s, magnitude, routes_of, truth, engine, days) -> tuple[list, list]:
+    """(records, trips) of `simulated`'s trips."""
     from fuelid.sim.catalog import ALL_EFFECT_TRIPS, SECOND_TRIP_SEED
     from fuelid.sim.effects import ALL_EFFECTS
     from fuelid.sim.trip import TripConfig
@@ -178,11 +191,7 @@ def simulated(effect: str | tuple[str, ...] | None, seed: int, duration_s: float
                                          effects=effects, engine=engine, **route))
         records += recs
         trips.append(trip)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        ds = build_dataset(records)
-    arrays = {k: np.concatenate([t.truth[k] for t in trips]) for k in trips[0].truth}
-    return ds, arrays, trips[0].summary
+    return records, trips
 
 
 def first_trips(ds, n: int = 1, break_s: float = 600.0):

@@ -68,6 +68,7 @@ def test_no_candidate_or_too_little_data_keeps_the_fuel_as_logged():
 def test_the_candidate_is_a_report_period_below_ts():
     ds = engine_data.trip(n=100)
     assert candidate_lag_s(dataclasses.replace(ds, fuel_period_s=0.1)) == 0.1
+    assert candidate_lag_s(dataclasses.replace(ds, fuel_period_s=0.100000256)) == 0.1  # a logger clock's jitter
     for period in (0.0, 0.3, 1.0):
         assert candidate_lag_s(dataclasses.replace(ds, fuel_period_s=period)) is None
 
