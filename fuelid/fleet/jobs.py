@@ -3,8 +3,8 @@
 `identify_truck` is one job: the truck's MCAP files → dataset (ident.dataset) → the model `fuelid identify` builds by
 default, through its own code path (ident.fuellag.identify_lag_chosen: the fuel binned one report period earlier
 when that simulates held-out blocks better, and ident.modelchoice's engine model, the engine's map under the paper's
-Box-Jenkins dynamics, when it simulates held-out blocks better, else the paper's linear model) → diagnosis (ident.diagnosis.diagnose) →
-model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
+Box-Jenkins dynamics, when it simulates held-out blocks better, else the paper's linear model) → diagnosis
+(ident.diagnosis.diagnose) → model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
 Bounded memory: what the identification (the engine model's map step holds a few N × 81 arrays), the diagnosis, its
@@ -13,9 +13,9 @@ verification and the report hold grows with the samples they see, so they see bo
 of them for the model and DIAGNOSIS_HOURS of those for the diagnosis — a truck-week costs a job what its dataset's
 build and IDENTIFY_HOURS of data cost, whatever the hours.
 
-Held-out evidence: the model is fitted on the truck's data (its sample; the newest file among them whenever the data
-fit in IDENTIFY_HOURS) and the diagnosis runs on (a sample of) the same data, because its score tests are by construction tests at the fitted model; what needs
-unseen data is measured by refits: diagnose holds candidate effects to PEM refits scored on the blocks (or trips)
+Held-out evidence: the model is fitted on the truck's data (its sample: all of it, the newest file included, whenever
+the data fit in IDENTIFY_HOURS) and the diagnosis runs on (a sample of) the same data, because its score tests are by
+construction tests at the fitted model; what needs unseen data is measured by refits: diagnose holds candidate effects to PEM refits scored on the blocks (or trips)
 each fold leaves out of the fit, and scores the model itself the same way (the diagnosis's `held_out`),
 reported as metrics["held_out"] next to the in-sample metrics.
 
