@@ -970,7 +970,7 @@ def save_dataset(ds: Dataset, path) -> Path:
     if path.suffix == ".csv":
         _write_csv(ds, path)
     elif path.suffix == ".mat":
-        from scipy.io import savemat  # SciPy's io only for .mat: it costs 0.1 s to import
+        from scipy.io import savemat  # imported for .mat only: every command would pay for it
 
         meta = _meta(ds)
         savemat(path, {

@@ -76,8 +76,8 @@ class ScoreTest:
 
 def _chi2_tail(statistic: float, k: int) -> tuple[float, float]:
     """(p, ln p): the χ²(k) upper tail at the statistic, as scipy.stats.chi2.sf and .logsf compute it (the
-    regularised incomplete gamma function; scipy.special only, since scipy.stats costs 0.2 s to import). A
-    statistic below 0 (rounding of a quadratic form at 0) has p = 1."""
+    regularised incomplete gamma function, from scipy.special: every command would pay for importing scipy.stats).
+    A statistic below 0 (rounding of a quadratic form at 0) has p = 1."""
     p = float(chdtrc(k, max(statistic, 0.0)))
     with np.errstate(divide="ignore"):
         return p, float(np.log(p))
