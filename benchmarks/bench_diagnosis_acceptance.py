@@ -10,8 +10,8 @@ favour each effect), at two magnitudes, over seeds, on the paper-linear engine a
 Each case: a 20-minute trip (sim.catalog.ALL_EFFECT_TRIPS's route; three for ambient air) simulated and decoded by
 fuelid's recorder (tests/ident/hidden.py), the model `fuelid identify` builds by default identified (the paper's
 orders, `--model auto --fuel-lag auto`: the engine model and the fuel binned one report period earlier where
-they win on held-out blocks), diagnosed; then, on another day's trip of
-the same routes (seed + VALIDATION_SEED), the RMS simulation error of three models of that kind (engine or linear;
+they win on held-out blocks), diagnosed; then, on another day's trip of the same routes (seed + VALIDATION_SEED,
+binned with the same lag), the RMS simulation error of three models of that kind (engine or linear;
 engine when the diagnosis advises the map) identified on the first trip: the base, the base with what is recommended
 (as `fuelid identify --effects-from` adds it), and the oracle, the base with the true effects. Reported per engine
 and case group:

@@ -6,8 +6,8 @@ data against their error bars.
 
 Per engine and seed: `fuelid simulate --truth map --engine E.veng` drives a mixed trip (no hidden effect), `fuelid
 convert` records it, and the model is the one a fleet job and `fuelid identify` build by default
-(ident.fuellag.identify_lag_chosen: `--fuel-lag auto --model auto`, the paper's orders), its reference values taken from the trip
-as a fleet job takes them (ident.steady.data_reference). Made once into benchmarks/.cache/steady/ (git-ignored).
+(ident.fuellag.identify_lag_chosen: `--fuel-lag auto --model auto`, the paper's orders), its reference values taken
+from the trip as a fleet job takes them (ident.steady.data_reference). Made once into benchmarks/.cache/steady/ (git-ignored).
 --quick: seeds 1 2 3 of 30-minute trips.
 
 Points: engine speeds 1000, 1200, 1400, 1600 rpm × 30, 50, 70 % of the engine's largest full-load torque [N·m],
