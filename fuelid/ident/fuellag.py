@@ -30,7 +30,7 @@ import numpy as np
 
 from fuelid.ident.dataset import Dataset
 from fuelid.ident.modelchoice import (MIN_IMPROVEMENT, SE_FACTOR, ModelChoice, ModelKind, asked_kind, blocks,
-                                      chosen_model, held_out_choice, identify_chosen)
+                                      chosen_model, held_out_choice, identify_chosen, paired_improvement)
 from fuelid.ident.polymodel import PolyModel, Structure
 
 
@@ -136,9 +136,7 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
     e0, ep = _kept_errors(choices[0.0]), _kept_errors(choices[candidate])
     scored = np.isfinite(e0) & np.isfinite(ep)  # a block with no sample left to score at one lag is left out
     e0, ep = e0[scored], ep[scored]
-    d = 1.0 - ep / e0
-    mean, se = (float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))) if len(d) > 1 else (np.nan, np.nan)
-    better = bool(mean > SE_FACTOR * se and mean > MIN_IMPROVEMENT)
+    d, mean, se, better = paired_improvement(e0, ep)
     lag = candidate if better else 0.0
     decision = LagChoice(lag, candidate, LagReason.BETTER if better else LagReason.NOT_BETTER,
                          tuple(float(v) for v in e0), tuple(float(v) for v in ep), tuple(float(v) for v in d),

@@ -213,12 +213,19 @@ def held_out_choice(ds, masks: list[np.ndarray], structure: Structure, effects, 
     rmse_eng = tuple(block_rmse(eng, ds, mask) for mask in masks[half:])
     if kind is not ModelKind.AUTO:
         return ModelChoice(kind, kind, Reason.ASKED, rmse_lin, rmse_eng)
-    d = 1.0 - np.array(rmse_eng) / np.array(rmse_lin)
-    mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
-    better = mean > SE_FACTOR * se and mean > MIN_IMPROVEMENT
+    d, mean, se, better = paired_improvement(rmse_lin, rmse_eng)
     return ModelChoice(ModelKind.ENGINE if better else ModelKind.LINEAR, kind,
                        Reason.BETTER if better else Reason.NOT_BETTER, rmse_lin, rmse_eng,
                        tuple(float(v) for v in d), mean, se)
+
+
+def paired_improvement(e_base, e_new) -> tuple[np.ndarray, float, float, bool]:
+    """(d, mean(d), SE, better) of two models' RMS errors on the same held-out blocks: d_b = 1 − e_new,b / e_base,b
+    [1], its standard error sd(d)/√B, and whether the mean clears the margin (mean > SE_FACTOR · SE and mean >
+    MIN_IMPROVEMENT; never with fewer than two blocks or a NaN)."""
+    d = 1.0 - np.asarray(e_new, float) / np.asarray(e_base, float)
+    mean, se = (float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))) if len(d) > 1 else (np.nan, np.nan)
+    return d, mean, se, bool(mean > SE_FACTOR * se and mean > MIN_IMPROVEMENT)
 
 
 def chosen_model(ds, structure: Structure, effects, choice: ModelChoice, *, min_segment_s: float, files=(),
