@@ -89,6 +89,15 @@ def job_dataset(paths: list[str], fuel_lag_s: float) -> Dataset:
         return cycles_sample(build_dataset(paths, fuel_lag_s=fuel_lag_s), IDENTIFY_HOURS)
 
 
+def readable(previous_model: str | None):
+    """The truck's previous model, or None when there is none or this fuelid cannot read it (a model file of an
+    older format): it only warm-starts the refit and gives the previous model's metrics."""
+    try:
+        return load_model(previous_model) if previous_model else None
+    except FuelidError:
+        return None
+
+
 def _write_json(path: Path, obj) -> None:
     """obj as strict JSON (NaN → null) through a temporary file renamed over path: no reader sees half a file."""
     tmp = path.with_name(path.name + ".tmp")
@@ -154,7 +163,7 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
             structure = Structure(**parse_orders(orders))
             built = {0.0: job_dataset(paths, 0.0)}  # handed over once: the lag choice holds one dataset at a time
             lap("dataset")
-            previous = load_model(previous_model) if previous_model else None
+            previous = readable(previous_model)
             # the model `fuelid identify` builds: the fuel lag and the engine model when they simulate held-out
             # blocks better
             model, ds = identify_lag_chosen(lambda lag: built.pop(lag) if lag in built else job_dataset(paths, lag),

@@ -16,7 +16,7 @@ import numpy as np
 
 from fuelid.errors import InputError
 from fuelid.ident.effectfile import effects_of_model
-from fuelid.ident.effects import centred, get_effect, parse_effect
+from fuelid.ident.effects import Regressors, centred, get_effect, parse_effect
 from fuelid.ident.fueldelay import shift_signal
 from fuelid.ident.polymodel import Structure
 
@@ -55,7 +55,7 @@ def apply_effects(ds, ids, parameters: dict | None = None,
     Raises ValueError for an unknown id or an effect whose signals are not logged.
     """
     parameters = dict(parameters or {})
-    cols, names, units, orders, used, widths = [], [], [], [], [], []
+    used, built = [], []
     y = np.asarray(ds.y, float)
     shift = None
     for raw in ids:
@@ -69,13 +69,22 @@ def apply_effects(ds, ids, parameters: dict | None = None,
                 parameters[effect.id] = effect.reference(ds)
             effect = (effect.bind or centred)(effect, parameters[effect.id])
         if effect.enters == "shift":
-            widths.append(0)
+            built.append((effect, None))
             shift_id = effect.id
             shift = value if value is not None else parameters.get(effect.id, "sweep")
             continue
         reg = effect.build(ds)
         if reg is None:
             raise InputError(f"effect {effect.id}: its signals ({', '.join(effect.signals)}) are not in the data")
+        built.append((effect, reg))
+    beyond = next((reg.x[:, 0] for effect, reg in built if effect.id == "engine_map"), None)
+    cols, names, units, orders, widths = [], [], [], [], []
+    for effect, reg in built:
+        if reg is None:
+            widths.append(0)
+            continue
+        if effect.enters == "scales_fuel" and beyond is not None:
+            reg = map_scaled(reg, beyond, ds.output_unit)
         cols.append(reg.x)
         widths.append(reg.x.shape[1])
         names += [f"{effect.id}: {n}" for n in reg.names]
@@ -90,6 +99,18 @@ def apply_effects(ds, ids, parameters: dict | None = None,
         parameters[shift_id] = float(shift)
         y = shift_signal(y, shift / ds.Ts, ds.segments())
     return EffectInputs(u, tuple(names), tuple(units), tuple(orders), y, tuple(used), parameters, tuple(widths))
+
+
+def map_scaled(reg: Regressors, beyond: np.ndarray, fuel_unit: str) -> Regressors:
+    """The columns of an effect that scales the fuel, y (1 + m x), on an engine model: its own (x and its products
+    with the speed and torque deviations, ident.effects.scaling: x times the plane) and x·m(n, T), m the engine map
+    beyond its plane [fuel unit] (ident.effects.engine_map_columns). Together they are x times the whole map, so
+    that the effect scales the curved fuel as the engine burns it; with the plane's products alone the part of
+    m x the plane cannot carry is left to whatever other signal follows it while the effect is on."""
+    x = reg.x[:, 0]
+    orders = reg.orders + (reg.orders[0],) if reg.orders is not None else None
+    return Regressors(np.column_stack([reg.x, x * beyond]), reg.names + (f"{reg.names[0]} x map beyond the plane",),
+                      reg.units + (f"{reg.units[0]}.{fuel_unit}",), orders)
 
 
 def at_operating_point(ds, model):

@@ -1,6 +1,6 @@
 """model.json: the versioned, human-readable file of an identified PolyModel (docs: ARCHITECTURE.md).
 
-    {"format": "fuelid-model", "version": 1,
+    {"format": "fuelid-model", "version": 2,
      "structure": {"kind": "bj", "na": 0, "nc": 11, "nd": 11},
      "Ts_s": 0.3,
      "inputs": [{"name", "unit", "u0", "nb", "nf", "nk", "B": [...], "F": [...]}, ...],
@@ -30,7 +30,7 @@ from fuelid.errors import FuelidError
 from fuelid.ident.polymodel import PolyModel, parameter_names
 
 FORMAT = "fuelid-model"
-VERSION = 1
+VERSION = 2  # 2: on an engine model an effect that scales the fuel has the column x·m
 PAPER_MODELS = Path(__file__).resolve().parents[3] / "shared" / "design" / "paper_models.json"
 
 
@@ -74,8 +74,11 @@ def from_dict(d: dict) -> PolyModel:
     try:
         if d.get("format") != FORMAT:
             raise ValueError(f"not a {FORMAT} file")
-        if d.get("version") != VERSION:
-            raise ValueError(f"unsupported version {d.get('version')!r} (this fuelid reads {VERSION})")
+        if d.get("version") not in (1, VERSION):
+            raise ValueError(f"unsupported version {d.get('version')!r} (this fuelid reads 1 and {VERSION})")
+        if d["version"] == 1 and "engine_map" in d.get("effects", []) and len(d["effects"]) > 1:
+            raise ValueError("version 1: an engine model with effects from an older fuelid, whose effects that "
+                             "scale the fuel lacked the map's column (ident.modeldata.map_scaled); identify it again")
         inputs = d["inputs"]
         cov = d["parameters"]["covariance"]
         model = PolyModel(

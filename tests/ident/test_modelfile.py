@@ -60,7 +60,7 @@ def test_round_trip_bit_for_bit(fitted, tmp_path):
     save_model(back, p2)
     assert p2.read_bytes() == p.read_bytes()
     doc = json.loads(p.read_text())
-    assert doc["format"] == "fuelid-model" and doc["version"] == 1
+    assert doc["format"] == "fuelid-model" and doc["version"] == 2
     assert doc["inputs"][0]["nk"] == 1 and doc["inputs"][0]["B"][0] == 0
     assert len(doc["parameters"]["names"]) == len(doc["parameters"]["std_errors"]) == fitted.structure.n_params
 
@@ -70,7 +70,8 @@ def test_round_trip_bit_for_bit(fitted, tmp_path):
     ("[1, 2]", "not a JSON object"),
     ('{"format": "other"}', "not a fuelid-model"),
     ('{"format": "fuelid-model", "version": 99}', "unsupported version"),
-    ('{"format": "fuelid-model", "version": 1}', "missing field"),
+    ('{"format": "fuelid-model", "version": 2}', "missing field"),
+    ('{"format": "fuelid-model", "version": 1, "effects": ["engine_map", "dpf_regeneration"]}', "identify it again"),
 ])
 def test_malformed_models(tmp_path, content, message):
     p = tmp_path / "bad.json"
@@ -78,6 +79,16 @@ def test_malformed_models(tmp_path, content, message):
     with pytest.raises(FuelidError, match=message) as err:
         load_model(p)
     assert "\n" not in str(err.value)
+
+
+def test_a_version_1_model_without_an_engine_map_and_effects_is_read(fitted, tmp_path):
+    """Version 2 only changed the columns of a fuel scaling on an engine model: every other version-1 file reads."""
+    p = tmp_path / "m.json"
+    save_model(fitted, p)
+    doc = json.loads(p.read_text())
+    doc["version"] = 1
+    p.write_text(json.dumps(doc))
+    assert np.array_equal(load_model(p).theta, fitted.theta)
 
 
 def test_inconsistent_model(fitted, tmp_path):

@@ -31,13 +31,14 @@ MAP = fitted_map()
 def map_model(map_gain=1.0, cov_scale=1e-10):
     """Fuel [L/h] from speed [rpm], torque [N·m], the engine map's three columns (the map beyond its plane, of unit
     static gain times map_gain, and the torque rise's two), the engine's relative load as a bus-signal level (what a
-    truck's data show, L = 40 %/kNm · T) and a DPF regeneration's three, about idle (600 rpm, 0 N·m, 2 L/h)."""
-    B = [[0, 0.004, 0.002], [0.01, 0.004], [map_gain], [0.01], [0.001], [0.02], [3.0], [0.001], [0.002]]
-    F = [[1, -0.5], [1, -0.3]] + [[1.0]] * 4 + [[1, -0.2]] * 3
+    truck's data show, L = 40 %/kNm · T) and a DPF regeneration's four (it scales the fuel: x, x·ñ, x·T̃, x·m),
+    about idle (600 rpm, 0 N·m, 2 L/h)."""
+    B = [[0, 0.004, 0.002], [0.01, 0.004], [map_gain], [0.01], [0.001], [0.02], [3.0], [0.001], [0.002], [0.1]]
+    F = [[1, -0.5], [1, -0.3]] + [[1.0]] * 4 + [[1, -0.2]] * 4
     names = ("speed", "torque", MAP_COLUMN, RISE_COLUMN, RISE_MAP_COLUMN, LOAD) + tuple(f"regeneration {k}"
-                                                                                       for k in (1, 2, 3))
-    m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 8, input_names=names,
-                  input_units=("rpm", "Nm") + ("1",) * 7, output_unit="L/h", u0=(600.0, 0.0) + (0.0,) * 7, y0=2.0,
+                                                                                       for k in (1, 2, 3, 4))
+    m = PolyModel(A=[1.0, -0.2], B=B, F=F, C=[1, 0.2], D=[1, -0.7], Ts=0.3, nk=(1,) + (0,) * 9, input_names=names,
+                  input_units=("rpm", "Nm") + ("1",) * 8, output_unit="L/h", u0=(600.0, 0.0) + (0.0,) * 8, y0=2.0,
                   effects=("engine_map", f"level:{LOAD}", "dpf_regeneration"),
                   info={"effect_parameters": {"engine_map": MAP},
                         "steady_reference": {LOAD: {"surface": [0, 0, 40.0, 0, 0, 0, 0]}}})
@@ -139,7 +140,7 @@ def test_an_effect_on_a_bus_signal_is_held_at_its_reference():
     base = map_model(map_gain=0.0)
     sig = "ET1.EngOilTemp1"
     for spec, extra_info, B, expected in [
-            (f"scales:{sig}", {"effect_parameters": {f"scales:{sig}": 95.0}}, [[0.1], [0.01], [0.02]], 0.0),
+            (f"scales:{sig}", {"effect_parameters": {f"scales:{sig}": 95.0}}, [[0.1], [0.01], [0.02], [0.05]], 0.0),
             (f"level:{sig}", {"steady_reference": {sig: {"median": 90.0}}}, [[0.1]], 0.1 * 90.0 / 0.8)]:
         m = PolyModel(A=base.A, B=base.B + B, F=base.F + [[1.0]] * len(B), C=base.C, D=base.D, Ts=0.3,
                       nk=base.nk + (0,) * len(B), input_names=base.input_names + (spec,) * len(B), input_units=base.input_units + ("1",) * len(B), output_unit="L/h",
