@@ -16,8 +16,8 @@ against its own dataset's fuel (the same measured samples, binned at other times
 
     d_b = 1 − e_p,b / e_0,b,
 
-and the lag p is kept when mean(d) > SE_FACTOR · sd(d)/√B and mean(d) > MIN_IMPROVEMENT (the margins of
-ident.modelchoice), else the fuel as logged. The kept lag's model is then identified on all of its dataset as
+and the lag p is kept when mean(d) > t_{1−α/2}(B − 1) · sd(d)/√B and mean(d) > MIN_IMPROVEMENT (the margins of
+ident.modelchoice.paired_improvement), else the fuel as logged. The kept lag's model is then identified on all of its dataset as
 `fuelid identify --fuel-lag S` would. The held-out fits cost one more set of half-data fits than `--model auto`.
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fuelid.ident.dataset import Dataset
-from fuelid.ident.modelchoice import (MIN_IMPROVEMENT, SE_FACTOR, ModelChoice, ModelKind, asked_kind, blocks,
+from fuelid.ident.modelchoice import (MIN_IMPROVEMENT, ModelChoice, ModelKind, asked_kind, blocks,
                                       chosen_model, held_out_choice, identify_chosen, paired_improvement)
 from fuelid.ident.polymodel import PolyModel, Structure
 
@@ -58,7 +58,7 @@ class LagChoice:
     improvement: tuple[float, ...] = ()
     mean: float | None = None
     se: float | None = None
-    se_factor: float = SE_FACTOR
+    se_factor: float | None = None
     min_improvement: float = MIN_IMPROVEMENT
 
     def to_json(self) -> dict:
@@ -87,7 +87,7 @@ class LagChoice:
         return (f"{kept}: {self.reason.value} (report period {self.candidate_s:g} s; held-out RMS error "
                 f"{np.mean(self.rmse_lagged):.3g} vs {np.mean(self.rmse_logged):.3g} {unit} over "
                 f"{len(self.improvement)} blocks: {100 * self.mean:+.1f} % ± {100 * self.se:.1f} %, margin "
-                f"{self.se_factor:g} SE and {100 * self.min_improvement:g} %)")
+                f"{self.se_factor:.3g} SE and {100 * self.min_improvement:g} %)")
 
 
 def candidate_lag_s(ds: Dataset) -> float | None:
@@ -136,12 +136,12 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
     e0, ep = _kept_errors(choices[0.0]), _kept_errors(choices[candidate])
     scored = np.isfinite(e0) & np.isfinite(ep)  # a block with no sample left to score at one lag is left out
     e0, ep = e0[scored], ep[scored]
-    d, mean, se, better = paired_improvement(e0, ep)
-    lag = candidate if better else 0.0
-    decision = LagChoice(lag, candidate, LagReason.BETTER if better else LagReason.NOT_BETTER,
-                         tuple(float(v) for v in e0), tuple(float(v) for v in ep), tuple(float(v) for v in d),
-                         mean, se)
-    if better:
+    p = paired_improvement(e0, ep)
+    lag = candidate if p.better else 0.0
+    decision = LagChoice(lag, candidate, LagReason.BETTER if p.better else LagReason.NOT_BETTER,
+                         tuple(float(v) for v in e0), tuple(float(v) for v in ep), tuple(float(v) for v in p.d),
+                         p.mean, p.se, p.se_factor)
+    if p.better:
         ds = lagged
     else:
         del lagged

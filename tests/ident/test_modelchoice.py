@@ -1,7 +1,8 @@
+import numpy as np
 import pytest
 
 from fuelid.errors import InputError
-from fuelid.ident.modelchoice import ModelChoice, ModelKind, Reason, identify_chosen
+from fuelid.ident.modelchoice import ModelChoice, ModelKind, Reason, identify_chosen, paired_improvement
 from tests.ident import engine_data
 from tests.ident.hidden import STRUCTURE
 
@@ -35,3 +36,19 @@ def test_asked_for_models_are_built_without_the_held_out_choice():
 def test_too_short_a_trip_keeps_the_linear_model():
     model = identify_chosen(engine_data.trip(k=1.0, n=2000), STRUCTURE, min_segment_s=30.0)
     assert model.info["model_choice"]["reason"] == "too_short"
+
+
+@pytest.mark.parametrize("t_stat, better", [(2.5, False), (3.0, True)])
+def test_the_margin_is_students_t_for_the_blocks_held_out(t_stat, better):
+    """Over 5 blocks the margin is t_0.975(4) = 2.776 standard errors, not 2: a mean improvement of 2.5 SE is not
+    enough, 3 SE is."""
+    x = np.array([-1.0, -0.5, 0.0, 0.5, 1.0])
+    d = 0.2 + x * (0.2 / t_stat) / (x.std(ddof=1) / np.sqrt(5))  # mean 0.2, mean/SE = t_stat
+    e_base = np.full(5, 2.0)
+    p = paired_improvement(e_base, e_base * (1.0 - d))
+    assert p.se_factor == pytest.approx(2.776, abs=1e-3)
+    assert p.mean / p.se == pytest.approx(t_stat) and p.better is better
+
+
+def test_fewer_than_two_blocks_never_decide():
+    assert not paired_improvement([2.0], [1.0]).better
