@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fuelid.fleet.effectlist import ENGINE_PROPERTIES
-from fuelid.fleet.jobs import JobError, JobRunner, cycles_sample, identify_truck
+from fuelid.fleet.jobs import JobError, JobRunner, cycles_sample, identify_truck, readable
 from fuelid.ident.dataset import Dataset
 from fuelid.cli import main
 from fuelid.ident.modelfile import load_model
@@ -179,3 +179,11 @@ def test_a_truck_with_a_curved_map_gets_the_engine_model_and_its_steady_fuel_is_
     measured = [fuel_measured_near(ds, point) for point in DEFAULT_POINTS]
     assert np.allclose(steady.per_point, measured, rtol=0.15), (steady.per_point, measured)
     assert steady.mean == pytest.approx(np.mean(measured), rel=0.10)
+
+
+def test_a_previous_model_this_fuelid_cannot_read_is_no_previous_model(tmp_path):
+    """The previous model only warm-starts a refit: one of an older file format (or damaged) is left out, so the
+    truck's refits go on."""
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({"format": "fuelid-model", "version": 1, "effects": ["engine_map", "cold_engine"]}))
+    assert readable(None) is None and readable(str(old)) is None

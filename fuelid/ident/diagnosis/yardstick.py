@@ -15,9 +15,19 @@ and the candidate passes when
 
     d̄ > k · s_d / √B     and     100 (1 − RMSE_with / RMSE_without) ≥ min_drop_percent,
 
-B the blocks, s_d their standard deviation, k = margin_se, the RMSEs pooled over every held-out sample. The
-spread s_d holds both what the noise moves in a block and what the fits move (each block is scored by the fold
-fitted without it).
+B the blocks, k = margin_se, the RMSEs pooled over every held-out sample, and s_d/√B the standard error of d̄
+(`long_run_se`): Newey–West's, since neighbouring blocks are not independent pairs (the blocks of one held-out
+chunk share its fold model, and a slow error spans several blocks), with the Bartlett kernel and the bandwidth
+L = ⌊4 (B/100)^(2/9)⌋ of Newey & West (1994) (3 for 40 blocks):
+
+    s_d² = γ_0 + 2 Σ_{l=1..L} (1 − l/(L + 1)) γ_l,    γ_l = 1/B Σ_b (d_b − d̄)(d_{b−l} − d̄),
+
+times B/(B − 1). It holds both what the noise moves in a block and what the fits move (each block is scored by the
+fold fitted without it).
+
+Newey, W. K. & West, K. D. (1987). A simple, positive semi-definite, heteroskedasticity and autocorrelation
+consistent covariance matrix. Econometrica 55(3), 703–708; (1994) Automatic lag selection in covariance matrix
+estimation. Review of Economic Studies 61(4), 631–653.
 """
 from __future__ import annotations
 
@@ -141,10 +151,21 @@ def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings) ->
         return HeldOut(float("nan"), float("nan"), 0.0, 0.0, float("inf"), B, folds.kind, False)
     d = (sse0[keep] - sse1[keep]) / n[keep]
     rmse0, rmse1 = (float(np.sqrt(s[keep].sum() / n[keep].sum())) for s in (sse0, sse1))
-    mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(B))
+    mean, se = float(d.mean()), long_run_se(d)
     drop = 100.0 * (1.0 - rmse1 / rmse0)
     passes = bool(mean > settings.margin_se * se and drop >= settings.min_drop_percent)
     return HeldOut(rmse0, rmse1, drop, mean, se, B, folds.kind, passes)
+
+
+def long_run_se(d: np.ndarray) -> float:
+    """Newey–West standard error of the mean of the series d (module docstring): the spread of d̄ when neighbouring
+    d_b are correlated. Written out rather than taken from statsmodels (sandwich_covariance.cov_hac gives the same),
+    which fuelid does not otherwise need."""
+    B = len(d)
+    x = d - d.mean()
+    L = int(4.0 * (B / 100.0) ** (2.0 / 9.0))
+    s2 = x @ x / B + 2.0 * sum((1.0 - l / (L + 1.0)) * (x[l:] @ x[:-l]) / B for l in range(1, min(L, B - 1) + 1))
+    return float(np.sqrt(max(s2, 0.0) / (B - 1)))
 
 
 def held_out_summary(s: Scored, ds) -> dict:
