@@ -45,7 +45,8 @@ class Settings:
 
     margin_se: float = 2.0
     """k of the yardstick: the mean of the per-block paired improvements (MSE without − MSE with) must exceed k
-    standard errors of that mean (their spread over the blocks: what the fits and the noise move)."""
+    standard errors of that mean (their long-run spread over the blocks, Newey–West: what the fits and the noise
+    move, neighbouring blocks correlated)."""
 
     min_drop_percent: float = 1.0
     """[%] Relative floor of the yardstick: the pooled held-out RMS simulation error must fall by at least this much
