@@ -69,9 +69,10 @@ class Effect:
     (1 + m x) — a regeneration's post-injection, enrichment when cold or in thin air, no injection at all on
     overrun: the diagnosis then tests x and x·ŷ, ŷ the model's simulated fuel (the gradient of y (1 + m x) at m = 0,
     dynamics included), and judges the sign on x·ŷ; `build`'s columns (x, x·ñ, x·T̃ with their own dynamics, and on
-    an engine model x·m, ident.modeldata.map_scaled) are what a refit adds; "torque" when the regressor is a torque (in the model's torque unit per unit of its
-    coefficient) the engine delivers and the bus does not report: the fuel burns for it through the model's torque
-    path, and the diagnosis tests that one column, B_T/F_T x; "shift" the fuel signal's delay."""
+    an engine model x·m, ident.modeldata.map_scaled) are what a refit adds; "torque" when the regressor is a torque
+    (in the model's torque unit per unit of its coefficient) the engine delivers and the bus does not report: the
+    fuel burns for it through the model's torque path, and the diagnosis tests that one column, B_T/F_T x; "shift"
+    the fuel signal's delay."""
 
     id: str
     name: str
