@@ -17,8 +17,8 @@ against its own dataset's fuel (the same measured samples, binned at other times
     d_b = 1 − e_p,b / e_0,b,
 
 and the lag p is kept when mean(d) > t_{1−α/2}(B − 1) · sd(d)/√B and mean(d) > MIN_IMPROVEMENT (the margins of
-ident.modelchoice.paired_improvement), else the fuel as logged. The kept lag's model is then identified on all of its dataset as
-`fuelid identify --fuel-lag S` would. The held-out fits cost one more set of half-data fits than `--model auto`.
+ident.modelchoice.paired_improvement), else the fuel as logged. The kept lag's model is then identified on all of
+its dataset as `fuelid identify --fuel-lag S` would. The held-out fits cost one more set of half-data fits than `--model auto`.
 """
 from __future__ import annotations
 

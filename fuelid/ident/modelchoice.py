@@ -17,7 +17,8 @@ The engine model is kept when the mean improvement exceeds the fits' spread and 
     mean(d) > t_{1−α/2}(B − 1) · sd(d)/√B   and   mean(d) > MIN_IMPROVEMENT,
 
 t_{1−α/2}(B − 1) the two-sided Student t quantile at level ALPHA for the B held-out blocks (Student 1908: with 3–8
-blocks a fixed 2 SE is narrower than their spread; 2.78 SE for 5 blocks, 2.36 for 8), else the linear model. The kept model is identified on all the identification samples exactly as `--model linear`
+blocks a fixed 2 SE is narrower than their spread; 2.78 SE for 5 blocks, 2.36 for 8), else the linear model. The
+kept model is identified on all the identification samples exactly as `--model linear`
 (ident.identify.identify_model) or `--model engine` (`engine_model`: from the linear model) would: the held-out
 fits cost one linear and one engine fit on half the data. (A final fit warm-started from a half-data fit is no
 cheaper: on the shipped trips PEM then crawls through the flat valley of the paper's near-cancelling orders for its
@@ -227,19 +228,19 @@ class PairedImprovement:
     margin in standard errors (the t quantile), and better: whether the mean clears the margin."""
 
     d: np.ndarray
-    mean: float
-    se: float
-    se_factor: float
+    mean: float | None
+    se: float | None
+    se_factor: float | None
     better: bool
 
 
 def paired_improvement(e_base, e_new) -> PairedImprovement:
     """Two models' RMS errors on the same B held-out blocks compared (module docstring): d_b = 1 − e_new,b / e_base,b
     [1], SE = sd(d)/√B, and better when mean(d) > t_{1−ALPHA/2}(B − 1) · SE and mean(d) > MIN_IMPROVEMENT (a one-sided
-    paired t-test at level ALPHA/2 with a floor; never with fewer than two blocks or a NaN)."""
+    paired t-test at level ALPHA/2 with a floor; never with a NaN, and with fewer than two blocks no figures at all)."""
     d = 1.0 - np.asarray(e_new, float) / np.asarray(e_base, float)
     if len(d) < 2:
-        return PairedImprovement(d, np.nan, np.nan, np.nan, False)
+        return PairedImprovement(d, None, None, None, False)
     mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
     factor = float(stdtrit(len(d) - 1, 1.0 - ALPHA / 2))
     return PairedImprovement(d, mean, se, factor, bool(mean > factor * se and mean > MIN_IMPROVEMENT))

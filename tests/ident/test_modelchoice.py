@@ -50,5 +50,6 @@ def test_the_margin_is_students_t_for_the_blocks_held_out(t_stat, better):
     assert p.mean / p.se == pytest.approx(t_stat) and p.better is better
 
 
-def test_fewer_than_two_blocks_never_decide():
-    assert not paired_improvement([2.0], [1.0]).better
+def test_fewer_than_two_blocks_never_decide_and_state_no_figures():
+    p = paired_improvement([2.0], [1.0])
+    assert not p.better and p.mean is None and p.se is None
