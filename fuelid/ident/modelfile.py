@@ -77,8 +77,8 @@ def from_dict(d: dict) -> PolyModel:
         if d.get("version") not in (1, VERSION):
             raise ValueError(f"unsupported version {d.get('version')!r} (this fuelid reads 1 and {VERSION})")
         if d["version"] == 1 and "engine_map" in d.get("effects", []) and len(d["effects"]) > 1:
-            raise ValueError("version 1: an engine model with effects from an older fuelid, whose effects that "
-                             "scale the fuel lacked the map's column (ident.modeldata.map_scaled); identify it again")
+            raise ValueError("version 1: an engine model with effects, written by an older fuelid whose effects "
+                             "that scale the fuel had one input column fewer; identify it again")
         inputs = d["inputs"]
         cov = d["parameters"]["covariance"]
         model = PolyModel(
