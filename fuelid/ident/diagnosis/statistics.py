@@ -83,6 +83,11 @@ def _chi2_tail(statistic: float, k: int) -> tuple[float, float]:
         return p, float(np.log(p))
 
 
+def newey_west_lags(n: int) -> int:
+    """The Bartlett kernel's bandwidth L = ⌊4 (n/100)^{2/9}⌋ for n observations (Newey & West 1994)."""
+    return int(4 * (n / 100.0) ** (2 / 9))
+
+
 def newey_west(g: np.ndarray, lags: int) -> np.ndarray:
     """Long-run covariance Σ_{|l|≤L} (1 − |l|/(L+1)) Γ_l of the rows of g (N × k), Γ_l = Σ_t g_t g_{t−l}ᵀ."""
     omega = g.T @ g
@@ -208,7 +213,7 @@ def score_test(eps, X, Q=None, hac_lags: int | None = None, rank_tol: float = 1e
         return ScoreTest(0.0, 0, 1.0, 0.0, coef)
     W = U[:, keep]  # orthonormal basis of the testable directions
     g = W * et[:, None]
-    L = int(4 * (eps.size / 100.0) ** (2 / 9)) if hac_lags is None else hac_lags
+    L = newey_west_lags(eps.size) if hac_lags is None else hac_lags
     s = g.sum(axis=0)
     lm = float(s @ np.linalg.solve(newey_west(g, L), s))
     return ScoreTest(lm, k, *_chi2_tail(lm, k), coef)

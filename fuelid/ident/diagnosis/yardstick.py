@@ -40,6 +40,7 @@ import numpy as np
 from fuelid.errors import FuelidError
 from fuelid.ident.diagnosis.candidate import HeldOut
 from fuelid.ident.diagnosis.settings import Settings
+from fuelid.ident.diagnosis.statistics import newey_west, newey_west_lags
 from fuelid.ident.identify import MIN_SEGMENT_S, refit_with_effects
 from fuelid.ident.fueldelay import shift_signal
 from fuelid.ident.modeldata import fuel_shift_s, model_data
@@ -159,13 +160,11 @@ def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings) ->
 
 def long_run_se(d: np.ndarray) -> float:
     """Newey–West standard error of the mean of the series d (module docstring): the spread of d̄ when neighbouring
-    d_b are correlated. Written out rather than taken from statsmodels (sandwich_covariance.cov_hac gives the same),
-    which fuelid does not otherwise need."""
+    d_b are correlated (ident.diagnosis.statistics' long-run covariance, the screening's)."""
     B = len(d)
-    x = d - d.mean()
-    L = int(4.0 * (B / 100.0) ** (2.0 / 9.0))
-    s2 = x @ x / B + 2.0 * sum((1.0 - l / (L + 1.0)) * (x[l:] @ x[:-l]) / B for l in range(1, min(L, B - 1) + 1))
-    return float(np.sqrt(max(s2, 0.0) / (B - 1)))
+    x = (d - d.mean())[:, None]
+    omega = float(newey_west(x, min(newey_west_lags(B), B - 1))[0, 0])  # B s_d²
+    return float(np.sqrt(max(omega, 0.0) / (B * (B - 1))))
 
 
 def held_out_summary(s: Scored, ds) -> dict:
