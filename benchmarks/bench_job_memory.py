@@ -1,5 +1,5 @@
 """Peak memory and CPU of one fleet refit job's phases on many files of one truck: the dataset (fleet.jobs.job_dataset:
-built from every file, then at most IDENTIFY_HOURS of whole drive cycles kept), the model `fuelid identify` builds on
+built from whole files evenly spaced in time, at most IDENTIFY_HOURS of them, fleet.jobs.files_sample), the model `fuelid identify` builds on
 it (ident.fuellag.identify_lag_chosen, paper orders: the fuel lag and the model kind judged on held-out blocks, one
 dataset held at a time), the diagnosis on the job's smaller sample (fleet.jobs.cycles_sample, DIAGNOSIS_HOURS), and
 the model again with the effects the diagnosis recommends, in one process, for 1.5 h files of the shipped trip
@@ -24,7 +24,7 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
-from fuelid.fleet.jobs import DIAGNOSIS_HOURS, cycles_sample, job_dataset
+from fuelid.fleet.jobs import DIAGNOSIS_HOURS, IDENTIFY_HOURS, cycles_sample, files_sample, job_dataset
 from fuelid.ident.diagnosis import confirmed_effects, diagnose
 from fuelid.ident.fuellag import identify_lag_chosen
 from fuelid.ident.identify import MIN_SEGMENT_S
@@ -54,6 +54,8 @@ def one_job(paths: list[str]) -> dict:
     structure = Structure(**parse_orders("paper"))
     with threadpool_limits(1), warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        n_files = len(paths)
+        paths = [paths[i] for i in files_sample(paths, IDENTIFY_HOURS)]  # as fleet.jobs.identify_truck
         built = {0.0: job_dataset(paths, 0.0)}  # as fleet.jobs.identify_truck: handed over once
         phases["dataset"] = (peak_rss_mb(), time.process_time() - t0)
         model, ds = identify_lag_chosen(
@@ -67,7 +69,7 @@ def one_job(paths: list[str]) -> dict:
             identify_chosen(ds, structure, effects, kind=ModelKind(model.info["model_choice"]["chosen"]),
                             min_segment_s=MIN_SEGMENT_S, base=model)
         phases["identify with effects"] = (peak_rss_mb(), time.process_time() - t0)
-    return {"files": len(paths), "samples": int(ds.t.size), "diagnosed_samples": int(sample.t.size),
+    return {"files": n_files, "read": len(paths), "samples": int(ds.t.size), "diagnosed_samples": int(sample.t.size),
             "effects": effects, "phases": phases}
 
 
@@ -80,7 +82,7 @@ def main() -> None:
         print(json.dumps(one_job(args.child)))
         return
     files = [str(p) for p in long_recording(converted_trip(), max(args.hours))]
-    print(f"{'hours':>6} {'files':>5}  peak RSS [MB] after dataset / identify / diagnose / with effects   "
+    print(f"{'hours':>6} {'files':>5} {'read':>4}  peak RSS [MB] after dataset / identify / diagnose / with effects   "
           "CPU [s] at each   (samples, diagnosed, effects)")
     for hours in args.hours:
         n = max(1, round(hours / 1.5))
@@ -89,7 +91,7 @@ def main() -> None:
         r = json.loads(out.stdout.strip().splitlines()[-1])
         rss = " / ".join(f"{v[0]:6.0f}" for v in r["phases"].values())
         cpu = " / ".join(f"{v[1]:5.1f}" for v in r["phases"].values())
-        print(f"{n * 1.5:6.1f} {n:5d}  {rss}      {cpu}   ({r['samples']}, {r['diagnosed_samples']}, "
+        print(f"{n * 1.5:6.1f} {n:5d} {r['read']:4d}  {rss}      {cpu}   ({r['samples']}, {r['diagnosed_samples']}, "
               f"{','.join(r['effects']) or '-'})")
 
 

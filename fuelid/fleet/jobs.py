@@ -7,11 +7,12 @@ Box-Jenkins dynamics, when it simulates held-out blocks better, else the paper's
 (ident.diagnosis.diagnose) → model.json, diagnosis.json and report.html (ident.report) in out_dir. It is a plain module
 function of plain arguments, so Dask pickles it by reference and any worker with fuelid installed runs it.
 
-Bounded memory: what the identification (the engine model's map step holds a few N × 81 arrays), the diagnosis, its
-verification and the report hold grows with the samples they see, so they see bounded samples of the truck's data
-(`cycles_sample`): whole drive cycles (ident.dataset's, 30 min), evenly spaced over the data, at most IDENTIFY_HOURS
-of them for the model and DIAGNOSIS_HOURS of those for the diagnosis — a truck-week costs a job what its dataset's
-build and IDENTIFY_HOURS of data cost, whatever the hours.
+Bounded memory: what the dataset's build, the identification (the engine model's map step holds a few N × 81
+arrays), the diagnosis, its verification and the report hold grows with the samples they see, so they see bounded
+samples of the truck's data: whole files, evenly spaced in time, at most IDENTIFY_HOURS of recorded time by their
+summaries (`files_sample`), are read; whole drive cycles (ident.dataset's, 30 min) of those, evenly spaced, at most
+IDENTIFY_HOURS of them for the model (`cycles_sample`) and DIAGNOSIS_HOURS of those for the diagnosis. A
+truck-week costs a job what IDENTIFY_HOURS of files cost, whatever the hours.
 
 Held-out evidence: the model is fitted on the truck's data (its sample: all of it, the newest file included, whenever
 the data fit in IDENTIFY_HOURS) and the diagnosis runs on (a sample of) the same data, because its score tests are by
@@ -38,6 +39,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from mcap.reader import SeekingReader
 from threadpoolctl import threadpool_limits
 
 from fuelid.errors import FuelidError
@@ -59,22 +61,59 @@ IDENTIFY_HOURS = 12.0  # the most data the models of one job are identified on [
 DIAGNOSIS_HOURS = 6.0  # the most data the diagnosis and the report of one job see [h]
 
 
+def evenly_spaced(seconds: np.ndarray, hours: float) -> np.ndarray:
+    """Indices of k of the items lasting `seconds` [s] (in time order) at evenly spaced positions, the newest
+    always among them, k the most whose total stays within `hours` [h] (at least one); all of them when they fit."""
+    n, budget_s = len(seconds), 3600.0 * hours
+    if seconds.sum() <= budget_s:
+        return np.arange(n)
+
+    def pick(k):
+        return np.unique(np.linspace(n - 1, 0, k).round().astype(int))
+
+    k = max(int(budget_s // max(float(np.median(seconds)), 1e-3)), 1)
+    while k > 1 and seconds[pick(k)].sum() > budget_s:
+        k -= 1
+    return pick(k)
+
+
 def cycles_sample(ds: Dataset, hours: float) -> Dataset:
     """ds itself when its drive cycles last at most `hours` [h] in all; else a Dataset of the samples of whole
-    drive cycles (ds.cycle ≥ 0), k of the K cycles at evenly spaced positions (k the most whose total stays within
-    `hours`), the rest of the fields as ds's."""
+    drive cycles (ds.cycle ≥ 0) chosen by `evenly_spaced`, the rest of the fields as ds's."""
     ids, counts = np.unique(ds.cycle[ds.cycle >= 0], return_counts=True)
-    seconds = counts * ds.Ts
-    if seconds.sum() <= 3600.0 * hours:
+    chosen = evenly_spaced(counts * ds.Ts, hours)
+    if len(chosen) == len(ids):
         return ds
-    k = max(int(3600.0 * hours // max(float(np.median(seconds)), ds.Ts)), 1)
-    while k > 1 and seconds[np.unique(np.linspace(0, len(ids) - 1, k).round().astype(int))].sum() > 3600.0 * hours:
-        k -= 1
-    chosen = ids[np.unique(np.linspace(0, len(ids) - 1, k).round().astype(int))]
-    rows = np.flatnonzero(np.isin(ds.cycle, chosen))
+    rows = np.flatnonzero(np.isin(ds.cycle, ids[chosen]))
     return dataclasses.replace(ds, t=ds.t[rows], u=ds.u[rows], y=ds.y[rows], valid=ds.valid[rows],
                                cycle=ds.cycle[rows], extra={name: x[rows] for name, x in ds.extra.items()},
                                notes=list(ds.notes))
+
+
+def recorded_span(path: str) -> tuple[int, float] | None:
+    """(first message's time [ns], time its messages span [s]) of an MCAP file by its summary's statistics; None
+    when it has none (a file cut before its footer, or not an MCAP file): only reading it tells."""
+    try:
+        with open(path, "rb") as f:
+            summary = SeekingReader(f).get_summary()
+    except Exception:  # noqa: BLE001 - mcap, struct and I/O errors alike: the dataset's build reports them
+        return None
+    stats = summary.statistics if summary is not None else None
+    if stats is None or not stats.message_count:
+        return None
+    return stats.message_start_time, (stats.message_end_time - stats.message_start_time) / 1e9
+
+
+def files_sample(paths: list[str], hours: float) -> list[int]:
+    """Indices of the MCAP files a job reads: all of them when they record at most `hours` [h] in all, else
+    whole files at evenly spaced positions in time (`evenly_spaced`: the newest always), by the time their
+    summaries say they span. All of them when any file's span is unknown."""
+    spans = [recorded_span(p) for p in paths]
+    if any(s is None for s in spans):
+        return list(range(len(paths)))
+    order = sorted(range(len(paths)), key=lambda i: spans[i][0])
+    chosen = evenly_spaced(np.array([spans[i][1] for i in order]), hours)
+    return sorted(order[i] for i in chosen)
 
 
 class JobError(FuelidError):
@@ -161,6 +200,8 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
     with threadpool_limits(1):  # one BLAS/OpenMP thread: the cluster runs one job per core
         try:
             structure = Structure(**parse_orders(orders))
+            read, n_files = files_sample(paths, IDENTIFY_HOURS), len(paths)
+            paths, names = [paths[i] for i in read], [names[i] for i in read]
             built = {0.0: job_dataset(paths, 0.0)}  # handed over once: the lag choice holds one dataset at a time
             lap("dataset")
             previous = readable(previous_model)
@@ -191,6 +232,9 @@ def identify_truck(truck: str, mcap_paths: list[str], out_dir: str, *, orders: s
         stored.info["steady_reference"] = data_reference(stored, ds)  # the signals the point decides (ident.steady)
         save_model(stored, model_path)
         diagnosis["data"]["files"] = names
+        if len(names) < n_files:
+            diagnosis["data"]["files_sample"] = (f"{len(names)} of {n_files} files, evenly spaced in time "
+                                                 f"(at most {IDENTIFY_HOURS:g} h)")
         if sample is not ds:
             diagnosis["data"]["sample"] = (f"{len(np.unique(sample.cycle))} of {len(np.unique(ds.cycle[ds.cycle >= 0]))} "
                                            f"drive cycles, evenly spaced (at most {DIAGNOSIS_HOURS:g} h)")

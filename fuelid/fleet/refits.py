@@ -37,8 +37,7 @@ def dask_runner_factory(scheduler: str | None, n_workers: int | None) -> Callabl
 
 def newest_files(files: list[dict], window_s: float) -> list[dict]:
     """The newest of `files` (ordered by start time) holding at most `window_s` [s] of recorded time, in time
-    order: a job's memory grows with its data (about 0.4 GB per hour), so a truck's history is not all refitted
-    at once, and the model follows the truck as it is now. The newest file is always taken."""
+    order: the model follows the truck as it is now, not its whole history. The newest file is always taken."""
     chosen, total_s = [], 0.0
     for f in reversed([f for f in files if f["start_ns"] is not None]):
         total_s += (f["end_ns"] - f["start_ns"]) / 1e9

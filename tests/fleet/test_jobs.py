@@ -1,11 +1,12 @@
 """fleet.jobs: one truck's identification job, and fleet refits on a Dask LocalCluster, on simulated trips."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fuelid.fleet.effectlist import ENGINE_PROPERTIES
-from fuelid.fleet.jobs import JobError, JobRunner, cycles_sample, identify_truck, readable
+from fuelid.fleet.jobs import JobError, JobRunner, cycles_sample, files_sample, identify_truck, readable
 from fuelid.ident.dataset import Dataset
 from fuelid.cli import main
 from fuelid.ident.modelfile import load_model
@@ -156,6 +157,28 @@ def test_the_samples_of_a_job_are_whole_cycles_evenly_spaced_and_bounded():
     assert len(sample.t) == 6 * 6000 and np.array_equal(sample.extra["ET1.EngCoolantTemp"], sample.t)
     assert len(sample.segments()) == 6  # the gaps between the cycles split the data
     assert cycles_sample(ds, hours=12.0) is ds
+
+
+def test_a_job_reads_whole_files_evenly_spaced_in_time_within_its_hours(tmp_path):
+    """Ten 2-hour files given in any order: a job reads at most IDENTIFY_HOURS of them by their summaries, spread
+    over the whole time with the newest among them; all of them when they fit, or when a file's span is unknown."""
+    from mcap.writer import Writer
+
+    paths = []
+    for day in [3, 0, 9, 1, 4, 7, 2, 8, 5, 6]:  # not in time order
+        paths.append(str(tmp_path / f"day{day}.mcap"))
+        with open(paths[-1], "wb") as f:
+            w = Writer(f)
+            w.start()
+            channel = w.register_channel("t", "json", w.register_schema("s", "jsonschema", b"{}"))
+            for t_s in (day * 86400.0, day * 86400.0 + 7200.0):
+                w.add_message(channel, log_time=int(t_s * 1e9), data=b"{}", publish_time=int(t_s * 1e9))
+            w.finish()
+    read = [int(Path(paths[i]).stem[3:]) for i in files_sample(paths, hours=6.0)]
+    assert sorted(read) == [0, 4, 9]
+    assert files_sample(paths, hours=24.0) == list(range(10))
+    Path(paths[0]).write_bytes(Path(paths[0]).read_bytes()[:-100])  # cut before its footer: its span is unknown
+    assert files_sample(paths, hours=6.0) == list(range(10))
 
 
 def test_a_truck_with_a_curved_map_gets_the_engine_model_and_its_steady_fuel_is_the_measured_one(tmp_path):
