@@ -75,12 +75,13 @@ class Screening:
 class HeldOut:
     """The yardstick (ident.diagnosis.yardstick) of one model against the base: RMS held-out simulation error
     [output unit] without and with, its drop [%], the per-block paired improvement's mean and standard error
-    [(output unit)²], the number of blocks, the folds ("blocks" or "trips"), and whether it passes (mean > k·SE
-    and drop ≥ the floor)."""
+    [(output unit)²], the number of blocks, the folds ("blocks" or "trips"), the RMS of the fuel it explains
+    beyond the base as a share of the mean fuel there [%], and whether it passes (mean > k·SE and both floors)."""
 
     rmse_without: float
     rmse_with: float
     drop_percent: float
+    fuel_percent: float
     mean_gain: float
     gain_se: float
     n_blocks: int

@@ -92,7 +92,8 @@ def verdict(candidates: list[Candidate], m: EngineMap, settings: Settings) -> st
     parts += [f"{c.effect} is named by the screening but not recommended: {c.reason.value}" for c in named]
     if not rec and m.status is not MapStatus.ADVISED:
         parts.append(f"no missing effect recommended: none lowers the held-out simulation error by more than "
-                     f"{settings.margin_se:g} standard errors and {settings.min_drop_percent:g} % "
+                     f"{settings.margin_se:g} standard errors, {settings.min_drop_percent:g} % "
+                     f"and {settings.min_fuel_percent:g} % of the fuel "
                      f"(screening: Holm, family-wise α = {settings.alpha:g})")
     return ". ".join(parts) + "."
 

@@ -52,6 +52,14 @@ class Settings:
     """[%] Relative floor of the yardstick: the pooled held-out RMS simulation error must fall by at least this much
     (a real but negligible improvement is not worth an input)."""
 
+    min_fuel_percent: float = 0.7
+    """[%] Floor of the yardstick in fuel: the RMS of the fuel a candidate's model explains beyond the base on
+    held-out data, √(RMSE_without² − RMSE_with²), must be at least this share of the mean fuel there. On trips with
+    nothing hidden an engine model close to its noise floor still leaves a little structured error at overrun and
+    gear-shift transients, which a flexible candidate takes up significantly: mostly 0.1–0.5 % of the fuel on the
+    training draws, against at least 1 % for the effects found at half their stated magnitudes
+    (docs/explanation/diagnosis.md)."""
+
     refit_max_iter: int = 20
     """Levenberg–Marquardt iterations of each refit (warm-started from the base model: few suffice)."""
 

@@ -13,9 +13,11 @@ the whole data from rest, and the simulation errors on the held-out samples, aft
 
 and the candidate passes when
 
-    d̄ > k · s_d / √B     and     100 (1 − RMSE_with / RMSE_without) ≥ min_drop_percent,
+    d̄ > k · s_d / √B,     100 (1 − RMSE_with / RMSE_without) ≥ min_drop_percent
+    and     100 √(RMSE_without² − RMSE_with²) / ȳ ≥ min_fuel_percent,
 
-B the blocks, k = margin_se, the RMSEs pooled over every held-out sample, and s_d/√B the standard error of d̄
+B the blocks, k = margin_se, the RMSEs pooled over every held-out sample, ȳ the mean fuel there (the last floor: the
+RMS of the fuel the candidate explains beyond the base, as a share of the fuel), and s_d/√B the standard error of d̄
 (`long_run_se`): Newey–West's, since neighbouring blocks are not independent pairs (the blocks of one held-out
 chunk share its fold model, and a slow error spans several blocks), with the Bartlett kernel and the bandwidth
 L = ⌊4 (B/100)^(2/9)⌋ of Newey & West (1994) (3 for 40 blocks):
@@ -149,13 +151,16 @@ def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings) ->
     keep = (n > 0) & (n >= 0.5 * n.max()) if n.size else n > 0
     B = int(keep.sum())
     if B < 2:
-        return HeldOut(float("nan"), float("nan"), 0.0, 0.0, float("inf"), B, folds.kind, False)
+        return HeldOut(float("nan"), float("nan"), 0.0, 0.0, 0.0, float("inf"), B, folds.kind, False)
     d = (sse0[keep] - sse1[keep]) / n[keep]
     rmse0, rmse1 = (float(np.sqrt(s[keep].sum() / n[keep].sum())) for s in (sse0, sse1))
+    fuel = float(np.bincount(b, weights=without.y[ok], minlength=n.size)[keep].sum() / n[keep].sum())
     mean, se = float(d.mean()), long_run_se(d)
     drop = 100.0 * (1.0 - rmse1 / rmse0)
-    passes = bool(mean > settings.margin_se * se and drop >= settings.min_drop_percent)
-    return HeldOut(rmse0, rmse1, drop, mean, se, B, folds.kind, passes)
+    explained = 100.0 * np.sqrt(max(rmse0 ** 2 - rmse1 ** 2, 0.0)) / abs(fuel) if fuel else float("inf")
+    passes = bool(mean > settings.margin_se * se and drop >= settings.min_drop_percent
+                  and explained >= settings.min_fuel_percent)
+    return HeldOut(rmse0, rmse1, drop, float(explained), mean, se, B, folds.kind, passes)
 
 
 def long_run_se(d: np.ndarray) -> float:

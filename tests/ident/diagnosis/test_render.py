@@ -9,8 +9,8 @@ from fuelid.ident.diagnosis.render import candidate_json, explanation, verdict
 
 SCREENED = Screening(40.0, 2, 1e-8, -8.0, 1e-6, True, 12.0)
 QUIET = Screening(1.0, 2, 0.6, -0.2, 1.0, False, 0.1)
-GAIN = HeldOut(1.0, 0.8, 20.0, 0.3, 0.05, 30, "blocks", True)
-NO_GAIN = HeldOut(1.0, 0.99, 1.0, 0.01, 0.05, 30, "blocks", False)
+GAIN = HeldOut(1.0, 0.8, 20.0, 2.0, 0.3, 0.05, 30, "blocks", True)
+NO_GAIN = HeldOut(1.0, 0.99, 1.0, 0.5, 0.01, 0.05, 30, "blocks", False)
 
 CASES = [
     (Status.RECOMMENDED, None, None, SCREENED, GAIN),

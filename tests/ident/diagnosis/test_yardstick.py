@@ -45,6 +45,21 @@ def test_a_margin_no_fit_can_reach_rejects_even_the_true_effect(regeneration):
     assert not compare(base, refits(list(base.models), ds, folds, ["dpf_regeneration"], strict), folds, strict).passes
 
 
+def test_the_fuel_floor_is_the_rms_of_the_explained_fuel_over_the_mean_fuel(regeneration):
+    """The regeneration's extra fuel, √(RMSE_without² − RMSE_with²), as a share of the mean fuel: the same passing
+    gain is refused when the floor asks for more of the fuel than it explains."""
+    ds, folds, base = regeneration
+    with_ = refits(list(base.models), ds, folds, ["dpf_regeneration"], S)
+    true = compare(base, with_, folds, S)
+    held = np.isfinite(base.ysim) & np.isfinite(with_.ysim) & np.isfinite(base.y)
+    fuel = np.mean(base.y[held])
+    assert true.fuel_percent == pytest.approx(100 * np.sqrt(true.rmse_without ** 2 - true.rmse_with ** 2) / fuel,
+                                              rel=0.05)
+    assert true.passes and true.fuel_percent > S.min_fuel_percent
+    above = Settings(min_fuel_percent=1.1 * true.fuel_percent)
+    assert not compare(base, with_, folds, above).passes
+
+
 def test_a_fuel_delay_is_scored_against_the_fuel_the_bus_reported_not_the_smoother_shifted_one(regeneration):
     """A model fitted to the fuel advanced by τ: its held-out simulation is delayed back by τ and scored against the
     measured fuel, as the base is; a delay the truth does not have (none here) does not pass."""
