@@ -17,8 +17,8 @@ engine when the diagnosis advises the map) identified on the first trip: the bas
 and case group:
 
     found        the hidden effect is recommended (its id, or for a generic effect a candidate on its signal; the
-                 engine's curvature, power_nonlinearity, counts when the base is the engine model or the diagnosis
-                 advises the map); pairs: both
+                 engine's curvature, power_nonlinearity, and the injection cut, overrun_cutoff, count when the base
+                 is the engine model or the diagnosis advises the map: the engine model carries both); pairs: both
     clean        any missing effect recommended on a trip with nothing hidden (clean and traps)
     where it helps  found, among the cases where the true effect lowers the other day's error (e_oracle < e_base):
                  an effect the base model already represents (a short fuel delay inside the paper's B polynomials)
@@ -47,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import fuelid  # noqa: E402,F401  (before numpy)
 from fuelid.errors import FuelidError  # noqa: E402
 from fuelid.ident import diagnosis as dg  # noqa: E402
+from fuelid.ident.diagnosis.candidate import IN_ENGINE_MODEL  # noqa: E402
 from fuelid.ident.effectfile import read_effects_file  # noqa: E402
 from fuelid.ident.identify import MIN_SEGMENT_S  # noqa: E402
 from fuelid.ident.fuellag import identify_lag_chosen  # noqa: E402
@@ -66,6 +67,7 @@ GENERIC = {"hot_intake_air": ("AMB.EngAirInletTemp", "hot_intake_air"),
            "auxiliary_load": ("EEC3.EstEngParasiticLossesPercentTorque", "parasitic_torque")}  # signal, file id
 PAIRS = [("cold_engine", "dpf_regeneration"), ("engine_fan", "gear_shift")]
 MAGNITUDES = (1.0, 0.5)  # × the simulator's default magnitude
+IN_MAP = ("power_nonlinearity", *IN_ENGINE_MODEL)  # effects the engine model carries
 
 
 def engines(given) -> list[tuple[str, str, str]]:
@@ -104,7 +106,7 @@ def found(case: dict, result: dict, engine_model: bool) -> bool:
     rec = [c for c in result["candidates"] if c["recommended"]]
 
     def one(e):
-        if e == "power_nonlinearity":
+        if e in IN_MAP:
             return engine_model or result["engine_map"]["status"] == "advised"
         if e in GENERIC:
             signal, file_id = GENERIC[e]
@@ -145,7 +147,8 @@ def one_case(case: dict, seed: int, truth: str, engine: str, defined) -> dict:
     engine_model = "engine_map" in base_model.effects
     kind = ModelKind.ENGINE if engine_model or result["engine_map"]["status"] == "advised" else ModelKind.LINEAR
     truth_ids = [GENERIC[e][1] if case["kind"] == "defined" else e for e in case["hidden"]
-                 if case["kind"] != "generic" and e != "power_nonlinearity"]
+                 if case["kind"] != "generic" and e != "power_nonlinearity"
+                 and not (kind is ModelKind.ENGINE and e in IN_ENGINE_MODEL)]  # the engine model's own
     row = {"found": found(case, result, engine_model), "agree": agrees(result), "seconds": seconds,
            "missing": [c["id"] for c in result["candidates"] if c["recommended"]], "model": kind.value}
     try:

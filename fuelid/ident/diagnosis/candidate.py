@@ -47,6 +47,16 @@ class MapStatus(enum.Enum):
 
 CURVATURE = ("engine_map", "power_nonlinearity")  # the engine's own map, never a hidden-effect candidate
 MAP_EFFECT = "engine_map"  # what the engine model adds to the linear one (`fuelid identify --effect engine_map`)
+# what the engine model carries beside its curvature: the injection cut (its map is 0 fuel at and below zero torque,
+# ident.enginemap.CUT_TORQUE), a candidate on a linear model only
+IN_ENGINE_MODEL = ("overrun_cutoff",)
+
+
+def carried_by(effects) -> set[str]:
+    """The ids of the effects a model with `effects` (effect specs) has: its own, and with the engine map
+    IN_ENGINE_MODEL too."""
+    own = {fx.parse_effect(e)[0] for e in effects}
+    return own | set(IN_ENGINE_MODEL) if MAP_EFFECT in own else own
 
 
 @dataclass(frozen=True)

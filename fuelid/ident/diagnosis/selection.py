@@ -20,7 +20,9 @@ significant and relevant, built and held to the same yardstick beside the candid
 before any candidate of its round, being part of the engine model the hidden effects are searched on (a signal that
 speed and torque determine would otherwise stand in for the map); its status is ADVISED — the engine model is the
 advice. Re-tested every round, a map whose gain a large hidden effect (a regeneration) masked at first is found once
-that effect is accepted; never accepted, NOT_NEEDED.
+that effect is accepted; never accepted, NOT_NEEDED. The engine model also carries the injection cut (its map is 0
+fuel at and below zero torque): on an engine-model base, and once the map is accepted, overrun_cutoff
+(candidate.IN_ENGINE_MODEL) is ALREADY_IN_MODEL.
 """
 from __future__ import annotations
 
@@ -30,7 +32,8 @@ import warnings
 import numpy as np
 
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.candidate import CURVATURE, MAP_EFFECT, Candidate, EngineMap, MapStatus, Reason, Status
+from fuelid.ident.diagnosis.candidate import (CURVATURE, IN_ENGINE_MODEL, MAP_EFFECT, Candidate, EngineMap, MapStatus,
+                                              Reason, Status)
 from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
@@ -214,8 +217,11 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             best.size = effect_size(model, ds, best.definition)
         base = scored[best.effect]
         accepted.append(best)
-        if best is term:
+        if best is term:  # the engine model carries what IN_ENGINE_MODEL lists: no longer a candidate
             term = None
+            for c in [c for c in pool if c.effect in IN_ENGINE_MODEL]:
+                c.decide(Status.ALREADY_IN_MODEL)
+                pool.remove(c)
         else:
             pool.remove(best)
         for c in passing:

@@ -75,8 +75,13 @@ def test_the_engine_map_is_never_a_candidate_and_is_in_the_model_when_the_model_
     ds = hidden.make(None, n=3000, seed=17)
     d = dg.diagnose(hidden.fitted(ds), ds)
     assert not {"engine_map", "power_nonlinearity"} & {c.effect for c in d.candidates}
-    with_map = dg.diagnose(hidden.identify(ds, hidden.STRUCTURE, ["engine_map"]), ds, candidates=())
+    assert {c.effect: c.status for c in d.candidates}["overrun_cutoff"] is not Status.ALREADY_IN_MODEL
+    cut = fx.EFFECTS["overrun_cutoff"]
+    with_map = dg.diagnose(hidden.identify(ds, hidden.STRUCTURE, ["engine_map"]), ds, candidates=(cut,))
     assert with_map.engine_map.status is MapStatus.IN_MODEL and with_map.to_json()["engine_map"]["status"] == "in the model"
+    # the engine model's map cuts the injection at zero torque: the overrun cut-off is part of it
+    (row,) = with_map.to_json()["candidates"]
+    assert row["status"] == "already in the model" and "cuts the injection" in row["explanation"]
 
 
 ALPHA = 0.05
