@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from fuelid.ident.dataset import Dataset
-from fuelid.ident.modelchoice import (MIN_IMPROVEMENT, ModelChoice, ModelKind, asked_kind, blocks,
-                                      chosen_model, held_out_choice, identify_chosen, paired_improvement)
+from fuelid.ident.modelchoice import (ModelKind, PairedImprovement, asked_kind, blocks, chosen_model,
+                                      held_out_choice, identify_chosen, paired_improvement)
 from fuelid.ident.polymodel import PolyModel, Structure
 
 
@@ -47,47 +47,30 @@ class LagReason(str, enum.Enum):
 @dataclass(frozen=True)
 class LagChoice:
     """The decision, typed: lag_s kept [s], candidate_s (the fuel signal's report period [s], None without one),
-    reason; with the held-out figures when judged: rmse_logged, rmse_lagged per block [fuel unit], improvement d_b
-    per block [1], its mean and standard error [1] and the margin's se_factor and min_improvement."""
+    reason; with the held-out figures when judged (held_out: the errors as logged as the base, lagged as the new)."""
 
     lag_s: float
     candidate_s: float | None
     reason: LagReason
-    rmse_logged: tuple[float, ...] = ()
-    rmse_lagged: tuple[float, ...] = ()
-    improvement: tuple[float, ...] = ()
-    mean: float | None = None
-    se: float | None = None
-    se_factor: float | None = None
-    min_improvement: float = MIN_IMPROVEMENT
+    held_out: PairedImprovement = PairedImprovement()
 
     def to_json(self) -> dict:
         """model.info["fuel_lag_choice"]."""
         return {"lag_s": self.lag_s, "candidate_s": self.candidate_s, "reason": self.reason.name.lower(),
-                "held_out": None if self.mean is None else {
-                    "blocks": len(self.improvement), "rmse_logged": list(self.rmse_logged),
-                    "rmse_lagged": list(self.rmse_lagged), "improvement": list(self.improvement),
-                    "improvement_mean": self.mean, "improvement_se": self.se},
-                "margin": {"se_factor": self.se_factor, "min_improvement": self.min_improvement}}
+                **self.held_out.to_json("logged", "lagged")}
 
     @classmethod
     def from_json(cls, d: dict) -> LagChoice:
         """The choice of a `to_json` content."""
-        held = d["held_out"] or {}
-        return cls(d["lag_s"], d["candidate_s"], LagReason[d["reason"].upper()], tuple(held.get("rmse_logged", ())),
-                   tuple(held.get("rmse_lagged", ())), tuple(held.get("improvement", ())),
-                   held.get("improvement_mean"), held.get("improvement_se"), d["margin"]["se_factor"],
-                   d["margin"]["min_improvement"])
+        return cls(d["lag_s"], d["candidate_s"], LagReason[d["reason"].upper()],
+                   PairedImprovement.from_json(d, "logged", "lagged"))
 
     def line(self, unit: str) -> str:
         """One line saying which lag was kept and why."""
         kept = f"fuel lag {self.lag_s:g} s" + (" (as logged)" if self.lag_s == 0 else "")
-        if self.mean is None:
+        if self.held_out.mean is None:
             return f"{kept}: {self.reason.value}"
-        return (f"{kept}: {self.reason.value} (report period {self.candidate_s:g} s; held-out RMS error "
-                f"{np.mean(self.rmse_lagged):.3g} vs {np.mean(self.rmse_logged):.3g} {unit} over "
-                f"{len(self.improvement)} blocks: {100 * self.mean:+.1f} % ± {100 * self.se:.1f} %, margin "
-                f"{self.se_factor:.3g} SE and {100 * self.min_improvement:g} %)")
+        return f"{kept}: {self.reason.value} (report period {self.candidate_s:g} s; {self.held_out.text(unit)})"
 
 
 def candidate_lag_s(ds: Dataset) -> float | None:
@@ -103,10 +86,6 @@ def at_times(ds: Dataset, t: np.ndarray) -> np.ndarray:
     wanted = np.rint(np.asarray(t) / ds.Ts).astype(np.int64)
     at = np.clip(np.searchsorted(wanted, k), 0, max(len(wanted) - 1, 0))
     return (wanted[at] == k) if len(wanted) else np.zeros(len(k), bool)
-
-
-def _kept_errors(choice: ModelChoice) -> np.ndarray:
-    return np.array(choice.rmse_engine if choice.kind is ModelKind.ENGINE else choice.rmse_linear)
 
 
 def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure, effects=(), *,
@@ -133,14 +112,12 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
     lagged = build(candidate)
     choices[candidate] = held_out_choice(lagged, [at_times(lagged, t) for t in times], structure, effects, kind,
                                          **fit)
-    e0, ep = _kept_errors(choices[0.0]), _kept_errors(choices[candidate])
+    e0, ep = choices[0.0].kept_errors(), choices[candidate].kept_errors()
     scored = np.isfinite(e0) & np.isfinite(ep)  # a block with no sample left to score at one lag is left out
     e0, ep = e0[scored], ep[scored]
     p = paired_improvement(e0, ep)
     lag = candidate if p.better else 0.0
-    decision = LagChoice(lag, candidate, LagReason.BETTER if p.better else LagReason.NOT_BETTER,
-                         tuple(float(v) for v in e0), tuple(float(v) for v in ep), tuple(float(v) for v in p.d),
-                         p.mean, p.se, p.se_factor)
+    decision = LagChoice(lag, candidate, LagReason.BETTER if p.better else LagReason.NOT_BETTER, p)
     if p.better:
         ds = lagged
     else:

@@ -67,53 +67,82 @@ class Reason(str, enum.Enum):
 
 
 @dataclass(frozen=True)
-class ModelChoice:
-    """The decision, typed: kind kept (LINEAR or ENGINE), asked (the --model value), reason; with the held-out
-    figures when judged: rmse_linear, rmse_engine per block [fuel unit], improvement d_b per block [1], its mean and
-    standard error [1], the margin's se_factor (the t quantile of its blocks, `paired_improvement`) and
-    min_improvement, and detail (the error when the engine model failed)."""
+class PairedImprovement:
+    """Two models' RMS simulation errors on the same B held-out blocks [fuel unit], a base's and a new one's, and
+    the paired comparison (`paired_improvement`): d per block [1], its mean and standard error [1] and the margin,
+    se_factor (the t quantile of the blocks) and min_improvement; mean None when not compared (fewer than two
+    blocks, or the errors of one model only)."""
 
-    kind: ModelKind
-    asked: ModelKind
-    reason: Reason
-    rmse_linear: tuple[float, ...] = ()
-    rmse_engine: tuple[float, ...] = ()
-    improvement: tuple[float, ...] = ()
+    rmse_base: tuple[float, ...] = ()
+    rmse_new: tuple[float, ...] = ()
+    d: tuple[float, ...] = ()
     mean: float | None = None
     se: float | None = None
     se_factor: float | None = None
     min_improvement: float = MIN_IMPROVEMENT
+
+    @property
+    def better(self) -> bool:
+        """mean(d) > se_factor · SE and mean(d) > min_improvement (never when not compared)."""
+        return self.mean is not None and self.mean > self.se_factor * self.se and self.mean > self.min_improvement
+
+    def to_json(self, base: str, new: str) -> dict:
+        """The "held_out" (None when not compared) and "margin" members of a choice's JSON, the errors named
+        rmse_BASE and rmse_NEW."""
+        return {"held_out": None if self.mean is None else {
+                    "blocks": len(self.d), f"rmse_{base}": list(self.rmse_base), f"rmse_{new}": list(self.rmse_new),
+                    "improvement": list(self.d), "improvement_mean": self.mean, "improvement_se": self.se},
+                "margin": {"se_factor": self.se_factor, "min_improvement": self.min_improvement}}
+
+    @classmethod
+    def from_json(cls, d: dict, base: str, new: str) -> PairedImprovement:
+        """The comparison of a `to_json` content."""
+        held = d["held_out"] or {}
+        return cls(tuple(held.get(f"rmse_{base}", ())), tuple(held.get(f"rmse_{new}", ())),
+                   tuple(held.get("improvement", ())), held.get("improvement_mean"), held.get("improvement_se"),
+                   d["margin"]["se_factor"], d["margin"]["min_improvement"])
+
+    def text(self, unit: str) -> str:
+        """"held-out RMS error NEW vs BASE UNIT over B blocks: mean ± SE, margin …" (only when compared)."""
+        return (f"held-out RMS error {np.mean(self.rmse_new):.3g} vs {np.mean(self.rmse_base):.3g} {unit} over "
+                f"{len(self.d)} blocks: {100 * self.mean:+.1f} % ± {100 * self.se:.1f} %, margin "
+                f"{self.se_factor:.3g} SE and {100 * self.min_improvement:g} %")
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """The decision, typed: kind kept (LINEAR or ENGINE), asked (the --model value), reason; with the held-out
+    figures when judged (held_out: the linear model's errors as the base, the engine model's as the new), and
+    detail (the error when the engine model failed)."""
+
+    kind: ModelKind
+    asked: ModelKind
+    reason: Reason
+    held_out: PairedImprovement = PairedImprovement()
     detail: str | None = None
 
     def to_json(self) -> dict:
         """model.info["model_choice"]."""
         return {"chosen": self.kind.value, "asked": self.asked.value, "reason": self.reason.name.lower(),
-                "held_out": None if self.mean is None else {
-                    "blocks": len(self.improvement), "rmse_linear": list(self.rmse_linear),
-                    "rmse_engine": list(self.rmse_engine), "improvement": list(self.improvement),
-                    "improvement_mean": self.mean, "improvement_se": self.se},
-                "margin": {"se_factor": self.se_factor, "min_improvement": self.min_improvement},
-                "detail": self.detail}
+                **self.held_out.to_json("linear", "engine"), "detail": self.detail}
 
     @classmethod
     def from_json(cls, d: dict) -> ModelChoice:
         """The choice of a `to_json` content (model.info["model_choice"])."""
-        held = d["held_out"] or {}
         return cls(ModelKind(d["chosen"]), ModelKind(d["asked"]), Reason[d["reason"].upper()],
-                   tuple(held.get("rmse_linear", ())), tuple(held.get("rmse_engine", ())),
-                   tuple(held.get("improvement", ())), held.get("improvement_mean"), held.get("improvement_se"),
-                   d["margin"]["se_factor"], d["margin"]["min_improvement"], d.get("detail"))
+                   PairedImprovement.from_json(d, "linear", "engine"), d.get("detail"))
+
+    def kept_errors(self) -> np.ndarray:
+        """The kept model's RMS errors on the held-out blocks [fuel unit]."""
+        return np.array(self.held_out.rmse_new if self.kind is ModelKind.ENGINE else self.held_out.rmse_base)
 
     def line(self, unit: str) -> str:
         """One line saying which model was kept and why."""
         kept = "engine model (engine map + the paper's dynamics)" if self.kind is ModelKind.ENGINE \
             else "linear model (the paper's)"
-        if self.mean is None:
+        if self.held_out.mean is None:
             return f"model: {kept}: {self.reason.value}" + (f" ({self.detail})" if self.detail else "")
-        return (f"model: {kept}: {self.reason.value} (held-out RMS error {np.mean(self.rmse_engine):.3g} vs "
-                f"{np.mean(self.rmse_linear):.3g} {unit} over {len(self.improvement)} blocks: "
-                f"{100 * self.mean:+.1f} % ± {100 * self.se:.1f} %, margin {self.se_factor:.3g} SE and "
-                f"{100 * self.min_improvement:g} %)")
+        return f"model: {kept}: {self.reason.value} ({self.held_out.text(unit)})"
 
 
 def blocks(ds, min_segment_s: float) -> list[np.ndarray]:
@@ -207,43 +236,31 @@ def held_out_choice(ds, masks: list[np.ndarray], structure: Structure, effects, 
         lin = identify_model(fitted_on, structure, effects, **fit)
         rmse_lin = tuple(block_rmse(lin, ds, mask) for mask in masks[half:]) if kind is not ModelKind.ENGINE else ()
         if kind is ModelKind.LINEAR:
-            return ModelChoice(kind, kind, Reason.ASKED, rmse_lin)
+            return ModelChoice(kind, kind, Reason.ASKED, PairedImprovement(rmse_lin))
         eng = engine_model(fitted_on, structure, effects, lin, joint_rounds=FOLD_ROUNDS, **fit)
     except InputError as exc:
         if kind is not ModelKind.AUTO:
             raise
-        return ModelChoice(ModelKind.LINEAR, kind, Reason.ENGINE_FAILED, rmse_lin, detail=str(exc))
+        return ModelChoice(ModelKind.LINEAR, kind, Reason.ENGINE_FAILED, PairedImprovement(rmse_lin), str(exc))
     rmse_eng = tuple(block_rmse(eng, ds, mask) for mask in masks[half:])
     if kind is not ModelKind.AUTO:
-        return ModelChoice(kind, kind, Reason.ASKED, rmse_lin, rmse_eng)
+        return ModelChoice(kind, kind, Reason.ASKED, PairedImprovement(rmse_lin, rmse_eng))
     p = paired_improvement(rmse_lin, rmse_eng)
     return ModelChoice(ModelKind.ENGINE if p.better else ModelKind.LINEAR, kind,
-                       Reason.BETTER if p.better else Reason.NOT_BETTER, rmse_lin, rmse_eng,
-                       tuple(float(v) for v in p.d), p.mean, p.se, p.se_factor)
-
-
-@dataclass(frozen=True)
-class PairedImprovement:
-    """The paired held-out comparison of two models: d per block [1], its mean and standard error [1], se_factor the
-    margin in standard errors (the t quantile), and better: whether the mean clears the margin."""
-
-    d: np.ndarray
-    mean: float | None
-    se: float | None
-    se_factor: float | None
-    better: bool
+                       Reason.BETTER if p.better else Reason.NOT_BETTER, p)
 
 
 def paired_improvement(e_base, e_new) -> PairedImprovement:
     """Two models' RMS errors on the same B held-out blocks compared (module docstring): d_b = 1 − e_new,b / e_base,b
     [1], SE = sd(d)/√B, and better when mean(d) > t_{1−ALPHA/2}(B − 1) · SE and mean(d) > MIN_IMPROVEMENT (a one-sided
     paired t-test at level ALPHA/2 with a floor; never with a NaN, and with fewer than two blocks no figures at all)."""
-    d = 1.0 - np.asarray(e_new, float) / np.asarray(e_base, float)
+    e_base, e_new = tuple(float(v) for v in e_base), tuple(float(v) for v in e_new)
+    d = 1.0 - np.asarray(e_new) / np.asarray(e_base)
     if len(d) < 2:
-        return PairedImprovement(d, None, None, None, False)
+        return PairedImprovement(e_base, e_new, tuple(float(v) for v in d))
     mean, se = float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d)))
     factor = float(stdtrit(len(d) - 1, 1.0 - ALPHA / 2))
-    return PairedImprovement(d, mean, se, factor, bool(mean > factor * se and mean > MIN_IMPROVEMENT))
+    return PairedImprovement(e_base, e_new, tuple(float(v) for v in d), mean, se, factor)
 
 
 def chosen_model(ds, structure: Structure, effects, choice: ModelChoice, *, min_segment_s: float, files=(),

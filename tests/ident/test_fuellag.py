@@ -45,13 +45,13 @@ def recording(averaging: bool, bins: int = 6000, seed: int = 0):
 def test_the_lag_is_kept_exactly_when_the_ecu_averages_its_fuel(averaging):
     model, ds = identify_lag_chosen(recording(averaging), STRUCTURE, min_segment_s=30.0)
     choice = LagChoice.from_json(model.info["fuel_lag_choice"])
-    assert choice.candidate_s == REPORT and len(choice.improvement) >= 3
+    assert choice.candidate_s == REPORT and len(choice.held_out.d) >= 3
     if averaging:
         assert choice.reason is LagReason.BETTER and choice.lag_s == REPORT == ds.fuel_lag_s == model.fuel_lag_s
-        assert choice.mean > choice.se_factor * choice.se and choice.mean > choice.min_improvement
+        assert choice.held_out.better  # the mean clears the t margin and the floor
     else:
         assert choice.reason is LagReason.NOT_BETTER and choice.lag_s == 0.0 == model.fuel_lag_s
-        assert choice.mean < 0  # the lag misaligns a sampling ECU's fuel: worse, not merely no better
+        assert choice.held_out.mean < 0  # the lag misaligns a sampling ECU's fuel: worse, not merely no better
     assert model.info["model_choice"]["chosen"] == "engine"  # the curved engine, at either lag
     assert "held-out" in choice.line("L/h") and LagChoice.from_json(choice.to_json()) == choice
 

@@ -11,7 +11,7 @@ def test_auto_keeps_the_linear_model_on_a_linear_engine():
     model = identify_chosen(engine_data.trip(k=0.0), STRUCTURE, min_segment_s=30.0)
     choice = ModelChoice.from_json(model.info["model_choice"])
     assert choice.kind is ModelKind.LINEAR and choice.reason is Reason.NOT_BETTER, choice
-    assert "engine_map" not in model.effects and len(choice.improvement) >= 3
+    assert "engine_map" not in model.effects and len(choice.held_out.d) >= 3
 
 
 def test_auto_keeps_the_engine_model_on_a_curved_engine_and_says_why():
@@ -19,7 +19,7 @@ def test_auto_keeps_the_engine_model_on_a_curved_engine_and_says_why():
     choice = ModelChoice.from_json(model.info["model_choice"])
     assert choice.kind is ModelKind.ENGINE and choice.reason is Reason.BETTER
     assert model.effects == ("engine_map",)
-    assert choice.mean > choice.se_factor * choice.se and choice.mean > choice.min_improvement
+    assert choice.held_out.better  # the mean clears the t margin and the floor
     assert "engine model" in choice.line("L/h") and "held-out" in choice.line("L/h")
 
 
