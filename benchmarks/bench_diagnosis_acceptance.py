@@ -106,8 +106,8 @@ def found(case: dict, result: dict, engine_model: bool) -> bool:
     rec = [c for c in result["candidates"] if c["recommended"]]
 
     def one(e):
-        if e in IN_MAP:
-            return engine_model or result["engine_map"]["status"] == "advised"
+        if e in IN_MAP and (engine_model or result["engine_map"]["status"] == "advised"):
+            return True  # the engine model carries it
         if e in GENERIC:
             signal, file_id = GENERIC[e]
             return any(c["id"] == file_id or signal in c["signals"] for c in rec)
