@@ -52,7 +52,7 @@ MAP_EFFECT = "engine_map"  # what the engine model adds to the linear one (`fuel
 IN_ENGINE_MODEL = ("overrun_cutoff",)
 
 
-def carried_by(effects) -> set[str]:
+def effects_carried(effects) -> set[str]:
     """The ids of the effects a model with `effects` (effect specs) has: its own, and with the engine map
     IN_ENGINE_MODEL too."""
     own = {fx.parse_effect(e)[0] for e in effects}

@@ -4,7 +4,7 @@ held to, and the held-out figures reported), the engine map, forward selection, 
 from __future__ import annotations
 
 from fuelid.blas import in_one_blas_thread
-from fuelid.ident.diagnosis.candidate import CURVATURE, Candidate, Status, carried_by
+from fuelid.ident.diagnosis.candidate import CURVATURE, Candidate, Status, effects_carried
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.render import STATUS_ORDER, Diagnosis
 from fuelid.ident.diagnosis.run import run_gradients
@@ -34,7 +34,7 @@ def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), 
         base = None  # nothing can be built: whatever the screening names is not recommended (BUILD_FAILED)
     held_out = None if base is None else held_out_summary(base, ds)
     family = candidate_effects(ds, effects) if candidates is None else list(candidates)
-    included = carried_by(model.effects)
+    included = effects_carried(model.effects)
     rows = [Candidate(e, Status.ALREADY_IN_MODEL if e.id in included else Status.NOT_TESTABLE)
             for e in family if e.id not in CURVATURE]
     accepted, emap = select(rows, model, ds, run, base, folds, settings, effects, memo)
