@@ -103,7 +103,8 @@ class PairedImprovement:
                    d["margin"]["se_factor"], d["margin"]["min_improvement"])
 
     def text(self, unit: str) -> str:
-        """"held-out RMS error NEW vs BASE UNIT over B blocks: mean ± SE, margin …" (only when compared)."""
+        """The comparison in words, "held-out RMS error NEW vs BASE UNIT over B blocks: mean ± SE, margin …" (only
+        when compared)."""
         return (f"held-out RMS error {np.mean(self.rmse_new):.3g} vs {np.mean(self.rmse_base):.3g} {unit} over "
                 f"{len(self.d)} blocks: {100 * self.mean:+.1f} % ± {100 * self.se:.1f} %, margin "
                 f"{self.se_factor:.3g} SE and {100 * self.min_improvement:g} %")

@@ -217,6 +217,9 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             best.size = effect_size(model, ds, best.definition)
         base = scored[best.effect]
         accepted.append(best)
+        for c in passing:
+            if c is not best:  # re-screened on the new base next round, unless the rounds end here
+                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.SELECTION_STOPPED)
         if best is term:  # the engine model carries what IN_ENGINE_MODEL lists: no longer a candidate
             term = None
             for c in [c for c in pool if c.effect in IN_ENGINE_MODEL]:
@@ -224,9 +227,6 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 pool.remove(c)
         else:
             pool.remove(best)
-        for c in passing:
-            if c is not best:  # re-screened on the new base next round, unless the rounds end here
-                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.SELECTION_STOPPED)
     return [c for c in accepted if c.effect != MAP_EFFECT], _map_status(in_model, accepted, term)
 
 
