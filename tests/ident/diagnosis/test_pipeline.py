@@ -1,19 +1,21 @@
 """ident.diagnosis end to end on small synthetic trips (tests.ident.hidden.make: a known Box-Jenkins truth with
 effects hidden in it): what is hidden is recommended, nothing is on clean trips — at the rate the procedure states —
 and the statuses, the JSON and `confirmed_effects` say the same."""
+import dataclasses
 import multiprocessing
 import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 from scipy.stats import binom
 
 from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis import MapStatus, Status
 from fuelid.ident.effectfile import read_effects_file
-from tests.ident import hidden
+from tests.ident import engine_data, hidden
 from tests.ident.diagnosis.trips import joined
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "docs" / "effects-example.toml"
@@ -82,6 +84,16 @@ def test_the_engine_map_is_never_a_candidate_and_is_in_the_model_when_the_model_
     # the engine model's map cuts the injection at zero torque: the overrun cut-off is part of it
     (row,) = with_map.to_json()["candidates"]
     assert row["status"] == "already in the model" and "cuts the injection" in row["explanation"]
+
+
+def test_once_the_engine_map_is_advised_the_overrun_cut_off_is_in_it():
+    ds = hidden.make(None, n=4000, seed=18)
+    n, T = ds.u[:, 0], ds.u[:, 1]  # a curved engine: the map beyond the linear truth, through the map's dynamics
+    ds = dataclasses.replace(ds, y=ds.y + lfilter(engine_data.B_MAP, engine_data.F_MAP,
+                                                  engine_data.curve(n, np.maximum(T, 0.0))))
+    d = dg.diagnose(hidden.fitted(ds), ds, candidates=(fx.EFFECTS["overrun_cutoff"],))
+    assert d.engine_map.status is MapStatus.ADVISED
+    assert [(c.effect, c.status) for c in d.candidates] == [("overrun_cutoff", Status.ALREADY_IN_MODEL)]
 
 
 ALPHA = 0.05
