@@ -52,13 +52,6 @@ MAP_EFFECT = "engine_map"  # what the engine model adds to the linear one (`fuel
 IN_ENGINE_MODEL = ("overrun_cutoff",)
 
 
-def effects_carried(effects) -> set[str]:
-    """The ids of the effects a model with `effects` (effect specs) has: its own, and with the engine map
-    IN_ENGINE_MODEL too."""
-    own = {fx.parse_effect(e)[0] for e in effects}
-    return own | set(IN_ENGINE_MODEL) if MAP_EFFECT in own else own
-
-
 @dataclass(frozen=True)
 class Screening:
     """A candidate's screening (ident.diagnosis.screening): the larger LM statistic of its two score tests, its
@@ -124,8 +117,8 @@ class Candidate:
     size: EffectSize | None = None  # once built and passed: its size in the model built with it
 
     def decide(self, status: Status, reason: Reason | None = None, explained_by: str | None = None) -> None:
-        """Set the status, with its reason (NAMED_NOT_RECOMMENDED) or the candidate that explains it (EXPLAINED_BY)
-        and nothing else."""
+        """Set the status, with its reason (NAMED_NOT_RECOMMENDED) or the candidate that explains it (EXPLAINED_BY;
+        ALREADY_IN_MODEL: MAP_EFFECT when the engine model carries it, `carried_by_engine_model`) and nothing else."""
         self.status, self.reason, self.explained_by = status, reason, explained_by
 
     @property
@@ -163,3 +156,12 @@ def effects_to_add(result: dict) -> list[str]:
     engine_map = result.get("engine_map")
     advised = isinstance(engine_map, dict) and engine_map.get("status") == MapStatus.ADVISED.value
     return [MAP_EFFECT] * advised + confirmed_effects(result["candidates"])
+
+
+def carried_by_engine_model(candidates: list[Candidate]) -> list[Candidate]:
+    """The candidates of IN_ENGINE_MODEL not already in the model, decided ALREADY_IN_MODEL explained by the engine
+    map (on an engine model, or once the map is accepted)."""
+    carried = [c for c in candidates if c.effect in IN_ENGINE_MODEL and c.status is not Status.ALREADY_IN_MODEL]
+    for c in carried:
+        c.decide(Status.ALREADY_IN_MODEL, explained_by=MAP_EFFECT)
+    return carried

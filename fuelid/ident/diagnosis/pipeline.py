@@ -4,7 +4,8 @@ held to, and the held-out figures reported), the engine map, forward selection, 
 from __future__ import annotations
 
 from fuelid.blas import in_one_blas_thread
-from fuelid.ident.diagnosis.candidate import CURVATURE, Candidate, Status, effects_carried
+from fuelid.ident import effects as fx
+from fuelid.ident.diagnosis.candidate import CURVATURE, MAP_EFFECT, Candidate, Status, carried_by_engine_model
 from fuelid.ident.diagnosis.failures import where_it_fails
 from fuelid.ident.diagnosis.render import STATUS_ORDER, Diagnosis
 from fuelid.ident.diagnosis.run import run_gradients
@@ -34,9 +35,11 @@ def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), 
         base = None  # nothing can be built: whatever the screening names is not recommended (BUILD_FAILED)
     held_out = None if base is None else held_out_summary(base, ds)
     family = candidate_effects(ds, effects) if candidates is None else list(candidates)
-    included = effects_carried(model.effects)
+    included = {fx.parse_effect(e)[0] for e in model.effects}
     rows = [Candidate(e, Status.ALREADY_IN_MODEL if e.id in included else Status.NOT_TESTABLE)
             for e in family if e.id not in CURVATURE]
+    if MAP_EFFECT in included:
+        carried_by_engine_model(rows)
     accepted, emap = select(rows, model, ds, run, base, folds, settings, effects, memo)
     order = {id(c): k for k, c in enumerate(accepted)}
     rows.sort(key=lambda c: (order.get(id(c), len(order)), STATUS_ORDER.index(c.status),

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass, field
 
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.candidate import IN_ENGINE_MODEL, MAP_EFFECT, Candidate, EngineMap, MapStatus, Status
+from fuelid.ident.diagnosis.candidate import MAP_EFFECT, Candidate, EngineMap, MapStatus, Status
 from fuelid.ident.diagnosis.settings import Settings
 from fuelid.ident.diagnosis.size import EffectSize
 from fuelid.ident.modelrun import ModelRun
@@ -66,7 +66,7 @@ def explanation(c: Candidate) -> str:
                                      "columns span it",
         Status.ALREADY_IN_MODEL: lambda: "already in the model" + (
             ": the engine model's map cuts the injection (no fuel at and below zero torque)"
-            if c.effect in IN_ENGINE_MODEL else ""),
+            if c.explained_by == MAP_EFFECT else ""),
     }[c.status]()
 
 

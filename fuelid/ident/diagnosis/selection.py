@@ -32,8 +32,8 @@ import warnings
 import numpy as np
 
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.candidate import (CURVATURE, IN_ENGINE_MODEL, MAP_EFFECT, Candidate, EngineMap, MapStatus,
-                                              Reason, Status)
+from fuelid.ident.diagnosis.candidate import (CURVATURE, MAP_EFFECT, Candidate, EngineMap, MapStatus, Reason, Status,
+                                              carried_by_engine_model)
 from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
@@ -222,8 +222,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.SELECTION_STOPPED)
         if best is term:  # the engine model carries what IN_ENGINE_MODEL lists: no longer a candidate
             term = None
-            for c in [c for c in pool if c.effect in IN_ENGINE_MODEL]:
-                c.decide(Status.ALREADY_IN_MODEL)
+            for c in carried_by_engine_model(pool):
                 pool.remove(c)
         else:
             pool.remove(best)

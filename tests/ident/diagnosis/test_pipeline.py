@@ -84,6 +84,10 @@ def test_the_engine_map_is_never_a_candidate_and_is_in_the_model_when_the_model_
     # the engine model's map cuts the injection at zero torque: the overrun cut-off is part of it
     (row,) = with_map.to_json()["candidates"]
     assert row["status"] == "already in the model" and "cuts the injection" in row["explanation"]
+    # a linear model with the cut-off as its own effect has it, not through a map
+    with_cut = dg.diagnose(hidden.identify(ds, hidden.STRUCTURE, ["overrun_cutoff"]), ds, candidates=(cut,))
+    (row,) = with_cut.to_json()["candidates"]
+    assert row["status"] == "already in the model" and row["explanation"] == "already in the model"
 
 
 def test_once_the_engine_map_is_advised_the_overrun_cut_off_is_in_it():
