@@ -12,11 +12,11 @@ with b and a zero-padded to one length n ≤ MAX_TAPS and divided by a₀, from 
 numbers agree with scipy's to rounding (tests/ident/test_filters.py). `lfilter_each` filters many 1-D signals, each
 through its own filter: two of one filter length and signal length go through the kernel side by side
 (`_iir.iir_pair`, the two halves of an SSE2 register), the pair in about the time of one (pem's Jacobian filters
-10–20 signals an iteration). A FIR filter of 1-D data is scipy's own
-np.convolve(b / a₀, x) cut to x's length, called directly (scipy wraps it in a per-lane loop that costs as much as
-the convolution). Everything else (2-D FIR filters; more than two dimensions; complex data; longer filters) and an
-install built without a C compiler go to scipy itself, imported on first use so that the in-cab live estimator,
-which simulates models through this module (ident.polymodel), does not load SciPy's signal package.
+10–20 signals an iteration). A FIR filter of 1-D or 2-D data is scipy's own np.convolve(b / a₀, x) of each lane
+cut to its length, called directly (scipy wraps it in a per-lane loop that costs as much as the convolution).
+Everything else (more than two dimensions; complex data; longer filters) and an install built without a C compiler
+go to scipy itself, imported on first use: `fuelid identify`, and the in-cab live estimator, which simulates models
+through this module (ident.polymodel), do not load SciPy's signal package.
 """
 from __future__ import annotations
 
@@ -50,7 +50,12 @@ def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
     from zero state."""
     b, a, x = np.asarray(b), np.asarray(a), np.asarray(x)
     if _fir(b, a, x):  # scipy's own convolution, without its per-lane wrapper
-        return np.convolve(b / a[0], x)[:x.size]
+        if x.ndim == 1:
+            return np.convolve(b / a[0], x)[:x.size]
+        full = np.apply_along_axis(lambda lane: np.convolve(b / a[0], lane), axis, x)
+        cut = [slice(None), slice(None)]
+        cut[axis] = slice(x.shape[axis])
+        return full[tuple(cut)]
     kernel = _kernel_form(b, a, x)
     if kernel is None:
         return _scipy_lfilter()(b, a, x, axis=axis)
@@ -84,8 +89,8 @@ def lfilter_each(jobs) -> list[np.ndarray]:
 
 
 def _fir(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> bool:
-    """Whether lfilter(b, a, x) is a FIR filter of 1-D float64 data, convolved as scipy does."""
-    return (x.ndim == 1 and b.ndim == a.ndim == 1 and b.size >= 1 and a.size == 1 and a[0] != 0
+    """Whether lfilter(b, a, x) is a FIR filter of 1-D or 2-D float64 data, convolved lane by lane as scipy does."""
+    return (1 <= x.ndim <= 2 and b.ndim == a.ndim == 1 and b.size >= 1 and a.size == 1 and a[0] != 0
             and np.result_type(b, a, x) == np.float64)
 
 

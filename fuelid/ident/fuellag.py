@@ -9,16 +9,19 @@ So the data decide between two lags, 0 and the candidate p = the fuel signal's m
 (`Dataset.fuel_period_s`, when 0 < p < Ts), by the yardstick of ident.modelchoice:
 
 Both datasets are cut into the same held-out blocks (the blocks of the dataset as logged, `modelchoice.blocks`;
-the same bins of the other). At each lag the model `identify --model KIND` keeps is fitted on the first half of
-the blocks (ident.modelchoice.held_out_choice, with --model auto its own choice at that lag) and simulated on each
-block of the second half; per block b the paired improvement of the lagged model over the one as logged, each scored
-against its own dataset's fuel (the same measured samples, binned at other times),
+the same bins of the other). On the fuel as logged, the held-out stage of `identify --model KIND` decides the model's
+kind (ident.modelchoice.held_out_choice: with --model auto, the linear or the engine model); at the lag p the model
+of that kind is fitted on the first half of the blocks too. Each is simulated on each block of the second half; per
+block b the paired improvement of the lagged model over the one as logged, each scored against its own dataset's
+fuel (the same measured samples, binned at other times),
 
     d_b = 1 − e_p,b / e_0,b,
 
 and the lag p is kept when mean(d) > t_{1−α/2}(B − 1) · sd(d)/√B and mean(d) > MIN_IMPROVEMENT (the margins of
 ident.modelchoice.paired_improvement), else the fuel as logged. The kept lag's model is then identified on all of
-its dataset as `fuelid identify --fuel-lag S` would. The held-out fits cost one more set of half-data fits than `--model auto`.
+its dataset as `fuelid identify --fuel-lag S` would, with the kind decided on the fuel as logged. The lag costs one
+more half-data fit of the kept kind than `--model auto` (an engine model's includes the linear model it starts from).
+The kind is not judged again at the lag: a lag of one report period moves the fuel's dynamics, not the engine's map.
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fuelid.errors import InputError
 from fuelid.ident.dataset import Dataset
 from fuelid.ident.modelchoice import (ModelKind, PairedImprovement, asked_kind, blocks, chosen_model,
                                       held_out_choice, identify_chosen, paired_improvement)
@@ -42,6 +46,7 @@ class LagReason(str, enum.Enum):
                  "the margin"
     TOO_SHORT = "too little data for held-out blocks"
     NO_CANDIDATE = "the fuel signal's report period is not below Ts"
+    FAILED = "the model could not be identified with the fuel binned one report period earlier"
 
 
 @dataclass(frozen=True)
@@ -94,8 +99,8 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
     """(model, its dataset) of `fuelid identify --fuel-lag auto --model KIND` (module docstring): build(lag_s) gives
     the dataset with the fuel binned lag_s [s] earlier (called again for 0 when the fuel as logged is kept: at most
     one dataset is held at a time); the model's info["fuel_lag_choice"] is the decision
-    (`LagChoice.to_json`) and info["model_choice"] the model choice at the kept lag. init: as identify_chosen's,
-    for the final fit."""
+    (`LagChoice.to_json`) and info["model_choice"] the model choice made on the fuel as logged. init: as
+    identify_chosen's, for the final fit."""
     kind, effects = asked_kind(kind, effects)
     fit = dict(min_segment_s=min_segment_s, files=files, defined=defined)
     logged = build(0.0)
@@ -107,23 +112,25 @@ def identify_lag_chosen(build: Callable[[float], Dataset], structure: Structure,
         return _with_lag(model, LagChoice(0.0, candidate, reason)), logged
     # one dataset at a time (a truck-week's costs a fleet job most of its memory): the blocks travel as bin times
     times = [logged.t[m] for m in masks]
-    choices = {0.0: held_out_choice(logged, masks, structure, effects, kind, **fit)}
+    choice = held_out_choice(logged, masks, structure, effects, kind, **fit)
     del logged, masks
     lagged = build(candidate)
-    choices[candidate] = held_out_choice(lagged, [at_times(lagged, t) for t in times], structure, effects, kind,
-                                         **fit)
-    e0, ep = choices[0.0].kept_errors(), choices[candidate].kept_errors()
-    scored = np.isfinite(e0) & np.isfinite(ep)  # a block with no sample left to score at one lag is left out
-    e0, ep = e0[scored], ep[scored]
-    p = paired_improvement(e0, ep)
-    lag = candidate if p.better else 0.0
-    decision = LagChoice(lag, candidate, LagReason.BETTER if p.better else LagReason.NOT_BETTER, p)
-    if p.better:
+    try:
+        at_lag = held_out_choice(lagged, [at_times(lagged, t) for t in times], structure, effects, choice.kind, **fit)
+    except InputError:  # the kind kept as logged is not identifiable at the lag: the fuel as logged
+        decision = LagChoice(0.0, candidate, LagReason.FAILED)
+    else:
+        e0, ep = choice.kept_errors(), at_lag.kept_errors()
+        scored = np.isfinite(e0) & np.isfinite(ep)  # a block with no sample left to score at one lag is left out
+        p = paired_improvement(e0[scored], ep[scored])
+        decision = LagChoice(candidate if p.better else 0.0, candidate,
+                             LagReason.BETTER if p.better else LagReason.NOT_BETTER, p)
+    if decision.lag_s:
         ds = lagged
     else:
         del lagged
         ds = build(0.0)
-    return _with_lag(chosen_model(ds, structure, effects, choices[lag], init=init, **fit), decision), ds
+    return _with_lag(chosen_model(ds, structure, effects, choice, init=init, **fit), decision), ds
 
 
 def _with_lag(model: PolyModel, decision: LagChoice) -> PolyModel:

@@ -52,8 +52,41 @@ def test_the_lag_is_kept_exactly_when_the_ecu_averages_its_fuel(averaging):
     else:
         assert choice.reason is LagReason.NOT_BETTER and choice.lag_s == 0.0 == model.fuel_lag_s
         assert choice.held_out.mean < 0  # the lag misaligns a sampling ECU's fuel: worse, not merely no better
-    assert model.info["model_choice"]["chosen"] == "engine"  # the curved engine, at either lag
+    assert model.info["model_choice"]["chosen"] == "engine"  # the curved engine, decided on the fuel as logged
     assert "held-out" in choice.line("L/h") and LagChoice.from_json(choice.to_json()) == choice
+
+
+def test_the_kind_is_decided_on_the_fuel_as_logged_and_the_lag_judged_for_it(monkeypatch):
+    """The held-out stage decides the kind once (AUTO, as logged); at the lag only the kept kind is fitted."""
+    from fuelid.ident import fuellag
+    asked = []
+
+    def spy(ds, masks, structure, effects, kind, **fit):
+        asked.append((ds.fuel_lag_s, kind))
+        return held_out_choice(ds, masks, structure, effects, kind, **fit)
+
+    held_out_choice = fuellag.held_out_choice
+    monkeypatch.setattr(fuellag, "held_out_choice", spy)
+    model, _ = identify_lag_chosen(recording(True), STRUCTURE, min_segment_s=30.0)
+    assert asked == [(0.0, ModelKind.AUTO), (REPORT, ModelKind.ENGINE)]
+    assert model.info["model_choice"]["chosen"] == "engine" and model.info["model_choice"]["reason"] == "better"
+
+
+def test_a_kind_that_cannot_be_identified_at_the_lag_keeps_the_fuel_as_logged(monkeypatch):
+    from fuelid.errors import InputError
+    from fuelid.ident import fuellag
+    held_out_choice = fuellag.held_out_choice
+
+    def failing_at_the_lag(ds, *args, **fit):
+        if ds.fuel_lag_s:
+            raise InputError("no map at this lag")
+        return held_out_choice(ds, *args, **fit)
+
+    monkeypatch.setattr(fuellag, "held_out_choice", failing_at_the_lag)
+    model, ds = identify_lag_chosen(recording(True, bins=3000), STRUCTURE, kind=ModelKind.LINEAR, min_segment_s=30.0)
+    choice = LagChoice.from_json(model.info["fuel_lag_choice"])
+    assert choice.reason is LagReason.FAILED and choice.lag_s == 0.0 == ds.fuel_lag_s == model.fuel_lag_s
+    assert choice.held_out.mean is None and "could not be identified" in choice.line("L/h")
 
 
 def test_no_candidate_or_too_little_data_keeps_the_fuel_as_logged():
