@@ -7,6 +7,7 @@ from pathlib import Path
 
 from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.errors import FuelidError
+from fuelid.ident.diagnosis import effects_to_add
 from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.fuellag import LagChoice, identify_lag_chosen
 from fuelid.ident.identify import MIN_SEGMENT_S
@@ -64,8 +65,6 @@ def diagnosed(path: str) -> tuple[list[str], float]:
     the effects as ident.diagnosis.effects_to_add gives them (the engine map when it advises the engine model, then
     the candidates with `recommended` true; a result without that field recommends none), the lag its data
     summary's fuel_lag_s (0 for a result without one)."""
-    from fuelid.ident.diagnosis import effects_to_add  # here: the diagnosis's modules are for --effects-from only
-
     try:
         result = json.loads(Path(path).read_text())
         return effects_to_add(result), float(result["data"].get("fuel_lag_s", 0.0))
