@@ -50,9 +50,10 @@ def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
     from zero state."""
     b, a, x = np.asarray(b), np.asarray(a), np.asarray(x)
     if _fir(b, a, x):  # scipy's own convolution, without its per-lane wrapper
+        taps = b / a[0]
         if x.ndim == 1:
-            return np.convolve(b / a[0], x)[:x.size]
-        full = np.apply_along_axis(lambda lane: np.convolve(b / a[0], lane), axis, x)
+            return np.convolve(taps, x)[:x.size]
+        full = np.apply_along_axis(lambda lane: np.convolve(taps, lane), axis, x)
         cut = [slice(None), slice(None)]
         cut[axis] = slice(x.shape[axis])
         return full[tuple(cut)]
