@@ -52,7 +52,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import BSpline
 from scipy.linalg import cholesky, solve, solve_triangular
 from scipy.optimize import lsq_linear
 
@@ -77,22 +76,27 @@ def knots(lo: float, hi: float, segments: int = SEGMENTS) -> np.ndarray:
     return lo + h * np.arange(-DEGREE, segments + DEGREE + 1)
 
 
-def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """B-spline basis values (N × K) at x, clamped into the knots' base interval [t[DEGREE], t[-DEGREE-1]] (NaN taken
-    as its lower end).
-
-    On equally spaced knots (`knots`, spacing h) the cubic B-splines non-zero on the j-th interval of the base,
-    [t[3 + j], t[4 + j]], are B_j … B_j+3, at the position u = (x − t[3 + j])/h ∈ [0, 1] in it (de Boor 1978)
-
-        B_j = v³/6,  B_j+1 = (3u²(u − 2) + 4)/6,  B_j+2 = (3v²(v − 2) + 4)/6,  B_j+3 = u³/6,   v = 1 − u."""
-    x = np.asarray(x, float).ravel()
+def _position(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(j, u, h) of x on equally spaced knots t (spacing h): x, clamped into the base interval [t[DEGREE],
+    t[-DEGREE-1]] (NaN taken as its lower end), lies in its j-th interval [t[3 + j], t[4 + j]] at u ∈ [0, 1]."""
     k = len(t) - DEGREE - 1
     lo, hi, h = t[DEGREE], t[-DEGREE - 1], (t[-1] - t[0]) / (len(t) - 1)
     pos = (np.clip(np.where(np.isnan(x), lo, x), lo, hi) - lo) / h
     j = np.minimum(pos.astype(int), k - DEGREE - 1)
-    u = pos - j
+    return j, pos - j, h
+
+
+def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """B-spline basis values (N × K) at x, clamped into the knots' base interval (`_position`).
+
+    On equally spaced knots (`knots`, spacing h) the cubic B-splines non-zero on the j-th interval of the base are
+    B_j … B_j+3, at the position u in it (de Boor 1978)
+
+        B_j = v³/6,  B_j+1 = (3u²(u − 2) + 4)/6,  B_j+2 = (3v²(v − 2) + 4)/6,  B_j+3 = u³/6,   v = 1 − u."""
+    x = np.asarray(x, float).ravel()
+    j, u, _ = _position(t, x)
     v = 1.0 - u
-    out = np.zeros((x.size, k))
+    out = np.zeros((x.size, len(t) - DEGREE - 1))
     rows = np.arange(x.size)
     out[rows, j] = v * v * v / 6.0
     out[rows, j + 1] = (3.0 * u * u * (u - 2.0) + 4.0) / 6.0
@@ -102,9 +106,13 @@ def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def _axis_slope(t: np.ndarray, x: float) -> np.ndarray:
-    """d/dx of each B-spline basis function at x (K)."""
-    k = len(t) - DEGREE - 1
-    return BSpline(t, np.eye(k), DEGREE).derivative()(x)
+    """d/dx of each B-spline basis function (K) at x in the base interval: `_axis`'s polynomials differentiated,
+    dB_j/dx = −v²/(2h), dB_j+1/dx = u(3u − 4)/(2h), dB_j+2/dx = −v(3v − 4)/(2h), dB_j+3/dx = u²/(2h)."""
+    (j,), (u,), h = _position(t, np.array([x], float))
+    v = 1.0 - u
+    out = np.zeros(len(t) - DEGREE - 1)
+    out[j: j + 4] = np.array([-v * v, u * (3.0 * u - 4.0), -v * (3.0 * v - 4.0), u * u]) / (2.0 * h)
+    return out
 
 
 def greville(t: np.ndarray) -> np.ndarray:

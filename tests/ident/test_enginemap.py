@@ -2,9 +2,12 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.interpolate import BSpline
 
 from fuelid.errors import InputError
-from fuelid.ident.enginemap import CUT_TORQUE, EngineMap, fit_map
+from fuelid.ident.enginemap import CUT_TORQUE, DEGREE, EngineMap, _axis, _axis_slope, fit_map, knots
 
 
 def surface(n, T):
@@ -16,6 +19,15 @@ def samples(size=6000, seed=0, noise=0.3):
     rng = np.random.default_rng(seed)
     n, T = rng.uniform(600, 1900, size), rng.uniform(20, 1700, size)
     return n, T, surface(n, T) + rng.normal(0, noise, size)
+
+
+@given(st.floats(-500.0, 500.0), st.floats(1.0, 3000.0), st.floats(0.0, 1.0))
+def test_the_basis_and_its_slope_are_scipys_b_splines_on_the_knots(lo, width, at):
+    t = knots(lo, lo + width)
+    splines = BSpline(t, np.eye(len(t) - DEGREE - 1), DEGREE)
+    x = lo + at * width
+    assert np.allclose(_axis(t, [x])[0], splines(x), rtol=0, atol=1e-12)
+    assert np.allclose(_axis_slope(t, x), splines.derivative()(x), rtol=0, atol=1e-12 / width)
 
 
 @pytest.fixture(scope="module")
