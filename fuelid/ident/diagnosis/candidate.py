@@ -77,9 +77,10 @@ class Screening:
 @dataclass(frozen=True)
 class HeldOut:
     """The yardstick (ident.diagnosis.yardstick) of one model against the base: RMS held-out simulation error
-    [output unit] without and with, its drop [%], the per-block paired improvement's mean and standard error
-    [(output unit)²], the number of blocks, the folds ("blocks" or "trips"), the RMS of the fuel it explains
-    beyond the base as a share of the mean fuel there [%], and whether it passes (mean > k·SE and both floors)."""
+    [output unit] without and with, its drop [%], the RMS of the fuel it explains beyond the base as a share of the
+    mean fuel there [%], the per-block paired improvement's mean and its standard error [(output unit)²], the number
+    of blocks, the folds ("blocks" or "trips"), whether it passes (the mean or the trimmed mean > k·SE, and both
+    floors), and the improvement's trimmed mean and its standard error [(output unit)²]."""
 
     rmse_without: float
     rmse_with: float
@@ -90,13 +91,23 @@ class HeldOut:
     n_blocks: int
     folds: str
     passes: bool
+    trimmed_gain: float = 0.0
+    trimmed_se: float = float("inf")
 
     @property
     def gain_in_se(self) -> float:
-        return self.mean_gain / self.gain_se if self.gain_se > 0 else float("inf") * (self.mean_gain > 0)
+        return _in_se(self.mean_gain, self.gain_se)
+
+    @property
+    def trimmed_in_se(self) -> float:
+        return _in_se(self.trimmed_gain, self.trimmed_se)
 
     def to_json(self) -> dict:
-        return {**asdict(self), "gain_in_se": self.gain_in_se}
+        return {**asdict(self), "gain_in_se": self.gain_in_se, "trimmed_in_se": self.trimmed_in_se}
+
+
+def _in_se(gain: float, se: float) -> float:
+    return gain / se if se > 0 else float("inf") * (gain > 0)
 
 
 @dataclass

@@ -17,8 +17,10 @@ ADD = "`fuelid identify --effects-from DIAGNOSIS.json` adds what is recommended"
 
 def _gain(c: Candidate | EngineMap) -> str:
     h = c.held_out
-    return f"held-out RMS error {h.rmse_without:.3g} → {h.rmse_with:.3g} ({-h.drop_percent:+.1f} %, paired gain " \
-           f"{h.gain_in_se:.1f} standard errors over {h.n_blocks} blocks, {h.fuel_percent:.2g} % of the fuel)"
+    trimmed = h.trimmed_in_se > h.gain_in_se  # the larger of the two decides
+    return f"held-out RMS error {h.rmse_without:.3g} → {h.rmse_with:.3g} ({-h.drop_percent:+.1f} %, " \
+           f"{'trimmed mean ' * trimmed}paired gain {max(h.gain_in_se, h.trimmed_in_se):.1f} standard errors over " \
+           f"{h.n_blocks} blocks, {h.fuel_percent:.2g} % of the fuel)"
 
 
 def signals_text(effect) -> str:

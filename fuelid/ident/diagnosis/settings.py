@@ -44,9 +44,14 @@ class Settings:
     """[s] A break of the log at least this long starts another trip (another file, another day)."""
 
     margin_se: float = 2.0
-    """k of the yardstick: the mean of the per-block paired improvements (MSE without − MSE with) must exceed k
-    standard errors of that mean (their long-run spread over the blocks, Newey–West: what the fits and the noise
-    move, neighbouring blocks correlated)."""
+    """k of the yardstick: the mean of the per-block paired improvements (MSE without − MSE with), or their trimmed
+    mean (`trim`), must exceed k standard errors of it (their long-run spread over the blocks, Newey–West: what the
+    fits and the noise move, neighbouring blocks correlated)."""
+
+    trim: float = 0.2
+    """[1] Share of the block improvements left out at each end of the yardstick's trimmed mean (Yuen's; 0.2 as Wilcox
+    recommends). An effect on most blocks whose spread one or two transient blocks decide (a cold start) passes on
+    it; one that acts in a few blocks (a regeneration) on the plain mean."""
 
     min_drop_percent: float = 1.0
     """[%] Relative floor of the yardstick: the pooled held-out RMS simulation error must fall by at least this much
