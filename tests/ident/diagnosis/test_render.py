@@ -52,3 +52,14 @@ def test_the_engine_map_is_advice_only_when_advised(status):
     said = verdict([], EngineMap(status, SCREENED, GAIN), Settings())
     assert ("identify the engine model" in said) is (status is MapStatus.ADVISED)
     assert ("no missing effect recommended" in said) is (status is not MapStatus.ADVISED)
+
+
+def test_the_gain_is_said_in_the_standard_errors_of_the_mean_that_carried_it():
+    """A candidate that passed on the trimmed mean says so, with that mean's standard errors; the JSON keeps both."""
+    trimmed = HeldOut(1.0, 0.8, 20.0, 2.0, 0.3, 0.2, 40, "blocks", True, 0.25, 0.05)
+    c = Candidate(fx.EFFECTS["cold_engine"], screening=SCREENED, held_out=trimmed, spec="cold_engine")
+    c.decide(Status.RECOMMENDED)
+    assert "trimmed mean paired gain 5.0 standard errors over 40 blocks" in explanation(c)
+    assert candidate_json(c)["held_out"]["gain_in_se"] == pytest.approx(1.5)
+    c.held_out = GAIN
+    assert "(-20.0 %, paired gain 6.0 standard errors" in explanation(c)
