@@ -29,7 +29,7 @@ is the least-squares solution of [Ψ S⁻¹; √μ σ_max I] S δ ≈ [ε; 0], i
 one factorisation per iteration serves every μ tried, μ adapts (`levenberg_marquardt`) and never falls below
 DAMPING_FLOOR. Memory: Ψ is never formed whole (`_Lagged`: its at most 2m + 3 filtered signals, lagged chunk by
 chunk), so the LM needs O(m N) for the signals and O(QR_CHUNK · d) for the factorisation. The LM loop is written
-here, its linear algebra scipy's and numpy's (scipy.linalg.qr, lstsq; numpy.linalg.svd):
+here, its linear algebra LAPACK's through scipy and numpy (dgeqrt, scipy.linalg.lstsq; numpy.linalg.svd):
 scipy.optimize.least_squares (MINPACK's LM, or its trust-region methods) takes the whole N × d Jacobian as one
 array and has no place for the stability projection of each trial step.
 
@@ -106,7 +106,7 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg import lstsq, qr
+from scipy.linalg import lapack, lstsq
 
 from fuelid.blas import one_blas_thread
 from fuelid.errors import InputError
@@ -299,7 +299,7 @@ def _loss(eps: np.ndarray, used) -> float:
     return v if np.isfinite(v) else np.inf
 
 
-QR_CHUNK = 4096  # samples of [Ψ ε] per QR update: the working array is (d + 1 + QR_CHUNK) × (d + 1)
+QR_CHUNK = 2048  # samples of [Ψ ε] per QR update: the working array is (d + 1 + QR_CHUNK) × (d + 1)
 # The LM's damping never falls below this (relative to σ_max², `_damped_step`). The step's component along a
 # direction of singular value σ_k carries a relative rounding error of about u σ_max / σ_k (u = 1.1e-16, QR of Ψ);
 # the floor bounds that amplification at u / √DAMPING_FLOOR ≈ 4e-9, so the step is a smooth function of the data
@@ -314,7 +314,9 @@ def _triangular_factor(psi, eps: np.ndarray, used) -> np.ndarray:
     memory is O(QR_CHUNK · d), whatever N.
 
     Chunked here because scipy.linalg.qr and numpy.linalg.qr take the whole N × (d + 1) matrix (a copy of Ψ) and
-    are slower on it than on chunks that stay in cache."""
+    are slower on it than on chunks that stay in cache. Each chunk is factored by LAPACK's dgeqrt (blocked Householder
+    QR in compact-WY form; its block size `_qr_block`): 2–3 times faster than dgeqrf, scipy.linalg.qr's, on these
+    arrays of a few dozen to a few hundred columns (benchmarks/bench_qr.py)."""
     n, d = psi.shape
     keep = np.zeros(n + 2, bool)
     keep[1:-1][used] = True
@@ -332,11 +334,20 @@ def _triangular_factor(psi, eps: np.ndarray, used) -> np.ndarray:
             m += hi - lo
         if m == k:
             continue
-        factored = qr(work[:m], mode="raw", overwrite_a=True, check_finite=False)[0][0]  # R in its upper triangle
-        R = np.triu(factored[: d + 1])
+        factored, _, info = lapack.dgeqrt(max(min(_qr_block(d + 1), m, d + 1), 1), work[:m], overwrite_a=True)
+        if info:
+            raise ValueError(f"dgeqrt failed (info {info})")
+        R = np.triu(factored[: d + 1])  # R in its upper triangle
     if R.shape[0] < d + 1:  # fewer used samples than d + 1
         R = np.vstack([R, np.zeros((d + 1 - R.shape[0], d + 1))])
     return R
+
+
+def _qr_block(columns: int) -> int:
+    """The block size nb of LAPACK's dgeqrt for an array of `columns` columns: 8 up to 64 (a Jacobian of a few dozen
+    parameters), 32 above (the initialisation's wide ARX regressors), the fastest of 8, 16 and 32 on each
+    (benchmarks/bench_qr.py)."""
+    return 8 if columns <= 64 else 32
 
 
 class _Linearised(NamedTuple):

@@ -99,15 +99,17 @@ def ill_conditioned(n: int, d: int, seed: int, decades: float = 12.0):
     return (U * np.logspace(0, -decades, d)) @ W.T * np.logspace(0, 4, d)
 
 
-@pytest.mark.parametrize("used", [slice(7, None), np.arange(3000) % 5 != 0])
-def test_the_triangular_factor_over_chunks_is_the_qr_of_the_whole(monkeypatch, used):
+@pytest.mark.parametrize("d", [2, 12, 100])  # fewer columns than dgeqrt's block; a few dozen; a wide ARX
+@pytest.mark.parametrize("used", [slice(7, None), np.arange(3000) % 5 != 0, np.arange(3000) < 4])
+def test_the_triangular_factor_over_chunks_is_the_qr_of_the_whole(monkeypatch, used, d):
     """R̄ accumulated over chunks of samples (TSQR) is the R factor of [Ψ ε] over the used samples, up to the signs
-    of its rows."""
+    of its rows, whatever the columns beside dgeqrt's block size and however few samples are used."""
     monkeypatch.setattr(pem_module, "QR_CHUNK", 700)
-    psi = ill_conditioned(3000, 12, 0, decades=6)
+    psi = ill_conditioned(3000, d, 0, decades=6)
     eps = np.random.default_rng(1).normal(size=3000)
     got = pem_module._triangular_factor(psi, eps, used)
     want = np.linalg.qr(np.column_stack([psi, eps])[used], mode="r")
+    want = np.vstack([want, np.zeros((d + 1 - len(want), d + 1))])  # fewer used samples than columns: zero rows
     np.testing.assert_allclose(np.abs(got), np.abs(want), rtol=1e-9, atol=1e-12 * np.abs(want).max())
 
 
