@@ -334,7 +334,7 @@ def _triangular_factor(psi, eps: np.ndarray, used) -> np.ndarray:
             m += hi - lo
         if m == k:
             continue
-        factored, _, info = lapack.dgeqrt(max(min(_qr_block(d + 1), m, d + 1), 1), work[:m], overwrite_a=True)
+        factored, _, info = lapack.dgeqrt(min(_qr_block(d + 1), m, d + 1), work[:m], overwrite_a=True)
         if info:
             raise ValueError(f"dgeqrt failed (info {info})")
         R = np.triu(factored[: d + 1])  # R in its upper triangle

@@ -65,7 +65,7 @@ wait_for run1/status.json '"connects": 2' 60
 wait_for run2/status.json '"connects": 2' 60
 fuelid replay drive.log --interface socketcan --channel vcan0 --json > replay2.json
 sleep 2
-cp run1/status.json status1.json
+cat run1/status.json > status1.json  # cat reads the file it opened; cp fails when the daemon replaces it meanwhile
 kill -TERM $LOG1; wait $LOG1; echo $? > log1.rc
 kill -TERM $FLOW; wait $FLOW || true
 fuelid replay drive.log drive.log --interface socketcan --channel vcan0 > replay3.txt &
@@ -207,7 +207,7 @@ until grep -q '"state": "up"' ident/status.json 2>/dev/null; do
 done
 fuelid replay trip.log --interface socketcan --channel vcan0 --speed @SPEED@ --json > replay.json
 sleep 3
-cp ident/status.json status.json
+cat ident/status.json > status.json  # cat reads the file it opened; cp fails when the daemon replaces it meanwhile
 kill -TERM $LOG; wait $LOG; echo $? > log.rc
 echo done
 """
