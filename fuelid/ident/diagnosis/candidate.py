@@ -110,12 +110,13 @@ def _in_se(gain: float, se: float) -> float:
     return gain / se if se > 0 else float("inf") * (gain > 0)
 
 
-@dataclass
+@dataclass(eq=False)  # one candidate is one object: `in` and remove() go by identity
 class Candidate:
     """One candidate effect and what the diagnosis concluded (status, reason, explained_by), with its evidence.
     spec: what `fuelid identify --effect` takes (a fuel delay with its τ); round: the forward-selection round of its
     last screening (1 the model as given); size: its size in the model built with it (ident.diagnosis.size), once it
-    passed the yardstick."""
+    passed the yardstick; together_with: the candidate it was accepted with, when neither passed alone and the two
+    together do, each beyond the other (ident.diagnosis.selection; held_out is then its gain beyond the other)."""
 
     definition: fx.Effect
     status: Status = Status.NOT_TESTABLE
@@ -126,6 +127,7 @@ class Candidate:
     spec: str | None = None
     round: int = 0
     size: EffectSize | None = None  # once built and passed: its size in the model built with it
+    together_with: str | None = None
 
     def decide(self, status: Status, reason: Reason | None = None, explained_by: str | None = None) -> None:
         """Set the status, with its reason (NAMED_NOT_RECOMMENDED) or the candidate that explains it (EXPLAINED_BY;

@@ -23,6 +23,13 @@ def _gain(c: Candidate | EngineMap) -> str:
            f"{h.n_blocks} blocks, {h.fuel_percent:.2g} % of the fuel)"
 
 
+def _pair_text(c: Candidate) -> str:
+    """What a candidate accepted together with another is said to be (its held-out gain is beyond the other's
+    model)."""
+    return f"with {c.together_with} beside it (neither alone lowers the held-out error beyond the margin; together, " \
+           "each lowers it beyond the model with the other)"
+
+
 def signals_text(effect) -> str:
     """An effect's bus signals as the engineer reads them: DBC names with their SPNs."""
     spn = {s: fx.spn_of(s) for s in effect.signals}
@@ -58,7 +65,7 @@ def explanation(c: Candidate) -> str:
                              "the simulation error"
     size = "" if c.size is None else f"; {_template(c) or size_text(c.size)}"
     return {
-        Status.RECOMMENDED: lambda: f"recommended: {_gain(c)}{size}",
+        Status.RECOMMENDED: lambda: "recommended" + f", {_pair_text(c)}" * bool(c.together_with) + f": {_gain(c)}{size}",
         Status.NAMED_NOT_RECOMMENDED: lambda: f"named, not recommended: {c.reason.value}" + (
             f" ({_gain(c)}{size})" if c.held_out is not None else "") + f"; {p}",
         Status.EXPLAINED_BY: lambda: f"explained by {c.explained_by}: significant before it was added, not after",
@@ -92,7 +99,8 @@ def verdict(candidates: list[Candidate], m: EngineMap, settings: Settings) -> st
     parts = [map_sentence(m)] if m.status is MapStatus.ADVISED else []
     if rec:
         parts.append("missing effect" + "s" * (len(rec) > 1) + " recommended: "
-                     + "; ".join(f"add {c.spec or c.effect} ({_gain(c)})" for c in rec) + f" — {ADD}")
+                     + "; ".join(f"add {c.spec or c.effect} (" + f"{_pair_text(c)}: " * bool(c.together_with)
+                                 + f"{_gain(c)})" for c in rec) + f" — {ADD}")
     parts += [f"{c.effect} is named by the screening but not recommended: {c.reason.value}" for c in named]
     if not rec and m.status is not MapStatus.ADVISED:
         parts.append(f"no missing effect recommended: none lowers the held-out simulation error by more than "
@@ -109,7 +117,8 @@ def candidate_json(c: Candidate) -> dict:
     return {"id": c.effect, "effect": c.effect, "spec": c.spec or c.effect, "name": e.name, "form": e.form,
             "signals": list(e.signals), "spns": list(e.spns), "physics": e.physics,
             "status": c.status.value, "reason": c.reason and c.reason.name.lower(), "explained_by": c.explained_by,
-            "recommended": c.recommended, "significant": c.named, "testable": s is not None, "round": c.round,
+            "recommended": c.recommended, "together_with": c.together_with, "significant": c.named,
+            "testable": s is not None, "round": c.round,
             "statistic": s and s.statistic, "df": s.df if s else 0, "p_value": s and s.p_value,
             "p_holm": s and s.p_holm, "estimated_drop_percent": s and s.explains_percent,
             "rmse_drop_percent": h and h.drop_percent, "size": c.size and c.size.to_json(),

@@ -7,7 +7,15 @@ base. One that passes but whose fold models fit it against the direction its phy
 (ident.diagnosis.size.against_physics), is NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS): what it gains is not that
 effect. Of the others that pass, the one with the largest mean paired gain is accepted (an effect with stated
 physics — catalogued or the engineer's — before a generic form of a bus signal, which can stand in for it on one
-trip) — RECOMMENDED — and the base becomes the model refitted with it. A candidate
+trip) — RECOMMENDED — and the base becomes the model refitted with it.
+
+Forward selection's blind spot is two effects that mask each other: the model with either one alone fits it to data
+the other distorts, and neither passes although both together would. So when nothing passes in a round, each pair of
+the candidates with stated physics built in it is built: a pair whose model passes the yardstick against the base and
+against each member's model alone (each adds beyond the other, in the direction its physics states) is accepted
+whole, the one with the largest mean gain over the base, both RECOMMENDED with `together_with` the other and, as
+evidence, the gain beyond the other's model. Generic forms are left out of pairs: a pair of stand-ins is not advice.
+A candidate
 on a bus signal that engine speed and torque determine (Settings.min_share_beyond_inputs) is
 NAMED_NOT_RECOMMENDED (DETERMINED_BY_INPUTS) without a build: it can only stand in for the engine's map. A candidate
 that passed the screening (significant and relevant) in an earlier round and no longer does is EXPLAINED_BY the one
@@ -27,13 +35,14 @@ fuel at and below zero torque): on an engine-model base, and once the map is acc
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import warnings
 
 import numpy as np
 
 from fuelid.ident import effects as fx
-from fuelid.ident.diagnosis.candidate import (CURVATURE, MAP_EFFECT, Candidate, EngineMap, MapStatus, Reason, Status,
-                                              carried_by_engine_model)
+from fuelid.ident.diagnosis.candidate import (CURVATURE, MAP_EFFECT, Candidate, EngineMap, HeldOut, MapStatus, Reason,
+                                              Status, carried_by_engine_model)
 from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
@@ -95,12 +104,12 @@ def built(model: PolyModel, ds, specs: list[str], defined, memo: FitMemo) -> Pol
                               defined=tuple(effects_of_model(model)) + tuple(defined), memo=memo)
 
 
-def refitted(model: PolyModel, ds, spec: str, defined, memo: FitMemo) -> PolyModel:
-    """The base of the next round once `spec` is accepted, on all of ds: the model refitted by PEM from itself with
-    the effect's coefficients at zero (ident.identify.refit_with_effects)."""
+def refitted(model: PolyModel, ds, specs: list[str], defined, memo: FitMemo) -> PolyModel:
+    """The base of the next round once `specs` are accepted, on all of ds: the model refitted by PEM from itself with
+    the effects' coefficients at zero (ident.identify.refit_with_effects)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        return refit_with_effects(model, ds, [spec], defined=defined, memo=memo)
+        return refit_with_effects(model, ds, specs, defined=defined, memo=memo)
 
 
 def _fold_sizes(c: Candidate, scored: Scored, ds) -> list[EffectSize]:
@@ -130,6 +139,86 @@ def base_refits(model: PolyModel, ds, folds: Folds, settings: Settings, defined,
     return refits(start, ds, folds, [], settings, defined)
 
 
+class _Builds:
+    """One round's builds against its base: each candidate's model (on an engine-model base, as `fuelid identify`
+    builds it on all of ds: `built`; else nested in the base's fold models), its fold refits, and the yardstick."""
+
+    def __init__(self, model: PolyModel, base: Scored, ds, folds: Folds, settings: Settings, defined, memo: FitMemo):
+        self.model, self.base, self.ds, self.folds, self.settings = model, base, ds, folds, settings
+        self.defined, self.memo = defined, memo
+        self.tried: set[str] = set()
+        self.scored: dict[str, Scored] = {}  # a candidate's fold refits (each without its fold)
+        self.whole: dict[str, PolyModel] = {}  # its model on all of ds (an engine-model base)
+
+    def _build(self, specs: list[str]) -> tuple[Scored, PolyModel | None]:
+        """(the fold refits, the model on all of ds or None) of the base with `specs`. Raises BUILD_ERRORS."""
+        if _joint(self.model):  # the candidate's model as identify builds it, then its fold refits
+            whole = built(self.model, self.ds, specs, self.defined, self.memo)
+            return refits(whole, self.ds, self.folds, [], self.settings, self.defined), whole
+        # nested in the base's fold models: each refitted with the candidate's coefficients at zero
+        return refits(list(self.base.models), self.ds, self.folds, specs, self.settings, self.defined), None
+
+    def held(self, c: Candidate) -> bool:
+        """Builds c, holds it to the yardstick against the base and decides it unless it passes; whether it does."""
+        self.tried.add(c.effect)
+        c.spec = _spec(c)
+        try:
+            scored, whole = self._build([c.spec])
+        except BUILD_ERRORS:
+            c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
+            return False
+        self.scored[c.effect] = scored
+        if whole is not None:
+            self.whole[c.effect] = whole
+        return self._judged(c, compare(self.base, scored, self.folds, self.settings), scored, whole)
+
+    def _judged(self, c: Candidate, held_out: HeldOut, scored: Scored, whole: PolyModel | None) -> bool:
+        """c's evidence from a model built with it (held_out: against the model without it); decided
+        NAMED_NOT_RECOMMENDED unless it passes the yardstick in the direction its physics states; whether it does."""
+        c.held_out = held_out
+        sized = held_out.passes and c.effect != MAP_EFFECT  # its size: evidence once it helps
+        # the fold models' sizes: the physics' direction judged on their spread, and a linear base's size
+        fold_sizes = _fold_sizes(c, scored, self.ds) if sized and (c.definition.sign or whole is None) else []
+        c.size = None if not sized else (effect_size(whole, self.ds, c.definition) if whole is not None
+                                         else _median(fold_sizes))
+        if not held_out.passes:  # open: a later round's base (without what masked it) may show its gain
+            c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
+        elif against_physics(c.definition, fold_sizes, self.settings.margin_se):  # open: another base may differ
+            c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.AGAINST_ITS_PHYSICS)
+        else:
+            return True
+        return False
+
+    def passing_pair(self, single: list[Candidate]) -> tuple[list[Candidate], PolyModel | None, Scored] | None:
+        """Of the pairs of `single` (built alone this round, none passing), the one whose model passes the
+        yardstick against the base and against each member's model alone (each adds beyond the other), in the
+        direction each one's physics states, with the largest mean gain over the base: ([a, b] with their
+        evidence beyond each other, the pair's model on all of ds or None, its fold refits); None when none does."""
+        best = None
+        for a, b in itertools.combinations(single, 2):
+            try:
+                scored, whole = self._build([a.spec, b.spec])
+            except BUILD_ERRORS:
+                continue
+            gain = compare(self.base, scored, self.folds, self.settings)
+            if not gain.passes or (best is not None and gain.mean_gain <= best[0].mean_gain):
+                continue
+            beyond = {a: compare(self.scored[b.effect], scored, self.folds, self.settings),
+                      b: compare(self.scored[a.effect], scored, self.folds, self.settings)}
+            if all(h.passes and not against_physics(c.definition, _fold_sizes(c, scored, self.ds) if
+                                                    c.definition.sign else [], self.settings.margin_se)
+                   for c, h in beyond.items()):
+                best = (gain, beyond, scored, whole)
+        if best is None:
+            return None
+        _, beyond, scored, whole = best
+        (a, ha), (b, hb) = beyond.items()
+        for c, h, other in ((a, ha, b), (b, hb, a)):
+            self._judged(c, h, scored, whole)
+            c.together_with = other.effect
+        return [a, b], whole, scored
+
+
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
            settings: Settings, defined, memo: FitMemo) -> tuple[list[Candidate], EngineMap]:
     """Forward selection (module docstring) over `candidates` (their status set here) from `model` (run: its Run,
@@ -140,8 +229,6 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     term = None if in_model else Candidate(fx.EFFECTS[MAP_EFFECT])  # the engine map, while not accepted
     accepted: list[Candidate] = []
     passed_before: set[str] = set()
-    scored: dict[str, Scored] = {}  # its refits without each fold
-    candidate_models: dict[str, PolyModel] = {}  # built on all the data as identify builds them (engine-model base)
     for rnd in range(1, settings.max_rounds + 1):
         found = screen([c.definition for c in pool], model, ds, run, settings.alpha)
         if term is not None:
@@ -172,60 +259,51 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
         # by the share of the simulation error each explains: on long data every p-value underflows toward 0, and the
         # smallest ones go to signals that track the operating point, not to the largest effect
         eligible.sort(key=lambda c: (c is not term, -c.screening.explains_percent, c.screening.log10_p))
-        passing = []
-        for k, c in enumerate(eligible):
-            if k >= settings.max_builds + (eligible[0] is term) or base is None:
-                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NOT_BUILT if base is not None else Reason.BUILD_FAILED)
-                continue
-            c.spec = _spec(c)
-            try:
-                if _joint(model):  # the candidate's model as identify builds it, then its fold refits
-                    candidate_models[c.effect] = built(model, ds, [c.spec], defined, memo)
-                    scored[c.effect] = refits(candidate_models[c.effect], ds, folds, [], settings, defined)
-                else:  # nested in the base's fold models: each refitted with the candidate's coefficients at zero
-                    scored[c.effect] = refits(list(base.models), ds, folds, [c.spec], settings, defined)
-            except BUILD_ERRORS:
+        if base is None:
+            for c in eligible:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
-                if c is not term:
-                    pool.remove(c)
-                continue
-            c.held_out = compare(base, scored[c.effect], folds, settings)
-            sized = c.held_out.passes and c is not term  # its size: evidence once it helps
-            whole = candidate_models.get(c.effect)  # built on all the data (an engine-model base)
-            # the fold models' sizes: the physics' direction judged on their spread, and a linear base's size
-            fold_sizes = _fold_sizes(c, scored[c.effect], ds) if sized and (c.definition.sign or whole is None) else []
-            c.size = None if not sized else (effect_size(whole, ds, c.definition) if whole is not None
-                                             else _median(fold_sizes))
-            if not c.held_out.passes:  # open: a later round's base (without what masked it) may show its gain
-                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
-            elif against_physics(c.definition, fold_sizes, settings.margin_se):  # open: another base may differ
-                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.AGAINST_ITS_PHYSICS)
-            else:
-                passing.append(c)
-        if not passing:
             break
-        best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
+        builds = _Builds(model, base, ds, folds, settings, defined, memo)
+        passing = [c for c in eligible[:settings.max_builds + (term in eligible)] if builds.held(c)]
+        for c in eligible:
+            if c.effect not in builds.tried:
+                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NOT_BUILT)
+            elif c.reason is Reason.BUILD_FAILED and c is not term:
+                pool.remove(c)
+        if passing:
+            best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
+            chosen, whole, scored = [best], builds.whole.get(best.effect), builds.scored[best.effect]
+        else:
+            # forward selection's blind spot, effects that mask each other (module docstring)
+            pair = builds.passing_pair([c for c in eligible if c.effect in builds.scored and c is not term
+                                        and not _generic(c)])
+            if pair is None:
+                break
+            chosen, whole, scored = pair
         try:
-            model = (built(model, ds, [best.spec], defined, memo) if best is term
-                     else candidate_models.get(best.effect) or refitted(model, ds, best.spec, defined, memo))
+            model = (built(model, ds, [term.spec], defined, memo) if term in chosen else whole if whole is not None
+                     else refitted(model, ds, [c.spec for c in chosen], defined, memo))
             run = run_gradients(run_model(model, ds))
         except BUILD_ERRORS:
-            best.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
+            for c in chosen:
+                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
-        best.decide(Status.RECOMMENDED)
-        if best is not term and best.effect not in candidate_models:  # a linear base's: in its refit accepted
-            best.size = effect_size(model, ds, best.definition)
-        base = scored[best.effect]
-        accepted.append(best)
+        base = scored
+        for c in chosen:
+            c.decide(Status.RECOMMENDED)
+            if c is not term and whole is None:  # a linear base's: in its refit accepted
+                c.size = effect_size(model, ds, c.definition)
+            accepted.append(c)
         for c in passing:
-            if c is not best:  # re-screened on the new base next round, unless the rounds end here
+            if c not in chosen:  # re-screened on the new base next round, unless the rounds end here
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.SELECTION_STOPPED)
-        if best is term:  # the engine model carries what IN_ENGINE_MODEL lists: no longer a candidate
+        if term in chosen:  # the engine model carries what IN_ENGINE_MODEL lists: no longer a candidate
             term = None
             for c in carried_by_engine_model(pool):
                 pool.remove(c)
         else:
-            pool.remove(best)
+            for c in chosen:
+                pool.remove(c)
     return [c for c in accepted if c.effect != MAP_EFFECT], _map_status(in_model, accepted, term)
 
 

@@ -25,8 +25,8 @@ class Settings:
 
     max_builds: int = 3
     """Candidates built per round of forward selection (the screened ones that explain the largest share of
-    the simulation error): each build is
-    one refit per fold, the diagnosis's cost."""
+    the simulation error): each build is one refit per fold, the diagnosis's cost. When none passes, the pairs of
+    those with stated physics are built too (ident.diagnosis.selection)."""
 
     block_s: float = 30.0
     """[s] Length of the scoring blocks: the held-out simulation error is summed per block, and the blocks are the
