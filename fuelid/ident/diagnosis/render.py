@@ -26,8 +26,8 @@ def _gain(c: Candidate | EngineMap) -> str:
 def _pair_text(c: Candidate) -> str:
     """What a candidate accepted together with another is said to be (its held-out gain is beyond the other's
     model)."""
-    return f"with {c.together_with} beside it (neither alone lowers the held-out error beyond the margin; together, " \
-           "each lowers it beyond the model with the other)"
+    return f"with {c.together_with} beside it (neither passes alone; together, each lowers the held-out error beyond " \
+           "the model with the other)"
 
 
 def signals_text(effect) -> str:
@@ -65,7 +65,8 @@ def explanation(c: Candidate) -> str:
                              "the simulation error"
     size = "" if c.size is None else f"; {_template(c) or size_text(c.size)}"
     return {
-        Status.RECOMMENDED: lambda: "recommended" + f", {_pair_text(c)}" * bool(c.together_with) + f": {_gain(c)}{size}",
+        Status.RECOMMENDED: lambda: "recommended" + f", {_pair_text(c)}" * bool(c.together_with)
+                                    + f": {_gain(c)}{size}",
         Status.NAMED_NOT_RECOMMENDED: lambda: f"named, not recommended: {c.reason.value}" + (
             f" ({_gain(c)}{size})" if c.held_out is not None else "") + f"; {p}",
         Status.EXPLAINED_BY: lambda: f"explained by {c.explained_by}: significant before it was added, not after",
