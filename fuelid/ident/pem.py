@@ -54,10 +54,14 @@ limit in the same process — so a short warm-started refit need not be run agai
 Stability: after every step the roots of F_i, C and D outside the unit circle are reflected to 1/z̄ and all
 roots are clipped to radius ≤ RHO_MAX = 0.9999 (`stabilize`); the reflected candidate must still lower V to be
 accepted. F_i and C stable keeps the predictor stable; D stable makes H = C/D a stationary noise model (the
-spectrum |C/D|² changes only by a constant factor under reflection). A fit that ends with a root at the bound
-(`at_stability_bound`) is where the projection held the search, not a minimum of V: it is reported not converged,
-stop_reason "stability_bound", with the polynomials named in its warning (when the steps keep being cut back and V
-is flat, the search stops there too).
+spectrum |C/D|² changes only by a constant factor under reflection). A root on the bound that the step would push
+outward is held there: the step is searched in the directions that keep its radius to first order (an active set
+of the constraints |z| ≤ RHO_MAX, `_free_directions`: δ = N w with N an orthonormal basis of the null space of
+the held roots' radius gradients ∂|z|/∂θ, and the LM step for w from the QR of [Ψ N ε]), so the search goes on to
+the least V with those roots on the bound; clipping the full step instead would stall it where its path happened
+to meet the bound, a point the last bits of the data move. A fit that ends with a root at the bound
+(`at_stability_bound`) is a minimum under that constraint, not of V: it is reported not converged, stop_reason
+"stability_bound", with the polynomials named in its warning.
 
 Initial conditions: every filter starts from zero state (the data are deviations from the operating point)
 and the first n0 = max(na, nk_i + nb_i − 1, nf_i, nc, nd) samples are left out of V and Ψ.
@@ -406,8 +410,8 @@ STOP_REASONS = {
     "expected_improvement": "the Gauss-Newton step promises to lower V by less than tol * V",
     "flat_loss": "V fell by less than ftol * lambda/2 in each of the last iterations and the remaining "
                  "Gauss-Newton step is within one standard error",
-    "stability_bound": f"a root of F_i, C or D is held at the stability bound |z| = {RHO_MAX}: the search stopped "
-                       "at the bound, not at a minimum of V",
+    "stability_bound": f"a root of F_i, C or D is held at the stability bound |z| = {RHO_MAX}: V is at its least "
+                       "with the root there, not at a minimum of V",
     "no_descent": "no damping lowers V",
     "max_iterations": "the iteration limit was reached",
 }
@@ -449,6 +453,48 @@ def _descent(mu: float, V: float, trial: Callable[[float], NamedTuple]) -> tuple
     return best
 
 
+HELD = 1e-6  # a root within this fraction of RHO_MAX from the bound is held there (np.roots' error is far below)
+
+
+def _held_gradients(theta: np.ndarray, s: Structure) -> np.ndarray:
+    """k × d: for each root z of F_i, C or D on the stability bound (|z| ≥ RHO_MAX (1 − HELD); one per real root
+    or conjugate pair) the gradient of its radius, ∂|z|/∂θ, scaled to unit length. For the monic
+    p(z) = zⁿ + p_1 zⁿ⁻¹ + … + p_n with p(z) = 0, ∂z/∂p_j = −zⁿ⁻ʲ / p′(z) and ∂|z| = Re(z̄ ∂z) / |z|."""
+    p = polynomials(theta, s)
+    offset, rows = s.na + sum(s.nb), []
+    for poly in [*p.F, p.C, p.D]:
+        n = poly.size - 1
+        z = np.zeros(0) if not n or _roots_within(poly, RHO_MAX * (1.0 - HELD)) else np.roots(poly)
+        for r in z[(np.abs(z) >= RHO_MAX * (1.0 - HELD)) & (z.imag >= 0.0)]:
+            dz = -r ** np.arange(n - 1, -1, -1) / np.polyval(np.polyder(poly), r)
+            g = np.zeros(s.n_params)
+            g[offset : offset + n] = np.real(np.conj(r) * dz) / abs(r)
+            norm = np.linalg.norm(g)
+            if np.isfinite(norm) and norm > 0.0:
+                rows.append(g / norm)
+        offset += n
+    return np.array(rows).reshape(-1, s.n_params)
+
+
+def _free_directions(theta: np.ndarray, s: Structure, lin: _Linearised, mu: float) -> np.ndarray | None:
+    """An orthonormal basis N (d × (d − k)) of the steps that keep, to first order, the radius of each root held at
+    the stability bound that the damped step δ(μ) would push outward (gᵀδ > 0, `_held_gradients`): the active
+    set of the constraints |z| ≤ RHO_MAX. None when no root is held there against the step.
+
+    Searching δ = N w instead of clipping the full step to the bound each time (`stabilize`) moves the other
+    parameters to the minimum of V with those roots on the bound, so the search ends at a constrained minimum that
+    the last bits of the data do not move, rather than where the clipped steps stopped making progress."""
+    G = _held_gradients(theta, s)
+    if not G.size:
+        return None
+    G = G[G @ _damped_step(lin, mu) > 0.0]
+    if not G.size:
+        return None
+    _, sv, Wt = np.linalg.svd(G)
+    rank = int(np.sum(sv > 1e-8 * sv[0]))
+    return Wt[rank:].T
+
+
 class _Trial(NamedTuple):
     """One damped step of `levenberg_marquardt`: V at the stabilised θ, whether the stability projection cut the
     step back, and the filtered signals of θ."""
@@ -472,7 +518,9 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
     iterates, in one process, as one search run to max_iter.
 
     Each iteration tries the damping μ (relative to σ_max², module docstring) and μ/10 (not below DAMPING_FLOOR)
-    and keeps the better; when neither lowers V, μ grows tenfold until one does. Stops (reason in
+    and keeps the better; when neither lowers V, μ grows tenfold until one does. Roots held at the stability bound
+    against the step restrict it to the directions that keep them there (`_free_directions`), and Δ is then the
+    fall promised in those directions. Stops (reason in
     `STOP_REASONS`): converged when the Gauss–Newton decrement Δ = ½ ‖c‖² is ≤ tol · V (MATLAB's
     SearchOptions.Tolerance, there in %); or when V fell by ≤ ftol · λ̂/2 in each of the last FLAT_ITERATIONS
     iterations and Δ ≤ λ̂/2 — the remaining step δ has δᵀ P⁻¹ δ = 2Δ/λ̂ ≤ 1, i.e. it is within one standard
@@ -506,17 +554,23 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
         return LMResult(theta, V, iterations, converged, reason, history, psi, eps, mu, flat, cut)
 
     for it in range(first, max_iter + 1):
-        lin = _linearised(psi, eps, used)
+        Rbar = _triangular_factor(psi, eps, used)
+        lin = _linearised_factor(Rbar)
+        basis = _free_directions(theta, s, lin, mu)
+        if basis is not None:  # roots held at the bound: the step is searched where they stay there
+            lin = _linearised_factor(np.linalg.qr(np.column_stack([Rbar[:-1, :-1] @ basis, Rbar[:-1, -1]]),
+                                                  mode="r"))
         decrement = _decrement(lin)
         small_step = decrement <= V / dof  # 2Δ/λ̂ ≤ 1 with λ̂ = 2V/dof
         if decrement <= tol * V:
             return stopped(it - 1, True, "expected_improvement")
-        if flat >= FLAT_ITERATIONS and (small_step or cut):
+        if flat >= FLAT_ITERATIONS and (small_step or (cut and basis is None)):
             return stopped(it - 1, small_step, "flat_loss" if small_step else "stability_bound")
         cuts = []
 
         def trial(damping: float) -> _Trial:
-            raw = theta + _damped_step(lin, damping)
+            step = _damped_step(lin, damping)
+            raw = theta + (step if basis is None else basis @ step)
             stable, m = _stable_theta(raw, s)
             cuts.append(stable is not raw and not np.array_equal(stable, raw))
             r = _responses(m, u, y, starts)
@@ -524,7 +578,7 @@ def levenberg_marquardt(theta, s: Structure, u, y, *, starts=(0,), max_iter: int
 
         best = _descent(mu, V, trial)
         if best is None:  # no damping lowers V: a (numerical) minimum if nothing is left to gain
-            if not small_step and (cut or all(cuts)):
+            if not small_step and basis is None and (cut or all(cuts)):
                 return stopped(it - 1, False, "stability_bound")
             return stopped(it - 1, small_step, "no_descent")
         damping, taken = best
@@ -716,10 +770,11 @@ def initial_estimate(u, y, s: Structure, *, starts=(0,), max_iter: int = INIT_MA
 
 
 def at_stability_bound(model: PolyModel) -> list[str]:
-    """Which of F_i, C, D have a root on the stability bound |z| = RHO_MAX (where `stabilize` clips them)."""
+    """Which of F_i, C, D have a root on the stability bound |z| = RHO_MAX (within HELD: where `stabilize` clips
+    them and the search holds them, `_free_directions`)."""
     polys = [(f"F{i + 1} ({name})", f) for i, (name, f) in enumerate(zip(model.input_names, model.F))]
     polys += [("C", model.C), ("D", model.D)]
-    return [label for label, p in polys if p.size > 1 and np.abs(np.roots(p)).max() >= RHO_MAX * (1 - 1e-9)]
+    return [label for label, p in polys if p.size > 1 and np.abs(np.roots(p)).max() >= RHO_MAX * (1.0 - HELD)]
 
 
 def cancellations(model: PolyModel, tol: float = 0.01) -> list[str]:
