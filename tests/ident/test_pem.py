@@ -49,6 +49,31 @@ def test_gradient_matches_finite_differences():
         np.testing.assert_allclose(psi[:, k], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
 
 
+def test_held_roots_radius_gradients_match_finite_differences():
+    """`_held_gradients`: one row per root (or conjugate pair) of F_i, C, D on the stability bound — a real root of
+    F2, a complex pair of C — the direction of ∂|z|/∂θ by central differences; steps along the free directions
+    of `_free_directions` leave those radii fixed to first order."""
+    rho = pem_module.RHO_MAX
+    pair = rho * np.exp(0.6j)
+    m = PolyModel(A=[1], B=[[0, 0.5, 0.2], [0.3]], F=[[1, -0.5], np.poly([rho, 0.3])],
+                  C=np.real(np.poly([pair, np.conj(pair), -0.4])), D=[1, -0.5], Ts=1.0, nk=(1, 0))
+    s, th = m.structure, m.theta
+
+    def radii(theta):
+        p = pem_module.polynomials(theta, s)
+        return np.array([np.abs(np.roots(p.F[1])).max(), np.abs(np.roots(p.C)).max()])
+
+    G = pem_module._held_gradients(th, s)
+    assert G.shape == (2, th.size)
+    h = 1e-7
+    fd = np.array([(radii(th + h * e) - radii(th - h * e)) / (2 * h) for e in np.eye(th.size)]).T
+    np.testing.assert_allclose(G, fd / np.linalg.norm(fd, axis=1, keepdims=True), atol=1e-6)
+    N = np.linalg.svd(G)[2][2:].T  # what `_free_directions` returns when both are held
+    for w in np.random.default_rng(0).normal(size=(5, N.shape[1])):
+        step = 1e-5 * N @ w / np.linalg.norm(w)
+        assert np.abs(radii(th + step) - radii(th)).max() < 1e-8
+
+
 @pytest.mark.parametrize("structure", [Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0)),  # the initialisation's OE fit
                                        Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0), nc=11, nd=11),  # paper's BJ
                                        Structure(nb=(2, 1), nf=(0, 0), nk=(1, 0), na=2)])  # ARX
