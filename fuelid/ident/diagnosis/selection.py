@@ -139,6 +139,14 @@ def base_refits(model: PolyModel, ds, folds: Folds, settings: Settings, defined,
     return refits(start, ds, folds, [], settings, defined)
 
 
+@dataclasses.dataclass(frozen=True)
+class _Judged:
+    """A candidate held to the yardstick (`_Builds._judged`): why it failed (None: it passes), and its size."""
+
+    failed: Reason | None
+    size: EffectSize | None
+
+
 class _Builds:
     """One round's builds against its base: each candidate's model (on an engine-model base, as `fuelid identify`
     builds it on all of ds: `built`; else nested in the base's fold models), its fold refits, and the yardstick."""
@@ -170,24 +178,31 @@ class _Builds:
         self.scored[c.effect] = scored
         if whole is not None:
             self.whole[c.effect] = whole
-        return self._judged(c, compare(self.base, scored, self.folds, self.settings), scored, whole)
+        held_out = compare(self.base, scored, self.folds, self.settings)
+        return self._decided(c, held_out, self._judged(c, held_out, scored, whole))
 
-    def _judged(self, c: Candidate, held_out: HeldOut, scored: Scored, whole: PolyModel | None) -> bool:
-        """c's evidence from a model built with it (held_out: against the model without it); decided
-        NAMED_NOT_RECOMMENDED unless it passes the yardstick in the direction its physics states; whether it does."""
-        c.held_out = held_out
+    def _judged(self, c: Candidate, held_out: HeldOut, scored: Scored, whole: PolyModel | None) -> _Judged:
+        """c judged from a model built with it (held_out: against the model without it, scored: its fold refits):
+        it fails without a held-out gain, or when its fold models fit it against the direction its physics states."""
         sized = held_out.passes and c.effect != MAP_EFFECT  # its size: evidence once it helps
         # the fold models' sizes: the physics' direction judged on their spread, and a linear base's size
         fold_sizes = _fold_sizes(c, scored, self.ds) if sized and (c.definition.sign or whole is None) else []
-        c.size = None if not sized else (effect_size(whole, self.ds, c.definition) if whole is not None
-                                         else _median(fold_sizes))
+        size = None if not sized else (effect_size(whole, self.ds, c.definition) if whole is not None
+                                       else _median(fold_sizes))
         if not held_out.passes:  # open: a later round's base (without what masked it) may show its gain
-            c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NO_HELD_OUT_GAIN)
-        elif against_physics(c.definition, fold_sizes, self.settings.margin_se):  # open: another base may differ
-            c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.AGAINST_ITS_PHYSICS)
-        else:
-            return True
-        return False
+            return _Judged(Reason.NO_HELD_OUT_GAIN, size)
+        if against_physics(c.definition, fold_sizes, self.settings.margin_se):  # open: another base may differ
+            return _Judged(Reason.AGAINST_ITS_PHYSICS, size)
+        return _Judged(None, size)
+
+    @staticmethod
+    def _decided(c: Candidate, held_out: HeldOut, judged: _Judged) -> bool:
+        """Records c's evidence and decides it NAMED_NOT_RECOMMENDED for the reason it failed; whether it passed."""
+        c.held_out, c.size = held_out, judged.size
+        if judged.failed is not None:
+            c.decide(Status.NAMED_NOT_RECOMMENDED, judged.failed)
+            return False
+        return True
 
     def passing_pair(self, single: list[Candidate]) -> tuple[list[Candidate], PolyModel | None, Scored] | None:
         """Of the pairs of `single` (built alone this round, none passing), the one whose model passes the
@@ -205,16 +220,15 @@ class _Builds:
                 continue
             beyond = {a: compare(self.scored[b.effect], scored, self.folds, self.settings),
                       b: compare(self.scored[a.effect], scored, self.folds, self.settings)}
-            if all(h.passes and not against_physics(c.definition, _fold_sizes(c, scored, self.ds) if
-                                                    c.definition.sign else [], self.settings.margin_se)
-                   for c, h in beyond.items()):
-                best = (gain, beyond, scored, whole)
+            judged = {c: self._judged(c, h, scored, whole) for c, h in beyond.items()}
+            if all(j.failed is None for j in judged.values()):
+                best = (gain, beyond, judged, scored, whole)
         if best is None:
             return None
-        _, beyond, scored, whole = best
-        (a, ha), (b, hb) = beyond.items()
-        for c, h, other in ((a, ha, b), (b, hb, a)):
-            self._judged(c, h, scored, whole)
+        _, beyond, judged, scored, whole = best
+        (a, b) = beyond
+        for c, other in ((a, b), (b, a)):
+            self._decided(c, beyond[c], judged[c])
             c.together_with = other.effect
         return [a, b], whole, scored
 
