@@ -12,15 +12,21 @@ second-difference penalty
     λ (‖Δ²_n c‖² + ‖Δ²_T c‖²)          (Δ² along the speed index i, resp. the torque index j)
 
 which leaves a plane (indeed any a + b n + c T + d n T) unpenalised and bends the rest towards one where the data are
-thin. λ is chosen by generalised cross-validation (`gcv_smoothing`: GCV(λ) = N RSS / (N − tr H_λ)², H_λ the hat
-matrix of the unconstrained penalised fit; Craven & Wahba 1979), then the coefficients are fitted by penalised least
+thin. λ is chosen by blocked cross-validation (`cv_smoothing`: the samples cut into blocks of BLOCK consecutive
+samples, the blocks dealt into CV_FOLDS folds, each fold predicted by the unconstrained penalised fit to the others;
+blocks rather than samples because the errors are correlated in time, where leave-one-out and its GCV shortcut
+choose too little smoothing; Arlot & Celisse 2010, §8), then the coefficients are fitted by penalised least
 squares under the constraints (`penalised_fit`, scipy.optimize.lsq_linear):
 
 - monotone in torque: c_i,j+1 ≥ c_i,j (more torque never takes less fuel; every combustion engine's map is so, and a
   B-spline with non-decreasing coefficients is non-decreasing);
-- no negative fuel: c_i,0 ≥ 0 (with the above, every c ≥ 0, and s ≥ 0 since B-splines are non-negative and sum to 1).
+- no negative fuel: each speed row's value at the lowest torque, v_i = (c_i,0 + 4 c_i,1 + c_i,2)/6 ≥ 0 (the torque
+  basis at T_lo, `_axis` at u = 0). With the above, s(n, T) ≥ s(n, T_lo) = Σ_i B_i(n) v_i ≥ 0. Bounding c_i,0 itself
+  instead would be wrong at the edge: c_i,0 is about the row's value one knot interval below T_lo (the Greville
+  abscissa), so a row whose fuel at T_lo is less than its rise over one interval (low fuel at low torque next to its
+  slope, as on an engine's map) needs a negative c_i,0, and c_i,0 ≥ 0 bends the surface up along the lowest interval.
 
-Both are bounds on z = (c_i,0, c_i,j − c_i,j−1), c = M z (per speed index a cumulative sum along torque).
+Both are bounds on z = (v_i, c_i,j − c_i,j−1), c = M z (`monotone_transform`).
 
 Outside the region (`basis`): speed is clamped to [n_lo, n_hi]; torque below T_lo is clamped to T_lo, above T_hi the
 surface continues linearly along torque with its slope at T_hi (non-negative, so still monotone); at or below zero
@@ -38,7 +44,7 @@ The validity region is the data's coverage: sample counts on a COVERAGE_BINS × 
 
 The coefficients' covariance (`coefficient_covariance`) is the sandwich of the penalised least-squares estimate,
 robust to errors correlated in time: with A = ΦᵀΦ + λ'P (the penalised Gram matrix), r = y − Φ ĉ and the samples
-cut into consecutive blocks b of COVARIANCE_BLOCK samples,
+cut into consecutive blocks b of BLOCK samples,
 
     Cov(ĉ) = A⁻¹ (Σ_b Φ_bᵀ r_b r_bᵀ Φ_b) A⁻¹
 
@@ -63,9 +69,10 @@ SEGMENTS = 6  # knot intervals per axis: 9 × 9 coefficients
 CUT_TORQUE = 0.0  # at or below this torque [model unit] the injection is cut: no fuel
 COVERAGE_BINS = 12
 COVERAGE_MIN = 10  # samples in a coverage cell for it to count as covered
-SMOOTHING_GRID = np.logspace(-6, 3, 19)  # λ tried by GCV, relative to tr(ΦᵀΦ)/tr(P)
+SMOOTHING_GRID = np.logspace(-6, 3, 19)  # λ tried by `cv_smoothing`, relative to tr(ΦᵀΦ)/tr(P)
 MIN_SAMPLES = 200
-COVARIANCE_BLOCK = 100  # samples per block of `coefficient_covariance` (30 s at 0.3 s): longer than the errors' memory
+BLOCK = 100  # samples per block of `cv_smoothing` and `coefficient_covariance` (30 s at 0.3 s): longer than the errors' memory
+CV_FOLDS = 5
 
 
 def knots(lo: float, hi: float, segments: int = SEGMENTS) -> np.ndarray:
@@ -133,8 +140,12 @@ def penalty(kn: int, kt: int) -> np.ndarray:
 
 
 def monotone_transform(kn: int, kt: int) -> np.ndarray:
-    """M with c = M z, z = (c_i,0, c_i,j − c_i,j−1) per speed index i: z ≥ 0 ⇔ non-negative and monotone in torque."""
-    return np.kron(np.eye(kn), np.tril(np.ones((kt, kt))))
+    """M with c = M z, z = (v_i, c_i,j − c_i,j−1) per speed index i, v_i = (c_i,0 + 4 c_i,1 + c_i,2)/6 the row's value
+    at the lowest torque: z ≥ 0 ⇔ non-negative and monotone in torque (module docstring). Per row, c_i,0 =
+    v_i − (5 d_1 + d_2)/6 (d_j = c_i,j − c_i,j−1) and c_i,j = c_i,0 + d_1 + … + d_j."""
+    edge = np.eye(kt)
+    edge[0, 1:3] = (-5.0 / 6.0, -1.0 / 6.0)
+    return np.kron(np.eye(kn), np.tril(np.ones((kt, kt))) @ edge)
 
 
 @dataclass
@@ -281,35 +292,54 @@ def plane_slopes(phi: np.ndarray, n: np.ndarray, T: np.ndarray, op) -> np.ndarra
         return 1e-3 * solve(P.T @ P, P.T @ phi, assume_a="pos")[1:]
 
 
-def gcv_smoothing(G: np.ndarray, g: np.ndarray, yy: float, N: int, P: np.ndarray) -> float:
-    """λ [relative to tr(ΦᵀΦ)/tr(RᵀR)] of SMOOTHING_GRID minimising GCV(λ) = N RSS_λ / (N − tr H_λ)² of the
-    unconstrained fit c_λ = (G + λ' P)⁻¹ g, given G = ΦᵀΦ, g = Φᵀy, yy = yᵀy, N samples and P = RᵀR;
-    tr H_λ = tr((G + λ' P)⁻¹ G) (K × K)."""
-    scale = np.trace(G) / np.trace(P)
-    ridge = 1e-10 * np.trace(G) * np.eye(len(G))
-    best = (np.inf, SMOOTHING_GRID[0])
+def fold_grams(phi: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(G_f, g_f, yy_f) = (Φ_fᵀΦ_f, Φ_fᵀy_f, y_fᵀy_f) per fold f of CV_FOLDS: the samples (rows in time order) cut into
+    consecutive blocks of BLOCK samples, block b in fold b mod CV_FOLDS."""
+    fold = np.arange(len(y)) // BLOCK % CV_FOLDS
+    G = np.stack([phi[fold == f].T @ phi[fold == f] for f in range(CV_FOLDS)])
+    g = np.stack([phi[fold == f].T @ y[fold == f] for f in range(CV_FOLDS)])
+    return G, g, np.array([y[fold == f] @ y[fold == f] for f in range(CV_FOLDS)])
+
+
+def cv_smoothing(G: np.ndarray, g: np.ndarray, yy: np.ndarray, P: np.ndarray) -> float:
+    """λ [relative to tr(ΦᵀΦ)/tr(RᵀR)] of SMOOTHING_GRID minimising the blocked cross-validation error
+
+        CV(λ) = Σ_f ‖y_f − Φ_f c_λ^(−f)‖²,   c_λ^(−f) = (G − G_f + λ' P)⁻¹ (g − g_f),
+
+    of the unconstrained fit without fold f, from the folds' Gram matrices (`fold_grams`: G_f, g_f, yy_f stacked;
+    G = Σ_f G_f, g = Σ_f g_f) and P = RᵀR; ‖y_f − Φ_f c‖² = yy_f − 2 cᵀg_f + cᵀG_f c."""
+    Gall, gall = G.sum(axis=0), g.sum(axis=0)
+    scale = np.trace(Gall) / np.trace(P)
+    ridge = 1e-10 * np.trace(Gall) * np.eye(len(Gall))
+    scores = []
     for lam in SMOOTHING_GRID:
-        A = G + lam * scale * P + ridge
-        c = solve(A, g, assume_a="pos")
-        rss = yy - 2 * c @ g + c @ G @ c
-        dof = np.trace(solve(A, G, assume_a="pos"))
-        score = N * max(rss, 0.0) / max(N - dof, 1.0) ** 2
-        if score < best[0]:
-            best = (score, lam)
-    return float(best[1])
+        score = 0.0
+        for Gf, gf, yyf in zip(G, g, yy):
+            c = solve(Gall - Gf + lam * scale * P + ridge, gall - gf, assume_a="pos")
+            score += yyf - 2 * c @ gf + c @ Gf @ c
+        scores.append(score)
+    return float(SMOOTHING_GRID[int(np.argmin(scores))])
 
 
 @in_one_blas_thread  # N × K products: BLAS threads cost more than they save (fuelid.blas)
 def penalised_fit(phi: np.ndarray, y: np.ndarray, kn: int, kt: int, smoothing: float | None = None,
-                  monotone: bool = True, lower: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """c = argmin ‖y − Φ c‖² + λ' ‖R c‖² (R: `penalty`, λ' = λ tr(ΦᵀΦ)/tr(RᵀR), λ by `gcv_smoothing` when not given),
-    monotone: under z = M⁻¹ c ≥ lower (default 0: non-negative, monotone in torque; `monotone_transform`).
+                  monotone: bool = True) -> tuple[np.ndarray, float]:
+    """c = argmin ‖y − Φ c‖² + λ' ‖R c‖² (R: `penalty`, λ' = λ tr(ΦᵀΦ)/tr(RᵀR), λ by `cv_smoothing` when not given),
+    monotone: under z = M⁻¹ c ≥ 0 (non-negative, monotone in torque; `monotone_transform`); Φ's rows in time order.
 
     The criterion is c'(G + λ'P)c − 2c'g + yᵀy (G = ΦᵀΦ, g = Φᵀy, P = RᵀR): with the Cholesky factor
     G + λ'P = L Lᵀ it is ‖Lᵀ c − L⁻¹ g‖² + const, a K × K bounded least-squares problem for scipy.optimize.lsq_linear
     (K = kn·kt; the penalty keeps G + λ'P well conditioned: its null space, the bilinear surfaces, is determined
     by any data not on one line). Returns (c, λ)."""
-    return penalised_gram_fit(phi.T @ phi, phi.T @ y, float(y @ y), len(y), kn, kt, smoothing, monotone, lower)
+    G, g = phi.T @ phi, phi.T @ y
+    lam = cv_smoothing(*fold_grams(phi, y), penalty_gram(kn, kt)) if smoothing is None else smoothing
+    L = cholesky(penalised_gram(G, lam, kn, kt), lower=True)
+    b = solve_triangular(L, g, lower=True)
+    if not monotone:
+        return solve_triangular(L.T, b, lower=False), lam
+    M = monotone_transform(kn, kt)
+    z = lsq_linear(L.T @ M, b, bounds=(0.0, np.inf), method="bvls").x
+    return M @ z, lam
 
 
 def penalty_gram(kn: int, kt: int) -> np.ndarray:
@@ -327,31 +357,17 @@ def penalised_gram(G: np.ndarray, smoothing: float, kn: int, kt: int) -> np.ndar
 def coefficient_covariance(phi: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.ndarray:
     """Cov(ĉ) = A⁻¹ (Σ_b Φ_bᵀ r_b r_bᵀ Φ_b) A⁻¹ [fuel unit²] (module docstring) from the design Φ (N × K, rows in
     time order), the residuals r (N) and the penalised Gram matrix A (`penalised_gram`)."""
-    blocks = np.arange(len(r)) // COVARIANCE_BLOCK
+    blocks = np.arange(len(r)) // BLOCK
     scores = np.zeros((blocks[-1] + 1 if len(r) else 0, phi.shape[1]))
     np.add.at(scores, blocks, phi * r[:, None])
     Ainv_S = solve(A, scores.T, assume_a="pos")  # A⁻¹ Φ_bᵀ r_b, one column per block
     return Ainv_S @ Ainv_S.T
 
 
-def penalised_gram_fit(G, g, yy: float, N: int, kn: int, kt: int, smoothing: float | None = None,
-                       monotone: bool = True, lower: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """`penalised_fit` from G = ΦᵀΦ, g = Φᵀy, yy = yᵀy and the number of samples N."""
-    lam = gcv_smoothing(G, g, yy, N, penalty_gram(kn, kt)) if smoothing is None else smoothing
-    L = cholesky(penalised_gram(G, lam, kn, kt), lower=True)
-    M = monotone_transform(kn, kt) if monotone else np.eye(kn * kt)
-    b = solve_triangular(L, g, lower=True)
-    if not monotone:
-        return solve_triangular(L.T, b, lower=False), lam
-    lb = np.zeros(kn * kt) if lower is None else lower
-    z = lsq_linear(L.T @ M, b, bounds=(lb, np.inf), method="bvls").x
-    return M @ z, lam
-
-
 def fit_map(n, T, y, op, y0: float, units=("rpm", "%", "L/h"), smoothing: float | None = None) -> EngineMap:
     """The static map of fuel y [fuel unit] over speed n [rpm] and torque T [torque unit] (finite samples of the
     three arrays): knots over their range (torque from max(min T, CUT_TORQUE)), coefficients by `penalised_fit`
-    (non-negative, monotone in torque; λ by GCV when not given), the plane through (op = (n0, T0), y0) with the slopes
+    (non-negative, monotone in torque; λ by `cv_smoothing` when not given), the plane through (op = (n0, T0), y0) with the slopes
     of the least-squares plane over these samples, their coverage, the coefficients' covariance
     (`coefficient_covariance`, the samples in the order given). InputError with fewer than MIN_SAMPLES samples above
     the cut torque."""

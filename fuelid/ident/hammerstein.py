@@ -30,7 +30,8 @@ output-error sense:
         y − ŷ_s = w − Z c,   w = ỹ − Σ_{i ∉ map} G_i ũ_i + G_m ℓ,   Z = G_m φ + G_rs (r φ / f_scale),
 
     so the whole map, its plane included, is the penalised least-squares solution on the filtered basis columns Z
-    (ident.enginemap.penalised_gram_fit: the P-spline penalty, λ by GCV on this problem, monotone and non-negative):
+    (ident.enginemap.penalised_fit: the P-spline penalty, λ by cross-validation on this problem, monotone and
+    non-negative):
     the fuel's steady level and slopes are fitted on the simulation error, where the speed and torque paths' static
     gains from (b) are only as good as PEM's slow poles let them be. Then rescaled to G_m(1) = 1: B_m and the
     transient column's B divided by the gain g, c replaced by g c − (g − 1) c_ℓ (c_ℓ the plane ℓ's coefficients,
@@ -54,7 +55,7 @@ import numpy as np
 
 from fuelid.blas import one_blas_thread
 from fuelid.ident.effects import MAP_COLUMNS
-from fuelid.ident.enginemap import EngineMap, coefficient_covariance, penalised_gram, penalised_gram_fit
+from fuelid.ident.enginemap import EngineMap, coefficient_covariance, penalised_fit, penalised_gram
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.pem import pem
@@ -208,9 +209,8 @@ def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
             z_all.append(through[n0:])
         w, Z = np.concatenate(w_all), np.vstack(z_all)
         kn, kt = emap.coef.shape
-        G = Z.T @ Z
-        c, lam = penalised_gram_fit(G, Z.T @ w, float(w @ w), len(w), kn, kt)
-        cov = coefficient_covariance(Z, w - Z @ c, penalised_gram(G, lam, kn, kt))
+        c, lam = penalised_fit(Z, w, kn, kt)
+        cov = coefficient_covariance(Z, w - Z @ c, penalised_gram(Z.T @ Z, lam, kn, kt))
     # x_map = φ c − (y0 + g_n ñ + g_T T̃) times the gain: the plane's coefficients (exact on the basis) scaled alike
     c = gain * c - (gain - 1.0) * emap.plane_coefficients(p0, g_n, g_T).ravel()
     B = list(model.B)

@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 from scipy.interpolate import BSpline
 
 from fuelid.errors import InputError
-from fuelid.ident.enginemap import CUT_TORQUE, DEGREE, EngineMap, _axis, _axis_slope, fit_map, knots
+from fuelid.ident.enginemap import (BLOCK, CUT_TORQUE, CV_FOLDS, DEGREE, SMOOTHING_GRID, EngineMap, _axis, _axis_slope,
+                                   cv_smoothing, fit_map, fold_grams, knots, penalised_fit, penalty_gram)
 
 
 def surface(n, T):
@@ -50,6 +51,53 @@ def test_the_map_is_monotone_in_torque_and_never_negative_even_where_the_data_sa
     f = emap(gn, gt)
     assert (np.diff(f, axis=1) >= -1e-9).all()
     assert (f >= 0).all()
+
+
+def test_a_map_steep_at_its_lowest_torque_is_fitted_without_bending_the_edge_up():
+    # 0.5 L/h at 20 Nm rising 0.03 L/h per Nm: one knot interval below the data the plane would be negative
+    rng = np.random.default_rng(2)
+    n, T = rng.uniform(600, 1900, 6000), rng.uniform(20, 1700, 6000)
+    def plane(n, T):
+        return 0.5 + 0.03 * (T - 20.0) + 1e-4 * (n - 600.0)
+    emap = fit_map(n, T, plane(n, T) + rng.normal(0, 0.05, n.size), (600.0, 112.0), 0.5, ("rpm", "Nm", "L/h"))
+    gn, gt = np.meshgrid(np.linspace(620, 1880, 20), np.linspace(20, 300, 20))
+    assert np.abs(emap(gn, gt) - plane(gn, gt)).max() < 0.05
+    assert (emap.coef[:, 0] < 0).all() and emap(gn, np.full_like(gn, 20.0)).min() > 0
+
+
+def test_the_smoothing_minimises_the_error_of_each_held_out_fold_of_blocks():
+    n, T, y = samples(size=2000, seed=3)
+    shell = fit_map(n, T, y, (600.0, 112.0), 2.0, ("rpm", "Nm", "L/h"), smoothing=1.0)
+    phi, (kn, kt) = shell.basis(n, T), shell.coef.shape
+    fold = np.arange(len(y)) // BLOCK % CV_FOLDS
+    def held_out_error(lam):  # refit without each fold, unconstrained, and predict it
+        err = 0.0
+        for f in range(CV_FOLDS):
+            c, _ = penalised_fit(phi[fold != f], y[fold != f], kn, kt, smoothing=lam * np.trace(phi.T @ phi) /
+                                 np.trace(phi[fold != f].T @ phi[fold != f]), monotone=False)
+            err += np.sum((y[fold == f] - phi[fold == f] @ c) ** 2)
+        return err
+    chosen = cv_smoothing(*fold_grams(phi, y), penalty_gram(kn, kt))
+    assert held_out_error(chosen) <= min(held_out_error(lam) for lam in SMOOTHING_GRID) * (1 + 1e-9)
+
+
+def test_with_errors_correlated_in_time_the_map_is_smoothed_rather_than_fitted_to_the_drift():
+    # AR(1) errors, 0.98 per sample (a 50-sample memory) and 1 L/h std: a slow drift that samples in time order
+    # follow along the operating points they visit; a leave-one-sample-out choice takes the drift for the map
+    rng = np.random.default_rng(4)
+    size = 6000
+    walk = np.cumsum(rng.normal(0, 1, (size, 2)), axis=0)
+    n = 600 + 1300 * (np.sin(walk[:, 0] / 20) + 1) / 2
+    T = 20 + 1680 * (np.sin(walk[:, 1] / 20) + 1) / 2
+    e = np.zeros(size)
+    for k in range(1, size):
+        e[k] = 0.98 * e[k - 1] + rng.normal(0, 0.2)
+    emap = fit_map(n, T, surface(n, T) + e, (600.0, 112.0), 2.0, ("rpm", "Nm", "L/h"))
+    rough = fit_map(n, T, surface(n, T) + e, (600.0, 112.0), 2.0, ("rpm", "Nm", "L/h"), smoothing=SMOOTHING_GRID[0])
+    gn, gt = np.meshgrid(np.linspace(650, 1850, 25), np.linspace(50, 1650, 25))
+    def error(m):
+        return np.sqrt(np.mean((m(gn, gt) - surface(gn, gt)) ** 2))
+    assert emap.smoothing > SMOOTHING_GRID[0] and error(emap) < error(rough)
 
 
 def test_outside_its_region_speed_is_clamped_and_torque_continues_linearly_above(fitted):
