@@ -15,7 +15,7 @@ which leaves a plane (indeed any a + b n + c T + d n T) unpenalised and bends th
 thin. λ is chosen by blocked cross-validation (`cv_smoothing`: the samples cut into blocks of BLOCK consecutive
 samples, the blocks dealt into CV_FOLDS folds, each fold predicted by the unconstrained penalised fit to the others;
 blocks rather than samples because the errors are correlated in time, where leave-one-out and its GCV shortcut
-choose too little smoothing; Arlot & Celisse 2010, §8), then the coefficients are fitted by penalised least
+choose too little smoothing; Arlot & Celisse 2010), then the coefficients are fitted by penalised least
 squares under the constraints (`penalised_fit`, scipy.optimize.lsq_linear):
 
 - monotone in torque: c_i,j+1 ≥ c_i,j (more torque never takes less fuel; every combustion engine's map is so, and a
