@@ -71,7 +71,7 @@ COVERAGE_BINS = 12
 COVERAGE_MIN = 10  # samples in a coverage cell for it to count as covered
 SMOOTHING_GRID = np.logspace(-6, 3, 19)  # λ tried by `cv_smoothing`, relative to tr(ΦᵀΦ)/tr(P)
 MIN_SAMPLES = 200
-BLOCK = 100  # samples per block of `cv_smoothing` and `coefficient_covariance` (30 s at 0.3 s): longer than the errors' memory
+BLOCK = 100  # samples per block (30 s at 0.3 s) of `cv_smoothing` and `coefficient_covariance`: the errors' memory
 CV_FOLDS = 5
 
 
@@ -367,8 +367,8 @@ def coefficient_covariance(phi: np.ndarray, r: np.ndarray, A: np.ndarray) -> np.
 def fit_map(n, T, y, op, y0: float, units=("rpm", "%", "L/h"), smoothing: float | None = None) -> EngineMap:
     """The static map of fuel y [fuel unit] over speed n [rpm] and torque T [torque unit] (finite samples of the
     three arrays): knots over their range (torque from max(min T, CUT_TORQUE)), coefficients by `penalised_fit`
-    (non-negative, monotone in torque; λ by `cv_smoothing` when not given), the plane through (op = (n0, T0), y0) with the slopes
-    of the least-squares plane over these samples, their coverage, the coefficients' covariance
+    (non-negative, monotone in torque; λ by `cv_smoothing` when not given), the plane through (op = (n0, T0), y0)
+    with the slopes of the least-squares plane over these samples, their coverage, the coefficients' covariance
     (`coefficient_covariance`, the samples in the order given). InputError with fewer than MIN_SAMPLES samples above
     the cut torque."""
     n, T, y = (np.asarray(a, float).ravel() for a in (n, T, y))
