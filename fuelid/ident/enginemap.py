@@ -71,7 +71,7 @@ COVERAGE_BINS = 12
 COVERAGE_MIN = 10  # samples in a coverage cell for it to count as covered
 SMOOTHING_GRID = np.logspace(-6, 3, 19)  # λ tried by `cv_smoothing`, relative to tr(ΦᵀΦ)/tr(P)
 MIN_SAMPLES = 200
-BLOCK = 100  # samples per block (30 s at 0.3 s) of `cv_smoothing` and `coefficient_covariance`: the errors' memory
+BLOCK = 100  # samples (30 s at 0.3 s, longer than the errors' memory) per block of `cv_smoothing`, the covariance
 CV_FOLDS = 5
 
 
