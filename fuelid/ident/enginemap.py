@@ -296,9 +296,9 @@ def fold_grams(phi: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     """(G_f, g_f, yy_f) = (Φ_fᵀΦ_f, Φ_fᵀy_f, y_fᵀy_f) per fold f of CV_FOLDS: the samples (rows in time order) cut into
     consecutive blocks of BLOCK samples, block b in fold b mod CV_FOLDS."""
     fold = np.arange(len(y)) // BLOCK % CV_FOLDS
-    G = np.stack([phi[fold == f].T @ phi[fold == f] for f in range(CV_FOLDS)])
-    g = np.stack([phi[fold == f].T @ y[fold == f] for f in range(CV_FOLDS)])
-    return G, g, np.array([y[fold == f] @ y[fold == f] for f in range(CV_FOLDS)])
+    parts = [(phi[fold == f], y[fold == f]) for f in range(CV_FOLDS)]
+    return (np.stack([p.T @ p for p, _ in parts]), np.stack([p.T @ v for p, v in parts]),
+            np.array([v @ v for _, v in parts]))
 
 
 def cv_smoothing(G: np.ndarray, g: np.ndarray, yy: np.ndarray, P: np.ndarray) -> float:
@@ -323,23 +323,25 @@ def cv_smoothing(G: np.ndarray, g: np.ndarray, yy: np.ndarray, P: np.ndarray) ->
 
 @in_one_blas_thread  # N × K products: BLAS threads cost more than they save (fuelid.blas)
 def penalised_fit(phi: np.ndarray, y: np.ndarray, kn: int, kt: int, smoothing: float | None = None,
-                  monotone: bool = True) -> tuple[np.ndarray, float]:
+                  monotone: bool = True) -> tuple[np.ndarray, float, np.ndarray]:
     """c = argmin ‖y − Φ c‖² + λ' ‖R c‖² (R: `penalty`, λ' = λ tr(ΦᵀΦ)/tr(RᵀR), λ by `cv_smoothing` when not given),
     monotone: under z = M⁻¹ c ≥ 0 (non-negative, monotone in torque; `monotone_transform`); Φ's rows in time order.
 
     The criterion is c'(G + λ'P)c − 2c'g + yᵀy (G = ΦᵀΦ, g = Φᵀy, P = RᵀR): with the Cholesky factor
     G + λ'P = L Lᵀ it is ‖Lᵀ c − L⁻¹ g‖² + const, a K × K bounded least-squares problem for scipy.optimize.lsq_linear
     (K = kn·kt; the penalty keeps G + λ'P well conditioned: its null space, the bilinear surfaces, is determined
-    by any data not on one line). Returns (c, λ)."""
+    by any data not on one line). Returns (c, λ, A), A = G + λ'P the penalised Gram matrix
+    (`penalised_gram`, for `coefficient_covariance`)."""
     G, g = phi.T @ phi, phi.T @ y
     lam = cv_smoothing(*fold_grams(phi, y), penalty_gram(kn, kt)) if smoothing is None else smoothing
-    L = cholesky(penalised_gram(G, lam, kn, kt), lower=True)
+    A = penalised_gram(G, lam, kn, kt)
+    L = cholesky(A, lower=True)
     b = solve_triangular(L, g, lower=True)
     if not monotone:
-        return solve_triangular(L.T, b, lower=False), lam
+        return solve_triangular(L.T, b, lower=False), lam, A
     M = monotone_transform(kn, kt)
     z = lsq_linear(L.T @ M, b, bounds=(0.0, np.inf), method="bvls").x
-    return M @ z, lam
+    return M @ z, lam, A
 
 
 def penalty_gram(kn: int, kt: int) -> np.ndarray:
@@ -383,10 +385,9 @@ def fit_map(n, T, y, op, y0: float, units=("rpm", "%", "L/h"), smoothing: float 
                       np.zeros((COVERAGE_BINS, COVERAGE_BINS)), *units)
     phi = shell.basis(n, T)
     kn, kt = shell.coef.shape
-    c, lam = penalised_fit(phi[fuelled], y[fuelled], kn, kt, smoothing)
+    c, lam, A = penalised_fit(phi[fuelled], y[fuelled], kn, kt, smoothing)
     with one_blas_thread():
-        cov = coefficient_covariance(phi[fuelled], y[fuelled] - phi[fuelled] @ c,
-                                     penalised_gram(phi[fuelled].T @ phi[fuelled], lam, kn, kt))
+        cov = coefficient_covariance(phi[fuelled], y[fuelled] - phi[fuelled] @ c, A)
     counts = np.histogram2d(n, T, bins=COVERAGE_BINS, range=[shell.speed_range, shell.torque_range])[0]
     plane = (y0, *(plane_slopes(phi, n, T, op) @ c))
     return EngineMap(tn, tt, c, plane, op, float(np.percentile(y, 95)) or 1.0, lam, counts, *units, cov)

@@ -55,7 +55,7 @@ import numpy as np
 
 from fuelid.blas import one_blas_thread
 from fuelid.ident.effects import MAP_COLUMNS
-from fuelid.ident.enginemap import EngineMap, coefficient_covariance, penalised_fit, penalised_gram
+from fuelid.ident.enginemap import EngineMap, coefficient_covariance, penalised_fit
 from fuelid.ident.filters import lfilter
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.pem import pem
@@ -209,8 +209,8 @@ def refit_map(model: PolyModel, ds, segments) -> PolyModel | None:
             z_all.append(through[n0:])
         w, Z = np.concatenate(w_all), np.vstack(z_all)
         kn, kt = emap.coef.shape
-        c, lam = penalised_fit(Z, w, kn, kt)
-        cov = coefficient_covariance(Z, w - Z @ c, penalised_gram(Z.T @ Z, lam, kn, kt))
+        c, lam, A = penalised_fit(Z, w, kn, kt)
+        cov = coefficient_covariance(Z, w - Z @ c, A)
     # x_map = φ c − (y0 + g_n ñ + g_T T̃) times the gain: the plane's coefficients (exact on the basis) scaled alike
     c = gain * c - (gain - 1.0) * emap.plane_coefficients(p0, g_n, g_T).ravel()
     B = list(model.B)

@@ -73,7 +73,7 @@ def test_the_smoothing_minimises_the_error_of_each_held_out_fold_of_blocks():
     def held_out_error(lam):  # refit without each fold, unconstrained, and predict it
         err = 0.0
         for f in range(CV_FOLDS):
-            c, _ = penalised_fit(phi[fold != f], y[fold != f], kn, kt, smoothing=lam * np.trace(phi.T @ phi) /
+            c, *_ = penalised_fit(phi[fold != f], y[fold != f], kn, kt, smoothing=lam * np.trace(phi.T @ phi) /
                                  np.trace(phi[fold != f].T @ phi[fold != f]), monotone=False)
             err += np.sum((y[fold == f] - phi[fold == f] @ c) ** 2)
         return err
