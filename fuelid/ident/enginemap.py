@@ -112,13 +112,17 @@ def _axis(t: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _axis_slope(t: np.ndarray, x: float) -> np.ndarray:
-    """d/dx of each B-spline basis function (K) at x in the base interval: `_axis`'s polynomials differentiated,
-    dB_j/dx = −v²/(2h), dB_j+1/dx = u(3u − 4)/(2h), dB_j+2/dx = −v(3v − 4)/(2h), dB_j+3/dx = u²/(2h)."""
-    (j,), (u,), h = _position(t, np.array([x], float))
+def _axis_slope(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """d/dx of each B-spline basis function (N × K) at x, clamped into the base interval as in `_axis`: its
+    polynomials differentiated, dB_j/dx = −v²/(2h), dB_j+1/dx = u(3u − 4)/(2h), dB_j+2/dx = −v(3v − 4)/(2h),
+    dB_j+3/dx = u²/(2h)."""
+    x = np.asarray(x, float).ravel()
+    j, u, h = _position(t, x)
     v = 1.0 - u
-    out = np.zeros(len(t) - DEGREE - 1)
-    out[j: j + 4] = np.array([-v * v, u * (3.0 * u - 4.0), -v * (3.0 * v - 4.0), u * u]) / (2.0 * h)
+    out = np.zeros((x.size, len(t) - DEGREE - 1))
+    rows = np.arange(x.size)
+    for k, d in enumerate((-v * v, u * (3.0 * u - 4.0), -v * (3.0 * v - 4.0), u * u)):
+        out[rows, j + k] = d / (2.0 * h)
     return out
 
 
@@ -199,7 +203,7 @@ class EngineMap:
         t_hi = self.torque_range[1]
         above = T > t_hi
         if above.any():
-            bt[above] += (T[above] - t_hi)[:, None] * _axis_slope(self.torque_knots, t_hi)[None, :]
+            bt[above] += (T[above] - t_hi)[:, None] * _axis_slope(self.torque_knots, t_hi)
         return bn, bt, T > CUT_TORQUE  # NaN torque: not fuelled
 
     def basis(self, n, T) -> np.ndarray:
@@ -215,6 +219,16 @@ class EngineMap:
         shape = np.broadcast(np.asarray(n), np.asarray(T)).shape
         bn, bt, fuelled = self._axes(n, T)
         return np.where(fuelled, ((bn @ self.coef) * bt).sum(axis=1), 0.0).reshape(shape)
+
+    def torque_slope(self, n, T) -> np.ndarray:
+        """∂s/∂T (n, T) [fuel unit per torque unit], the fuel the engine burns for one more unit of torque at (n, T):
+        0 where the injection is cut (T ≤ CUT_TORQUE, or NaN) and below the knot box (the map is flat there), the
+        slope at T_hi above it (the map's linear extrapolation)."""
+        shape = np.broadcast(np.asarray(n), np.asarray(T)).shape
+        n, T = np.broadcast_arrays(np.asarray(n, float).ravel(), np.asarray(T, float).ravel())
+        (t_lo, t_hi), bn = self.torque_range, _axis(self.speed_knots, n)
+        slope = ((bn @ self.coef) * _axis_slope(self.torque_knots, T)).sum(axis=1)
+        return np.where((T > CUT_TORQUE) & (T >= t_lo), slope, 0.0).reshape(shape)
 
     def plane_at(self, n, T) -> np.ndarray:
         """p_0 + p_n (n − n0) + p_T (T − T0) [fuel unit]."""

@@ -1,6 +1,7 @@
 """The effects of a model as its data: the extra inputs (ident.effects' regressors, one MISO input per column,
-each with the effect's orders) beside engine speed and torque, and the fuel advanced by the fuel-signal delay
-when the model includes it (ident.fueldelay),
+each with the effect's orders; on an engine model an effect that scales the fuel or a torque the bus does not
+report also through the map: `map_scaled`, `map_sloped`) beside engine speed and torque, and the fuel advanced by
+the fuel-signal delay when the model includes it (ident.fueldelay),
 
     u = [speed, torque, x_1 … x_k],   y(t + τ).
 
@@ -17,6 +18,7 @@ import numpy as np
 from fuelid.errors import InputError
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.effects import Regressors, centred, get_effect, parse_effect
+from fuelid.ident.enginemap import EngineMap
 from fuelid.ident.fueldelay import shift_signal
 from fuelid.ident.polymodel import Structure
 
@@ -85,6 +87,8 @@ def apply_effects(ds, ids, parameters: dict | None = None,
             continue
         if effect.enters == "scales_fuel" and beyond is not None:
             reg = map_scaled(reg, beyond, ds.output_unit)
+        if effect.enters == "torque" and beyond is not None:
+            reg = map_sloped(reg, map_slope(ds, parameters["engine_map"]), ds.output_unit, ds.input_units[1])
         cols.append(reg.x)
         widths.append(reg.x.shape[1])
         names += [f"{effect.id}: {n}" for n in reg.names]
@@ -111,6 +115,27 @@ def map_scaled(reg: Regressors, beyond: np.ndarray, fuel_unit: str) -> Regressor
     orders = reg.orders + (reg.orders[0],) if reg.orders is not None else None
     return Regressors(np.column_stack([reg.x, x * beyond]), reg.names + (f"{reg.names[0]} x map beyond the plane",),
                       reg.units + (f"{reg.units[0]}.{fuel_unit}",), orders)
+
+
+def map_sloped(reg: Regressors, slope: np.ndarray, fuel_unit: str, torque_unit: str) -> Regressors:
+    """The columns of a torque κ x the engine delivers and the bus does not report, on an engine model: its own
+    (x, through the torque path's dynamics) and x·∂m/∂T(n, T), ∂m/∂T the engine map's torque slope beyond its plane
+    [fuel unit per torque unit] (`map_slope`). The engine burns f(n, T + κ x) ≈ f(n, T) + κ x ∂f/∂T, and
+    ∂f/∂T = g_T + ∂m/∂T (g_T the torque path's static gain): on a curved map the fuel of a hidden torque follows the
+    map's marginal fuel, which grows with speed and is 0 where the injection is cut; with x alone it would have the
+    torque path's one gain everywhere."""
+    orders = reg.orders + (reg.orders[0],) if reg.orders is not None else None
+    return Regressors(np.column_stack([reg.x, reg.x[:, 0] * slope]),
+                      reg.names + (f"{reg.names[0]} x map torque slope beyond the plane",),
+                      reg.units + (f"{reg.units[0]}.{fuel_unit}/{torque_unit}",), orders)
+
+
+def map_slope(ds, fitted: dict) -> np.ndarray:
+    """∂m/∂T = ∂s/∂T − p_T [fuel unit per torque unit] at ds's speed and torque: the torque slope of the engine map
+    `fitted` (ident.enginemap.EngineMap.to_dict) beyond its plane's, 0 where the torque is missing."""
+    emap = EngineMap.from_dict(fitted)
+    n, T = ds.u[:, 0], ds.u[:, 1]
+    return np.where(np.isfinite(T), emap.torque_slope(n, T) - emap.plane[2], 0.0)
 
 
 def at_operating_point(ds, model):

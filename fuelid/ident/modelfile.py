@@ -1,6 +1,6 @@
 """model.json: the versioned, human-readable file of an identified PolyModel (docs: ARCHITECTURE.md).
 
-    {"format": "fuelid-model", "version": 2,
+    {"format": "fuelid-model", "version": 3,
      "structure": {"kind": "bj", "na": 0, "nc": 11, "nd": 11},
      "Ts_s": 0.3,
      "inputs": [{"name", "unit", "u0", "nb", "nf", "nk", "B": [...], "F": [...]}, ...],
@@ -30,7 +30,7 @@ from fuelid.errors import FuelidError
 from fuelid.ident.polymodel import PolyModel, parameter_names
 
 FORMAT = "fuelid-model"
-VERSION = 2  # 2: on an engine model an effect that scales the fuel has the column x·m
+VERSION = 3  # 2: on an engine model an effect that scales the fuel has the column x·m; 3: a torque, x·∂m/∂T
 PAPER_MODELS = Path(__file__).resolve().parents[3] / "shared" / "design" / "paper_models.json"
 
 
@@ -69,16 +69,32 @@ def to_dict(model: PolyModel) -> dict:
     })
 
 
+def _is_torque(effect: str, definitions: dict | None = None) -> bool:
+    """Whether the effect "ID" or "ID=VALUE" enters as a torque the bus does not report (a generic torque: form, a
+    built-in or plug-in effect, or one the engineer defined, its table among `definitions`)."""
+    from fuelid.ident import effects as fx  # SciPy and cantools: only for an older file's engine model
+
+    eid = fx.parse_effect(effect)[0]
+    if eid in (definitions or {}):
+        return definitions[eid].get("enters") == "torque"
+    known = {**{e.id: e for e in fx.plugin_effects()}, **fx.EFFECTS}
+    return eid.startswith("torque:") or (eid in known and known[eid].enters == "torque")
+
+
 def from_dict(d: dict) -> PolyModel:
     """The PolyModel of a model.json content; FuelidError when it is not one."""
     try:
         if d.get("format") != FORMAT:
             raise ValueError(f"not a {FORMAT} file")
-        if d.get("version") not in (1, VERSION):
-            raise ValueError(f"unsupported version {d.get('version')!r} (this fuelid reads 1 and {VERSION})")
+        if d.get("version") not in (1, 2, VERSION):
+            raise ValueError(f"unsupported version {d.get('version')!r} (this fuelid reads 1 to {VERSION})")
         if d["version"] == 1 and "engine_map" in d.get("effects", []) and len(d["effects"]) > 1:
             raise ValueError("version 1: an engine model with effects, written by an older fuelid whose effects "
                              "that scale the fuel had one input column fewer; identify it again")
+        effects, definitions = d.get("effects", []), (d.get("info") or {}).get("effect_definitions")
+        if d["version"] == 2 and "engine_map" in effects and any(_is_torque(e, definitions) for e in effects):
+            raise ValueError("version 2: an engine model with a torque the bus does not report, written by an older "
+                             "fuelid that gave it one input column fewer; identify it again")
         inputs = d["inputs"]
         cov = d["parameters"]["covariance"]
         model = PolyModel(

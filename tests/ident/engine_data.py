@@ -40,16 +40,22 @@ def noise_floor(noise: float = 0.3) -> float:
     return noise / 1.3 * float(np.sqrt(np.sum(impulse ** 2)))
 
 
-def trip(k: float = 1.0, n: int = 12000, seed: int = 0, noise: float = 0.3) -> Dataset:
-    """A Dataset of n samples of the engine above with curvature k."""
+def trip(k: float = 1.0, n: int = 12000, seed: int = 0, noise: float = 0.3, fan_kw: float = 0.0) -> Dataset:
+    """A Dataset of n samples of the engine above with curvature k; with fan_kw [kW] a fan that takes
+    fan_kw (s/100)³ from the crankshaft at its speed s [%] (FD.EstPercentFanSpeed, on in held stretches of about a
+    third of the trip): the engine delivers T + T_fan, the bus reports T, and the fuel burns for both."""
     rng = np.random.default_rng(seed)
     speed = np.clip(600 + _lag(_held(n, rng, 0, 1300), 2.0) + _lag(rng.normal(0, 30, n), 1.0), 550, 2000)
     torque = np.clip(112 + _lag(_held(n, rng, -90, 1550), 0.6) + _lag(rng.normal(0, 60, n), 0.5), 20, 1700)
-    clean = TRUE.y0 + lfilter(TRUE.B[0], TRUE.F[0], speed - 600) + lfilter(TRUE.B[1], TRUE.F[1], torque - 112)
-    clean = clean + k * lfilter(B_MAP, F_MAP, curve(speed, torque))
+    fan_rng = np.random.default_rng([seed, 1])  # its own stream: the trips without a fan stay as they were
+    fan = np.where(_held(n, fan_rng, 0, 1) > 0.65, _held(n, fan_rng, 50, 100), 0.0) if fan_kw else np.zeros(n)
+    engine = torque + 1000.0 * fan_kw * (fan / 100.0) ** 3 / (speed * 2.0 * np.pi / 60.0)
+    clean = TRUE.y0 + lfilter(TRUE.B[0], TRUE.F[0], speed - 600) + lfilter(TRUE.B[1], TRUE.F[1], engine - 112)
+    clean = clean + k * lfilter(B_MAP, F_MAP, curve(speed, engine))
     y = clean + lfilter(TRUE.C, TRUE.D, rng.normal(0, noise / 1.3, n))
     t = np.arange(n) * TS
     return Dataset(Ts=TS, t=t, u=np.column_stack([speed, torque]), y=y, input_names=("EEC1.EngSpeed", "EngTorque"),
                    input_units=("rpm", "Nm"), output_name="LFE1.EngFuelRate", output_unit="L/h",
                    u0=np.array([600.0, 112.0]), y0=float(steady_state(600.0, 112.0, k)), valid=np.ones(n, bool),
-                   cycle=(np.arange(n) // int(600 / TS)).astype(np.int64), extra={})
+                   cycle=(np.arange(n) // int(600 / TS)).astype(np.int64),
+                   extra={"FD.EstPercentFanSpeed": fan} if fan_kw else {})

@@ -28,7 +28,7 @@ def test_the_basis_and_its_slope_are_scipys_b_splines_on_the_knots(lo, width, at
     splines = BSpline(t, np.eye(len(t) - DEGREE - 1), DEGREE)
     x = lo + at * width
     assert np.allclose(_axis(t, [x])[0], splines(x), rtol=0, atol=1e-12)
-    assert np.allclose(_axis_slope(t, x), splines.derivative()(x), rtol=0, atol=1e-12 / width)
+    assert np.allclose(_axis_slope(t, [x])[0], splines.derivative()(x), rtol=0, atol=1e-12 / width)
 
 
 @pytest.fixture(scope="module")
@@ -115,6 +115,20 @@ def test_at_or_below_zero_torque_the_fuel_is_cut(fitted):
     assert np.all(fitted(np.full(3, 1200.0), np.array([CUT_TORQUE, -50.0, -500.0])) == 0.0)
     assert fitted(1200.0, 50.0) > 0
     assert np.all(fitted.basis([1200.0, 1300.0], [-10.0, np.nan]) == 0.0)
+
+
+def test_the_torque_slope_is_the_maps_derivative_and_zero_where_the_map_is_flat_or_cut(fitted):
+    """∂s/∂T: the map's own derivative (the surface's within a few % over the data), the extrapolation's slope above
+    the knot box, 0 between the cut and T_lo (the map is clamped there) and at or below the cut."""
+    n = np.array([700.0, 1300.0, 1800.0, 1300.0])
+    T = np.array([200.0, 800.0, 1500.0, fitted.torque_range[1] + 200.0])
+    h = 1e-3
+    slope = fitted.torque_slope(n, T)
+    assert np.allclose(slope, (fitted(n, T + h) - fitted(n, T - h)) / (2 * h), rtol=1e-6)
+    truth = 0.03 + 12.0 * (T[:3] - 600.0) / 1e6 + 2.0 * ((n[:3] - 1200.0) / 600.0) ** 2 / 1700.0
+    assert np.allclose(slope[:3], truth, rtol=0.1)
+    below = np.array([fitted.torque_range[0] / 2, CUT_TORQUE, -100.0, np.nan])
+    assert np.all(fitted.torque_slope(np.full(4, 1300.0), below) == 0.0)
 
 
 def test_the_map_beyond_its_plane_has_no_slope_over_its_data_and_its_level_above_the_operating_fuel(fitted):

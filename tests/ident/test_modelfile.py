@@ -60,7 +60,7 @@ def test_round_trip_bit_for_bit(fitted, tmp_path):
     save_model(back, p2)
     assert p2.read_bytes() == p.read_bytes()
     doc = json.loads(p.read_text())
-    assert doc["format"] == "fuelid-model" and doc["version"] == 2
+    assert doc["format"] == "fuelid-model" and doc["version"] == 3
     assert doc["inputs"][0]["nk"] == 1 and doc["inputs"][0]["B"][0] == 0
     assert len(doc["parameters"]["names"]) == len(doc["parameters"]["std_errors"]) == fitted.structure.n_params
 
@@ -70,7 +70,9 @@ def test_round_trip_bit_for_bit(fitted, tmp_path):
     ("[1, 2]", "not a JSON object"),
     ('{"format": "other"}', "not a fuelid-model"),
     ('{"format": "fuelid-model", "version": 99}', "unsupported version"),
-    ('{"format": "fuelid-model", "version": 2}', "missing field"),
+    ('{"format": "fuelid-model", "version": 3}', "missing field"),
+    ('{"format": "fuelid-model", "version": 2, "effects": ["engine_map", "engine_fan"]}', "identify it again"),
+    ('{"format": "fuelid-model", "version": 2, "effects": ["engine_map", "torque:X.Y"]}', "identify it again"),
     ('{"format": "fuelid-model", "version": 1, "effects": ["engine_map", "dpf_regeneration"]}', "identify it again"),
 ])
 def test_malformed_models(tmp_path, content, message):

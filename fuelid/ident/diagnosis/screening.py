@@ -4,7 +4,9 @@ family tested together.
 
     additive     y + Σ_l β_l x(t − l): the effect's columns at its lags
     scales_fuel  y (1 + m x): the columns x and x·ŷ (ŷ the model's simulated fuel: the gradient at m = 0)
-    torque       a torque T + κ x the bus does not report: its fuel through the model's torque path, B_T/(A F_T) x
+    torque       a torque T + κ x the bus does not report: its fuel through the model's torque path, B_T/(A F_T) x,
+                 on an engine model plus B_m/(A F_m) x·∂m/∂T (the map's input moves by ∂m/∂T κ x: the fuel of a
+                 torque follows the map's marginal fuel, ident.modeldata.map_sloped)
     shift        the fuel signal's delay y(t − τ) ≈ y(t) − τ dy/dt: the column dŷ/dt of the model's simulated fuel;
                  τ̂ = −β̂ is what the yardstick builds (fuel_delay=τ̂)
 """
@@ -19,7 +21,8 @@ from fuelid.ident.diagnosis.candidate import Screening
 from fuelid.ident.diagnosis.run import Run
 from fuelid.ident.diagnosis.statistics import holm, lagged, level_test, score_test
 from fuelid.ident.filters import lfilter
-from fuelid.ident.modeldata import at_operating_point
+from fuelid.ident.hammerstein import MAP_COLUMN, MAP_EFFECT
+from fuelid.ident.modeldata import at_operating_point, map_slope, map_sloped
 from fuelid.ident.polymodel import PolyModel
 
 MAX_DELAY_S = 2.0  # [s] |τ̂| beyond this is not a signal path's delay: the first-order estimate is clipped to it
@@ -34,6 +37,9 @@ def regressors(effect: fx.Effect, model: PolyModel, dsm, run: Run) -> fx.Regress
             slope[s] = np.gradient(run.ysim[s], dsm.Ts)
         return fx.Regressors(slope[:, None], ("d/dt model fuel",), (f"{dsm.output_unit}/s",))
     reg = effect.build(dsm)
+    if reg is not None and effect.enters == "torque" and MAP_COLUMN in model.input_names:
+        return map_sloped(reg, map_slope(dsm, model.info["effect_parameters"][MAP_EFFECT]), dsm.output_unit,
+                          dsm.input_units[1])
     if reg is None or effect.enters != "scales_fuel":
         return reg
     x = reg.x[:, 0]
@@ -43,13 +49,17 @@ def regressors(effect: fx.Effect, model: PolyModel, dsm, run: Run) -> fx.Regress
 
 def columns(effect: fx.Effect, model: PolyModel, reg: fx.Regressors, run: Run) -> tuple[np.ndarray, np.ndarray]:
     """(ψ_x = D/C x, the columns of the prediction-error test; w = A x, those of the simulation-error test), x the
-    lagged regressors in the fuel domain (a torque through the model's torque path), stacked like run.e."""
+    lagged regressors in the fuel domain (a torque through the model's torque path, and on an engine model its
+    map's slope: the module docstring), stacked like run.e."""
     lags = (0,) if effect.enters == "shift" else effect.lags
+    j = model.input_names.index(MAP_COLUMN) if MAP_COLUMN in model.input_names else None
     psi, raw = [], []
     for seg in run.segs:
-        x = lagged(np.nan_to_num(reg.x[seg]), lags)
-        if effect.enters == "torque":
-            x = lfilter(model.B[1], np.convolve(model.A, model.F[1]), x, axis=0)
+        x = np.nan_to_num(reg.x[seg])
+        if effect.enters == "torque":  # the fuel of the torque x: through the torque path (and the map's slope)
+            x = lfilter(model.B[1], np.convolve(model.A, model.F[1]), x[:, :1], axis=0) + (
+                lfilter(model.B[j], np.convolve(model.A, model.F[j]), x[:, 1:], axis=0) if j is not None else 0.0)
+        x = lagged(x, lags)
         psi.append(lfilter(model.D, model.C, x, axis=0)[run.warm:])
         raw.append(x[run.warm:])
     raw = np.vstack(raw)

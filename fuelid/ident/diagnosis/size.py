@@ -13,7 +13,8 @@ form states (least squares over those samples):
   smaller baseline, such as the fuel in overrun, says nothing);
 - scales_fuel, y (1 + m x): m from c ≈ m · x · ŷ₀ [1 per unit of x], percent = 100 m;
 - torque: the torque k per unit of x the fuel burns for through the torque path, c ≈ k · 1/A · B_T/F_T x [torque
-  unit per unit of x];
+  unit per unit of x], on an engine model c ≈ k · 1/A (B_T/F_T x + B_m/F_m x·∂m/∂T) (its map's marginal fuel,
+  ident.modeldata.map_sloped);
 - additive: the fuel g per unit of x, c ≈ g x [output unit per unit of x];
 - shift (the fuel signal's delay): τ [s], c = ŷ(t − τ) − ŷ(t).
 rms is the RMS of c [output unit]. The sign of the size (of the relative change, for an effect that scales the fuel) is
@@ -30,6 +31,7 @@ import numpy as np
 from fuelid.ident import effects as fx
 from fuelid.ident.filters import lfilter
 from fuelid.ident.fueldelay import shift_signal
+from fuelid.ident.hammerstein import MAP_COLUMN
 from fuelid.ident.modeldata import fuel_shift_s, model_data
 from fuelid.ident.polymodel import PolyModel, simulate
 
@@ -108,8 +110,10 @@ def effect_size(model: PolyModel, ds, effect: fx.Effect) -> EffectSize | None:
     if effect.enters == "scales_fuel":
         m = _fit(c, x * y0)
         return EffectSize("scales_fuel", m, f"1 per {x_unit}", m, 100.0 * m, rms, unit, x_unit)
-    if effect.enters == "torque":  # x through the torque path, as the fuel burns for a torque
-        cT = np.concatenate([through(1, u[s, cols[0]])[n0:] for s in segments])
+    if effect.enters == "torque":  # the fuel the model burns for the torque x (on an engine model, x·∂m/∂T too)
+        j = model.input_names.index(MAP_COLUMN) if MAP_COLUMN in model.input_names else None
+        cT = np.concatenate([(through(1, u[s, cols[0]]) + (through(j, u[s, cols[1]]) if j is not None else 0.0))[n0:]
+                             for s in segments])
         return EffectSize("torque", _fit(c, cT), f"{model.input_units[1]} per {x_unit}", NAN, NAN, rms, unit, x_unit)
     return EffectSize("additive", _fit(c, x), f"{unit} per {x_unit}", NAN, NAN, rms, unit, x_unit)
 
