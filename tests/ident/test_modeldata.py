@@ -56,7 +56,7 @@ def test_a_hidden_torque_on_an_engine_model_burns_at_the_maps_marginal_fuel():
 def test_an_engine_model_with_a_hidden_torque_simulates_another_day_at_the_noise_floor():
     """A fan of 15 kW at full speed on a curved map: the fuel of its torque follows the map's marginal fuel
     (0.02–0.04 L/h per Nm here), so the engine model with engine_fan simulates another day's trip within 12 % of the
-    noise floor; with x through the torque path's one gain alone it was 19–24 % above it."""
+    noise floor; with x through the torque path's one gain alone, 19–24 % above it (seeds 2 and 4)."""
     model = identify_model(engine_data.trip(fan_kw=15.0, seed=2), hidden.STRUCTURE, ["engine_map", "engine_fan"])
     other = engine_data.trip(fan_kw=15.0, seed=3)
     assert evaluate(model, other)["rmse"]["simulation"] < 1.12 * engine_data.noise_floor()
