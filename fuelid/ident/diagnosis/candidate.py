@@ -4,6 +4,7 @@ the report are rendered from these (ident.diagnosis.render), never the other way
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import asdict, dataclass
 
 from fuelid.ident import effects as fx
@@ -79,8 +80,10 @@ class HeldOut:
     """The yardstick (ident.diagnosis.yardstick) of one model against the base: RMS held-out simulation error
     [output unit] without and with, its drop [%], the RMS of the fuel it explains beyond the base as a share of the
     mean fuel there [%], the per-block paired improvement's mean and its standard error [(output unit)²], the number
-    of blocks, the folds ("blocks" or "trips"), whether it passes (the mean or the trimmed mean > k·SE, and both
-    floors), and the improvement's trimmed mean and its standard error [(output unit)²]."""
+    of blocks, the folds ("blocks" or "trips"), whether it passes (the mean, the trimmed mean or the mean beyond a
+    placebo's > k·SE, and both floors), the improvement's trimmed mean and its standard error [(output unit)²],
+    whether both floors are met, and the placebo's (ident.diagnosis.yardstick.placebo) mean improvement and its
+    standard error [(output unit)²] (NaN when no placebo was built)."""
 
     rmse_without: float
     rmse_with: float
@@ -93,6 +96,9 @@ class HeldOut:
     passes: bool
     trimmed_gain: float = 0.0
     trimmed_se: float = float("inf")
+    floors_met: bool = False
+    null_gain: float = float("nan")
+    null_se: float = float("nan")
 
     @property
     def gain_in_se(self) -> float:
@@ -102,8 +108,17 @@ class HeldOut:
     def trimmed_in_se(self) -> float:
         return _in_se(self.trimmed_gain, self.trimmed_se)
 
+    @property
+    def beyond_null_in_se(self) -> float:
+        """(d̄ − d̄_p) / (√2 SE(d̄_p)): the mean gain beyond the placebo's in standard errors of the difference of two
+        draws of the placebo's mean (NaN without a placebo)."""
+        if not (math.isfinite(self.null_se) and self.null_se > 0):  # no placebo, or one that changed nothing
+            return float("nan")
+        return _in_se(self.mean_gain - self.null_gain, math.sqrt(2.0) * self.null_se)
+
     def to_json(self) -> dict:
-        return {**asdict(self), "gain_in_se": self.gain_in_se, "trimmed_in_se": self.trimmed_in_se}
+        return {**asdict(self), "gain_in_se": self.gain_in_se, "trimmed_in_se": self.trimmed_in_se,
+                "beyond_null_in_se": self.beyond_null_in_se}
 
 
 def _in_se(gain: float, se: float) -> float:
@@ -114,9 +129,10 @@ def _in_se(gain: float, se: float) -> float:
 class Candidate:
     """One candidate effect and what the diagnosis concluded (status, reason, explained_by), with its evidence.
     spec: what `fuelid identify --effect` takes (a fuel delay with its τ); round: the forward-selection round of its
-    last screening (1 the model as given); size: its size in the model built with it (ident.diagnosis.size), once it
-    passed the yardstick; together_with: the candidate it was accepted with, when neither passed alone and the two
-    together do, each beyond the other (ident.diagnosis.selection; held_out is then its gain beyond the other)."""
+    last screening (1 the model as given); size: its size (ident.diagnosis.size) in the model built with it once it
+    passed the yardstick, in the model with everything recommended once recommended; together_with: the candidate
+    it was accepted with, when neither passed alone and the two together do, each beyond the other
+    (ident.diagnosis.selection; held_out is then its gain beyond the other)."""
 
     definition: fx.Effect
     status: Status = Status.NOT_TESTABLE
@@ -126,7 +142,7 @@ class Candidate:
     held_out: HeldOut | None = None
     spec: str | None = None
     round: int = 0
-    size: EffectSize | None = None  # once built and passed: its size in the model built with it
+    size: EffectSize | None = None  # once built and passed (class docstring)
     together_with: str | None = None
 
     def decide(self, status: Status, reason: Reason | None = None, explained_by: str | None = None) -> None:

@@ -17,10 +17,13 @@ ADD = "`fuelid identify --effects-from DIAGNOSIS.json` adds what is recommended"
 
 def _gain(c: Candidate | EngineMap) -> str:
     h = c.held_out
-    trimmed = h.trimmed_in_se > h.gain_in_se  # the larger of the two decides
+    said = {"paired gain {:.1f} standard errors": h.gain_in_se,  # the largest of the yardstick's statistics decides
+            "trimmed mean paired gain {:.1f} standard errors": h.trimmed_in_se,
+            "paired gain {:.1f} standard errors beyond a placebo's (its signals shifted by half the data)":
+                h.beyond_null_in_se if math.isfinite(h.beyond_null_in_se) else -math.inf}
+    words, t = max(said.items(), key=lambda kv: kv[1])
     return f"held-out RMS error {h.rmse_without:.3g} → {h.rmse_with:.3g} ({-h.drop_percent:+.1f} %, " \
-           f"{'trimmed mean ' * trimmed}paired gain {max(h.gain_in_se, h.trimmed_in_se):.1f} standard errors over " \
-           f"{h.n_blocks} blocks, {h.fuel_percent:.2g} % of the fuel)"
+           f"{words.format(t)} over {h.n_blocks} blocks, {h.fuel_percent:.2g} % of the fuel)"
 
 
 def _pair_text(c: Candidate) -> str:

@@ -3,7 +3,8 @@
 Rounds r = 1, 2, …: every candidate still open is screened on the current base (Holm at alpha over them,
 ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds that
 explain the largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the
-base. One that passes but whose fold models fit it against the direction its physics states, beyond their spread
+base (and, when its floors are met but its block gains' own spread hides the gain, against its placebo: the same
+build on its bus signals shifted by half the data). One that passes but whose fold models fit it against the direction its physics states, beyond their spread
 (ident.diagnosis.size.against_physics), is NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS): what it gains is not that
 effect. Of the others that pass, the one with the largest mean paired gain is accepted (an effect with stated
 physics — catalogued or the engineer's — before a generic form of a bus signal, which can stand in for it on one
@@ -19,7 +20,8 @@ A candidate
 on a bus signal that engine speed and torque determine (Settings.min_share_beyond_inputs) is
 NAMED_NOT_RECOMMENDED (DETERMINED_BY_INPUTS) without a build: it can only stand in for the engine's map. A candidate
 that passed the screening (significant and relevant) in an earlier round and no longer does is EXPLAINED_BY the one
-accepted since. The search stops when nothing passes.
+accepted since. The search stops when nothing passes; each recommended effect is then sized in the model with all of
+them (ident.diagnosis.size).
 
 The engine's curvature (effects engine_map, power_nonlinearity) is part of the engine model, never a hidden-effect
 candidate: when the base model has it its status is IN_MODEL. Otherwise, in every round until it is accepted,
@@ -47,7 +49,7 @@ from fuelid.ident.diagnosis.run import run_gradients
 from fuelid.ident.diagnosis.screening import delay_estimate, screen
 from fuelid.ident.diagnosis.settings import Settings
 from fuelid.ident.diagnosis.size import EffectSize, against_physics, effect_size
-from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, compare, refits
+from fuelid.ident.diagnosis.yardstick import BUILD_ERRORS, Folds, Scored, compare, placebo, refits
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
 from fuelid.ident.modelrun import run_model
@@ -158,13 +160,26 @@ class _Builds:
         self.scored: dict[str, Scored] = {}  # a candidate's fold refits (each without its fold)
         self.whole: dict[str, PolyModel] = {}  # its model on all of ds (an engine-model base)
 
-    def _build(self, specs: list[str]) -> tuple[Scored, PolyModel | None]:
-        """(the fold refits, the model on all of ds or None) of the base with `specs`. Raises BUILD_ERRORS."""
+    def _build(self, specs: list[str], ds=None) -> tuple[Scored, PolyModel | None]:
+        """(the fold refits, the model on all of ds or None) of the base with `specs`, on ds (default the round's).
+        Raises BUILD_ERRORS."""
+        ds = self.ds if ds is None else ds
         if _joint(self.model):  # the candidate's model as identify builds it, then its fold refits
-            whole = built(self.model, self.ds, specs, self.defined, self.memo)
-            return refits(whole, self.ds, self.folds, [], self.settings, self.defined), whole
+            whole = built(self.model, ds, specs, self.defined, self.memo)
+            return refits(whole, ds, self.folds, [], self.settings, self.defined), whole
         # nested in the base's fold models: each refitted with the candidate's coefficients at zero
-        return refits(list(self.base.models), self.ds, self.folds, specs, self.settings, self.defined), None
+        return refits(list(self.base.models), ds, self.folds, specs, self.settings, self.defined), None
+
+    def _null(self, c: Candidate) -> Scored | None:
+        """The fold refits of c's placebo (ident.diagnosis.yardstick.placebo: c built as it is, on its bus signals
+        shifted by half the data); None when c has none (it reads engine speed, torque or the fuel) or it fails."""
+        shifted = placebo(self.ds, c.definition.signals)
+        if shifted is None:
+            return None
+        try:
+            return self._build([c.spec], shifted)[0]
+        except BUILD_ERRORS:
+            return None
 
     def held(self, c: Candidate) -> bool:
         """Builds c, holds it to the yardstick against the base and decides it unless it passes; whether it does."""
@@ -179,6 +194,10 @@ class _Builds:
         if whole is not None:
             self.whole[c.effect] = whole
         held_out = compare(self.base, scored, self.folds, self.settings)
+        if not held_out.passes and held_out.floors_met:  # a gain in few blocks decides its own spread: the placebo's
+            null = self._null(c)
+            if null is not None:
+                held_out = compare(self.base, scored, self.folds, self.settings, null)
         return self._decided(c, held_out, self._judged(c, held_out, scored, whole))
 
     def _judged(self, c: Candidate, held_out: HeldOut, scored: Scored, whole: PolyModel | None) -> _Judged:
@@ -305,8 +324,6 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
         base = scored
         for c in chosen:
             c.decide(Status.RECOMMENDED)
-            if c is not term and whole is None:  # a linear base's: in its refit accepted
-                c.size = effect_size(model, ds, c.definition)
             accepted.append(c)
         for c in passing:
             if c not in chosen:  # re-screened on the new base next round, unless the rounds end here
@@ -318,7 +335,10 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
         else:
             for c in chosen:
                 pool.remove(c)
-    return [c for c in accepted if c.effect != MAP_EFFECT], _map_status(in_model, accepted, term)
+    recommended = [c for c in accepted if c.effect != MAP_EFFECT]
+    for c in recommended:  # sized in the model with everything recommended: one accepted later may have masked it
+        c.size = effect_size(model, ds, c.definition) or c.size
+    return recommended, _map_status(in_model, accepted, term)
 
 
 def _map_status(in_model: bool, accepted: list[Candidate], term: Candidate | None) -> EngineMap:

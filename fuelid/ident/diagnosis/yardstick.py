@@ -25,8 +25,22 @@ first minutes, a regeneration's start) hold most of the squared error. An effect
 regeneration) is carried by the mean, and the trimmed mean trims it away; one that acts on most blocks while one or
 two transient blocks decide the spread (a cold start) is carried by the trimmed mean, whose spread those blocks do
 not inflate. Either says that the candidate's model simulates held-out data better beyond the spread of the fits; the
-floors, on the pooled errors, that it does so by enough. With no gain, the larger of the two t clears k = 2 on about
-8 % of 40 AR(1) blocks with ρ = 0.4, the mean's alone on about 6 % (tests/ident/diagnosis/test_yardstick.py).
+floors, on the pooled errors, that it does so by enough.
+
+An effect that acts in so few blocks (a warm-up's first minutes, two effects where one masks the other but there)
+decides its own spread: with its gain in K blocks, d̄ / SE(d̄) cannot much exceed √K whatever the gain, and the
+trimmed mean trims it away. When the floors are met and neither t clears k, the candidate's placebo is built: the
+same candidate on its bus signals shifted together circularly by half the data (`placebo`), a column of its own
+shape, levels and dynamics, unrelated in time to the fuel, built and refitted as the candidate is. Its block gains
+d_p,b are what such a column gains by the fits and the noise alone, and the candidate passes on
+
+    (d̄ − d̄_p) / (√2 SE(d̄_p)) > k
+
+as well (d̄ − d̄_p the difference of two draws of the same mean when the candidate is no better than its placebo).
+A candidate on engine speed, torque or the fuel (inertia, the fuel delay, the injection cut) has no placebo. With
+no gain, the larger of the first two t clears k = 2 on about 8 % of 40 AR(1) blocks with ρ = 0.4 (the mean's alone
+on about 6 %), the placebo's on about 6 %, and the largest of the three on about 12 %
+(tests/ident/diagnosis/test_yardstick.py).
 
 s_d/√B and s_w/√B are Newey–West's standard errors (`long_run_se`), since neighbouring blocks are not independent
 pairs (the blocks of one held-out chunk share its fold model, and a slow error spans several blocks), with the
@@ -153,28 +167,52 @@ def refits(start, ds, folds: Folds, effects, settings: Settings, defined=()) -> 
     return score(models, ds, folds)
 
 
-def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings) -> HeldOut:
-    """The yardstick of `with_` against `without` (module docstring), on the held-out samples both simulate; the
-    blocks holding at least half as many of them as the fullest block are the pairs."""
-    ok = np.isfinite(without.ysim) & np.isfinite(with_.ysim) & np.isfinite(without.y) & np.isfinite(with_.y)
+def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings, null: Scored | None = None) -> HeldOut:
+    """The yardstick of `with_` against `without` (module docstring), on the held-out samples both (and the placebo
+    `null`, when given: `placebo`) simulate; the blocks holding at least half as many of them as the fullest block
+    are the pairs."""
+    scored = (without, with_) + ((null,) if null is not None else ())
+    ok = np.logical_and.reduce([np.isfinite(s.ysim) & np.isfinite(s.y) for s in scored])
     b = folds.block[ok]
     n = np.bincount(b, minlength=folds.block.max() + 1)
-    sse0, sse1 = (np.bincount(b, weights=(s.y[ok] - s.ysim[ok]) ** 2, minlength=n.size) for s in (without, with_))
+    sse = [np.bincount(b, weights=(s.y[ok] - s.ysim[ok]) ** 2, minlength=n.size) for s in scored]
     keep = (n > 0) & (n >= 0.5 * n.max()) if n.size else n > 0
     B = int(keep.sum())
     if B < 2:
         return HeldOut(float("nan"), float("nan"), 0.0, 0.0, 0.0, float("inf"), B, folds.kind, False)
-    d = (sse0[keep] - sse1[keep]) / n[keep]
-    rmse0, rmse1 = (float(np.sqrt(s[keep].sum() / n[keep].sum())) for s in (sse0, sse1))
+    d = (sse[0][keep] - sse[1][keep]) / n[keep]
+    rmse0, rmse1 = (float(np.sqrt(s[keep].sum() / n[keep].sum())) for s in sse[:2])
     fuel = float(np.bincount(b, weights=without.y[ok], minlength=n.size)[keep].sum() / n[keep].sum())
     mean, se = float(d.mean()), long_run_se(d)
     trimmed, trimmed_se = trimmed_mean(d, settings.trim)
     drop = 100.0 * (1.0 - rmse1 / rmse0)
     explained = 100.0 * np.sqrt(max(rmse0 ** 2 - rmse1 ** 2, 0.0)) / abs(fuel) if fuel else float("inf")
-    # the mean carries an effect in a few blocks, the trimmed mean one on most blocks beside a few transients
-    passes = bool((mean > settings.margin_se * se or trimmed > settings.margin_se * trimmed_se)
-                  and drop >= settings.min_drop_percent and explained >= settings.min_fuel_percent)
-    return HeldOut(rmse0, rmse1, drop, float(explained), mean, se, B, folds.kind, passes, trimmed, trimmed_se)
+    floors = bool(drop >= settings.min_drop_percent and explained >= settings.min_fuel_percent)
+    null_gain = null_se = float("nan")
+    if null is not None:
+        d_null = (sse[0][keep] - sse[2][keep]) / n[keep]
+        null_gain, null_se = float(d_null.mean()), long_run_se(d_null)
+    held = HeldOut(rmse0, rmse1, drop, float(explained), mean, se, B, folds.kind, False, trimmed, trimmed_se, floors,
+                   null_gain, null_se)
+    # the mean carries an effect in a few blocks, the trimmed mean one on most blocks beside a few transients, and the
+    # mean beyond a placebo's one in so few blocks that it decides its own spread
+    k = settings.margin_se
+    beyond = held.beyond_null_in_se
+    passes = floors and (mean > k * se or trimmed > k * trimmed_se or (np.isfinite(beyond) and beyond > k))
+    return dataclasses.replace(held, passes=bool(passes))
+
+
+def placebo(ds, signals) -> object | None:
+    """ds with the bus signals `signals` shifted together circularly by half its samples: a candidate built on it
+    has its own column, of its own shape and levels, unrelated in time to the fuel (module docstring). None when one
+    of them is not a bus signal of ds (engine speed, torque and the fuel are the model's own) or none of them varies."""
+    if not signals or any(s not in ds.extra for s in signals):
+        return None
+    x = {s: np.asarray(ds.extra[s], float) for s in signals}
+    if not any(np.nanmax(v) > np.nanmin(v) for v in x.values() if np.isfinite(v).any()):
+        return None
+    half = len(ds.t) // 2
+    return dataclasses.replace(ds, extra={**ds.extra, **{s: np.roll(v, half) for s, v in x.items()}})
 
 
 def trimmed_mean(d: np.ndarray, trim: float) -> tuple[float, float]:

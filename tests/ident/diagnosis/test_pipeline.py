@@ -73,23 +73,28 @@ def masking_trip(seed: int):
     return dataclasses.replace(ds, y=ds.y + 3.0 * pto - 3.0 * brake, extra=extra)
 
 
-def test_two_effects_that_mask_each_other_are_recommended_together():
+def test_two_effects_that_mask_each_other_are_both_recommended_and_sized_in_the_model_with_both():
+    """Both are found, together (neither passes alone; seeds 5 and 7) or one after the other (the first passes alone
+    against its placebo, fitted at a fraction of its size; the second on the model with it); either way each one's
+    size is the one in the model with both."""
     effects = [_state_effect("pto_pump", "CCVS1.PTOGovernorState", 1),
                _state_effect("exhaust_brake", "ERC1.RetarderTorqueMode", -1)]
-    found = 0
+    found = together = 0
     for seed in range(5, 10):
         ds = masking_trip(seed)
         d = dg.diagnose(hidden.fitted(ds), ds, effects=effects, candidates=effects)
         rec = {c.effect: c for c in d.candidates if c.recommended}
         if set(rec) == {"pto_pump", "exhaust_brake"}:
             found += 1
-            assert rec["pto_pump"].together_with == "exhaust_brake" and rec["exhaust_brake"].together_with == "pto_pump"
             assert rec["pto_pump"].size.value == pytest.approx(3.0, abs=0.5)
             assert rec["exhaust_brake"].size.value == pytest.approx(-3.0, abs=0.5)
-            assert "with exhaust_brake beside it" in d.verdict and "add pto_pump (" in d.verdict
-            assert {c["id"]: c["together_with"] for c in d.to_json()["candidates"] if c["recommended"]} == \
-                {"pto_pump": "exhaust_brake", "exhaust_brake": "pto_pump"}
-    assert found >= 4  # 9 of 12 seeds (1-12) find both: on the others the screening names only one
+            assert "add pto_pump (" in d.verdict and "add exhaust_brake (" in d.verdict
+            if rec["pto_pump"].together_with is not None:
+                together += 1
+                assert rec["exhaust_brake"].together_with == "pto_pump" and "with exhaust_brake beside it" in d.verdict
+                assert {c["id"]: c["together_with"] for c in d.to_json()["candidates"] if c["recommended"]} == \
+                    {"pto_pump": "exhaust_brake", "exhaust_brake": "pto_pump"}
+    assert found >= 4 and together >= 1  # both on 8 of seeds 5-12, together on 2
 
 
 def test_an_effect_the_engineer_defines_is_recommended():

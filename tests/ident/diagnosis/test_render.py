@@ -1,5 +1,7 @@
 """ident.diagnosis.render: the words and the flags come from one typed status, so they cannot disagree — one case
 per status."""
+import math
+
 import pytest
 
 from fuelid.ident import effects as fx
@@ -63,3 +65,16 @@ def test_the_gain_is_said_in_the_standard_errors_of_the_mean_that_carried_it():
     assert candidate_json(c)["held_out"]["gain_in_se"] == pytest.approx(1.5)
     c.held_out = GAIN
     assert "(-20.0 %, paired gain 6.0 standard errors" in explanation(c)
+
+
+def test_a_gain_measured_against_its_placebo_says_so():
+    """A gain in a few blocks that passed beyond its placebo's (ident.diagnosis.yardstick.placebo) is said in the
+    standard errors of that difference; without a placebo the JSON has null for it."""
+    beyond = HeldOut(1.0, 0.5, 50.0, 3.0, 0.6, 0.4, 40, "blocks", True, 0.01, 0.05, True, -0.1, 0.05)
+    c = Candidate(fx.EFFECTS["cold_engine"], screening=SCREENED, held_out=beyond, spec="cold_engine")
+    c.decide(Status.RECOMMENDED)
+    assert "paired gain 9.9 standard errors beyond a placebo's" in explanation(c)
+    assert candidate_json(c)["held_out"]["beyond_null_in_se"] == pytest.approx(0.7 / (2 ** 0.5 * 0.05))
+    c.held_out = GAIN
+    assert "placebo" not in explanation(c)
+    assert not math.isfinite(candidate_json(c)["held_out"]["beyond_null_in_se"])
