@@ -112,7 +112,7 @@ class HeldOut:
     def beyond_null_in_se(self) -> float:
         """(d̄ − d̄_p) / (√2 SE(d̄_p)): the mean gain beyond the placebo's in standard errors of the difference of two
         draws of the placebo's mean (NaN without a placebo)."""
-        if not (math.isfinite(self.null_se) and self.null_se > 0):  # no placebo, or one that changed nothing
+        if not (math.isfinite(self.null_se) and self.null_se > 0):  # none, or one that changed nothing
             return float("nan")
         return _in_se(self.mean_gain - self.null_gain, math.sqrt(2.0) * self.null_se)
 

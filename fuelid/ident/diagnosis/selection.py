@@ -4,11 +4,11 @@ Rounds r = 1, 2, …: every candidate still open is screened on the current base
 ident.diagnosis.screening); the significant ones that explain min_effect_percent are built, the max_builds that
 explain the largest share of the simulation error, and held to the yardstick (ident.diagnosis.yardstick) against the
 base (and, when its floors are met but its block gains' own spread hides the gain, against its placebo: the same
-build on its bus signals shifted by half the data). One that passes but whose fold models fit it against the direction its physics states, beyond their spread
-(ident.diagnosis.size.against_physics), is NAMED_NOT_RECOMMENDED (AGAINST_ITS_PHYSICS): what it gains is not that
-effect. Of the others that pass, the one with the largest mean paired gain is accepted (an effect with stated
-physics — catalogued or the engineer's — before a generic form of a bus signal, which can stand in for it on one
-trip) — RECOMMENDED — and the base becomes the model refitted with it.
+build on its bus signals shifted by half the data). One that passes but whose fold models fit it against the
+direction its physics states, beyond their spread (ident.diagnosis.size.against_physics), is NAMED_NOT_RECOMMENDED
+(AGAINST_ITS_PHYSICS): what it gains is not that effect. Of the others that pass, the one with the largest mean
+paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a generic form of a
+bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it.
 
 Forward selection's blind spot is two effects that mask each other: the model with either one alone fits it to data
 the other distorts, and neither passes although both together would. So when nothing passes in a round, each pair of

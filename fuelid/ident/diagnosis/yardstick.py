@@ -197,8 +197,7 @@ def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings, nu
     # the mean carries an effect in a few blocks, the trimmed mean one on most blocks beside a few transients, and the
     # mean beyond a placebo's one in so few blocks that it decides its own spread
     k = settings.margin_se
-    beyond = held.beyond_null_in_se
-    passes = floors and (mean > k * se or trimmed > k * trimmed_se or (np.isfinite(beyond) and beyond > k))
+    passes = floors and (mean > k * se or trimmed > k * trimmed_se or held.beyond_null_in_se > k)  # NaN: no placebo
     return dataclasses.replace(held, passes=bool(passes))
 
 
