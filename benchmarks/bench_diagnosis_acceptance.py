@@ -19,6 +19,7 @@ and case group:
     found        the hidden effect is recommended (its id, or for a generic effect a candidate on its signal; the
                  engine's curvature, power_nonlinearity, and the injection cut, overrun_cutoff, count when the base
                  is the engine model or the diagnosis advises the map: the engine model carries both); pairs: both
+    or alternative  found, or named as an alternative of a recommended candidate (the data do not tell them apart)
     clean        any missing effect recommended on a trip with nothing hidden (clean and traps)
     where it helps  found, among the cases where the true effect lowers the other day's error (e_oracle < e_base):
                  an effect the base model already represents (a short fuel delay inside the paper's B polynomials)
@@ -101,9 +102,13 @@ def simulated(case: dict, seed: int, truth: str, engine: str, fuel_lag_s: float 
                             engine=engine, fuel_lag_s=fuel_lag_s)[0]
 
 
-def found(case: dict, result: dict, engine_model: bool) -> bool:
-    """Whether every hidden effect is recommended (module docstring)."""
+def found(case: dict, result: dict, engine_model: bool, alternatives: bool = False) -> bool:
+    """Whether every hidden effect is recommended (module docstring), or with `alternatives` recommended or named as
+    the alternative of one recommended."""
     rec = [c for c in result["candidates"] if c["recommended"]]
+    if alternatives:
+        by_id = {c["id"]: c for c in result["candidates"]}
+        rec += [by_id[a] for c in rec for a in c["alternatives"]]
 
     def one(e):
         if e in IN_MAP and (engine_model or result["engine_map"]["status"] == "advised"):
@@ -150,7 +155,9 @@ def one_case(case: dict, seed: int, truth: str, engine: str, defined) -> dict:
                  if case["kind"] != "generic" and e != "power_nonlinearity"
                  and not (kind is ModelKind.ENGINE and e in IN_ENGINE_MODEL)]  # the engine model's own
     row = {"found": found(case, result, engine_model), "agree": agrees(result), "seconds": seconds,
-           "missing": [c["id"] for c in result["candidates"] if c["recommended"]], "model": kind.value}
+           "or_alternative": found(case, result, engine_model, alternatives=True),
+           "missing": [c["id"] for c in result["candidates"] if c["recommended"]], "model": kind.value,
+           "alternatives": sorted({a for c in result["candidates"] for a in c["alternatives"]})}
     try:
         e_base = rmse_on(ds, [], kind, valid, defined)
         e_rec = rmse_on(ds, rec, kind, valid, defined) if rec else e_base
@@ -191,14 +198,16 @@ def report(label: str, rows: list[tuple[dict, dict]]) -> None:
         key = case["kind"] if case["kind"] in ("clean", "trap", "pair") else f"{case['kind']} ×{case['scale']:g}"
         groups[key].append(row)
     print(f"\n{label}")
-    print(f"  {'group':18s} {'found / recommended':28s} {'where it helps':28s} {'harmful':24s} {'agree':24s} "
-          "oracle share (median)")
+    print(f"  {'group':18s} {'found / recommended':28s} {'or alternative':28s} {'where it helps':28s} "
+          f"{'harmful':24s} {'agree':24s} oracle share (median)")
     for key, rs in sorted(groups.items()):
         hit = [r["found"] for r in rs] if not key.startswith(("clean", "trap")) else [bool(r["missing"]) for r in rs]
+        alt = [r["or_alternative"] for r in rs] if not key.startswith(("clean", "trap")) else []
         helps = [r["found"] for r in rs if "share" in r]  # share is set exactly when e_oracle < e_base
         shares = sorted(r["share"] for r in rs if "share" in r and r["found"])
         med = f"{shares[len(shares) // 2]:.2f} (n {len(shares)})" if shares else "–"
-        print(f"  {key:18s} {wilson(sum(hit), len(hit)):28s} {wilson(sum(helps), len(helps)):28s} "
+        print(f"  {key:18s} {wilson(sum(hit), len(hit)):28s} {wilson(sum(alt), len(alt)):28s} "
+              f"{wilson(sum(helps), len(helps)):28s} "
               f"{wilson(sum(r.get('harmful', False) for r in rs), len(rs)):24s}"
               f" {wilson(sum(r['agree'] for r in rs), len(rs)):24s} {med}")
     t = sorted(r["seconds"] for _, r in rows)
@@ -228,7 +237,7 @@ def main():
                 print(f"  [{label}] {case['kind']:7s} {what:32s} ×{case['scale']:g} seed {seed} ({row['model']}): found "
                       f"{row['found'] if case['hidden'] else '-'!s:5s} recommended {','.join(row['missing']) or '-':40s} "
                       f"harmful {row.get('harmful')} share {row.get('share', float('nan')):.2f} agree {row['agree']} "
-                      f"{row['seconds']:.1f} s", flush=True)
+                      f"{row['seconds']:.1f} s alternatives {','.join(row['alternatives']) or '-'}", flush=True)
             report(label, rows)
 
 

@@ -132,7 +132,9 @@ class Candidate:
     last screening (1 the model as given); size: its size (ident.diagnosis.size) in the model built with it once it
     passed the yardstick, in the model with everything recommended once recommended; together_with: the candidate
     it was accepted with, when neither passed alone and the two together do, each beyond the other
-    (ident.diagnosis.selection; held_out is then its gain beyond the other)."""
+    (ident.diagnosis.selection; held_out is then its gain beyond the other); alternatives: the candidates that passed
+    in the round it was accepted in whose models its own does not beat beyond the margin (these data cannot tell
+    them apart)."""
 
     definition: fx.Effect
     status: Status = Status.NOT_TESTABLE
@@ -144,6 +146,7 @@ class Candidate:
     round: int = 0
     size: EffectSize | None = None  # once built and passed (class docstring)
     together_with: str | None = None
+    alternatives: tuple[str, ...] = ()
 
     def decide(self, status: Status, reason: Reason | None = None, explained_by: str | None = None) -> None:
         """Set the status, with its reason (NAMED_NOT_RECOMMENDED) or the candidate that explains it (EXPLAINED_BY;

@@ -33,6 +33,14 @@ def _pair_text(c: Candidate) -> str:
            "the model with the other)"
 
 
+def _alternatives_text(c: Candidate) -> str:
+    """What is said of a recommended candidate's alternatives (ident.diagnosis.selection): '' without any."""
+    if not c.alternatives:
+        return ""
+    return f"; these data do not tell it apart from {', '.join(c.alternatives)}: its model does not simulate " \
+           "held-out blocks better than theirs beyond the margin"
+
+
 def signals_text(effect) -> str:
     """An effect's bus signals as the engineer reads them: DBC names with their SPNs."""
     spn = {s: fx.spn_of(s) for s in effect.signals}
@@ -69,7 +77,7 @@ def explanation(c: Candidate) -> str:
     size = "" if c.size is None else f"; {_template(c) or size_text(c.size)}"
     return {
         Status.RECOMMENDED: lambda: "recommended" + f", {_pair_text(c)}" * bool(c.together_with)
-                                    + f": {_gain(c)}{size}",
+                                    + f": {_gain(c)}{size}{_alternatives_text(c)}",
         Status.NAMED_NOT_RECOMMENDED: lambda: f"named, not recommended: {c.reason.value}" + (
             f" ({_gain(c)}{size})" if c.held_out is not None else "") + f"; {p}",
         Status.EXPLAINED_BY: lambda: f"explained by {c.explained_by}: significant before it was added, not after",
@@ -104,7 +112,7 @@ def verdict(candidates: list[Candidate], m: EngineMap, settings: Settings) -> st
     if rec:
         parts.append("missing effect" + "s" * (len(rec) > 1) + " recommended: "
                      + "; ".join(f"add {c.spec or c.effect} (" + f"{_pair_text(c)}: " * bool(c.together_with)
-                                 + f"{_gain(c)})" for c in rec) + f" — {ADD}")
+                                 + f"{_gain(c)}{_alternatives_text(c)})" for c in rec) + f" — {ADD}")
     parts += [f"{c.effect} is named by the screening but not recommended: {c.reason.value}" for c in named]
     if not rec and m.status is not MapStatus.ADVISED:
         parts.append(f"no missing effect recommended: none lowers the held-out simulation error by more than "
@@ -121,7 +129,8 @@ def candidate_json(c: Candidate) -> dict:
     return {"id": c.effect, "effect": c.effect, "spec": c.spec or c.effect, "name": e.name, "form": e.form,
             "signals": list(e.signals), "spns": list(e.spns), "physics": e.physics,
             "status": c.status.value, "reason": c.reason and c.reason.name.lower(), "explained_by": c.explained_by,
-            "recommended": c.recommended, "together_with": c.together_with, "significant": c.named,
+            "recommended": c.recommended, "together_with": c.together_with, "alternatives": list(c.alternatives),
+            "significant": c.named,
             "testable": s is not None, "round": c.round,
             "statistic": s and s.statistic, "df": s.df if s else 0, "p_value": s and s.p_value,
             "p_holm": s and s.p_holm, "estimated_drop_percent": s and s.explains_percent,

@@ -9,6 +9,8 @@ direction its physics states, beyond their spread (ident.diagnosis.size.against_
 (AGAINST_ITS_PHYSICS): what it gains is not that effect. Of the others that pass, the one with the largest mean
 paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a generic form of a
 bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it.
+The others that pass and whose models the accepted one's does not beat by the same yardstick are its `alternatives`:
+these data cannot tell them apart (two temperatures that rise together over a trip), and the engineer is told so.
 
 Forward selection's blind spot is two effects that mask each other: the model with either one alone fits it to data
 the other distorts, and neither passes although both together would. So when nothing passes in a round, each pair of
@@ -223,6 +225,13 @@ class _Builds:
             return False
         return True
 
+    def alternatives(self, best: Candidate, passing: list[Candidate]) -> tuple[str, ...]:
+        """The others of `passing` (built this round, each passing) whose models best's model does not beat: the
+        yardstick of best's fold refits against theirs does not pass (these data cannot tell them apart)."""
+        mine = self.scored[best.effect]
+        return tuple(c.effect for c in passing if c is not best
+                     and not compare(self.scored[c.effect], mine, self.folds, self.settings).passes)
+
     def passing_pair(self, single: list[Candidate]) -> tuple[list[Candidate], PolyModel | None, Scored] | None:
         """Of the pairs of `single` (built alone this round, none passing), the one whose model passes the
         yardstick against the base and against each member's model alone (each adds beyond the other), in the
@@ -305,6 +314,8 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 pool.remove(c)
         if passing:
             best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
+            if best is not term:
+                best.alternatives = builds.alternatives(best, passing)
             chosen, whole, scored = [best], builds.whole.get(best.effect), builds.scored[best.effect]
         else:
             # forward selection's blind spot, effects that mask each other (module docstring)
@@ -338,6 +349,8 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
     recommended = [c for c in accepted if c.effect != MAP_EFFECT]
     for c in recommended:  # sized in the model with everything recommended: one accepted later may have masked it
         c.size = effect_size(model, ds, c.definition) or c.size
+        # one accepted later adds beyond c: not an alternative to it
+        c.alternatives = tuple(a for a in c.alternatives if a not in {r.effect for r in recommended})
     return recommended, _map_status(in_model, accepted, term)
 
 

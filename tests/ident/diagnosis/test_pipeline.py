@@ -38,7 +38,7 @@ def recommended(d) -> list[str]:
 def test_a_hidden_effect_is_recommended_first_and_lowers_the_held_out_error(effect, expected):
     _, d = diagnosed(effect, 11)
     top = d.candidates[0]
-    assert recommended(d)[:1] == [expected] and top.status is Status.RECOMMENDED
+    assert recommended(d)[:1] == [expected] and top.status is Status.RECOMMENDED and top.alternatives == ()
     assert top.held_out.passes and top.held_out.drop_percent > 10
     out = d.to_json()
     assert dg.confirmed_effects(out["candidates"]) == recommended(d) == out["missing_effects"]
@@ -95,6 +95,32 @@ def test_two_effects_that_mask_each_other_are_both_recommended_and_sized_in_the_
                 assert {c["id"]: c["together_with"] for c in d.to_json()["candidates"] if c["recommended"]} == \
                     {"pto_pump": "exhaust_brake", "exhaust_brake": "pto_pump"}
     assert found >= 4 and together >= 1  # both on 8 of seeds 5-12, together on 2
+
+
+def _pump_and_lamp(flipped: float, seed: int = 31):
+    """A PTO pump (+3 L/h while CCVS1.PTOGovernorState is 1, a minute in three) and a lamp (ERC1.RetarderTorqueMode)
+    that follows the PTO switch but for a share `flipped` of the samples, diagnosed with both as candidates."""
+    ds = hidden.make(None, n=4000, seed=seed)
+    pto = (np.floor(np.arange(ds.t.size) * ds.Ts / 60.0) % 3 == 0).astype(float)
+    lamp = np.where(np.random.default_rng(seed).uniform(size=pto.size) < flipped, 1.0 - pto, pto)
+    ds = dataclasses.replace(ds, y=ds.y + 3.0 * pto, extra={**ds.extra, "CCVS1.PTOGovernorState": pto,
+                                                          "ERC1.RetarderTorqueMode": lamp})
+    effects = [_state_effect("pto_pump", "CCVS1.PTOGovernorState", 1),
+               _state_effect("pto_lamp", "ERC1.RetarderTorqueMode", 1)]
+    return dg.diagnose(hidden.fitted(ds), ds, effects=effects, candidates=effects)
+
+
+def test_two_candidates_the_data_cannot_tell_apart_are_named_as_alternatives():
+    """The lamp wrong on one sample in a thousand: either model simulates the trip as well, so the one recommended
+    names the other as its alternative. Wrong on one in two hundred, the pump's model is better beyond the margin:
+    no alternative (both on seeds 31-34)."""
+    d = _pump_and_lamp(0.001)
+    assert recommended(d) == ["pto_pump"] and d.candidates[0].alternatives == ("pto_lamp",)
+    assert "these data do not tell it apart from pto_lamp" in d.verdict
+    assert {c["id"]: c["alternatives"] for c in d.to_json()["candidates"]}["pto_pump"] == ["pto_lamp"]
+    told_apart = _pump_and_lamp(0.005)
+    assert recommended(told_apart) == ["pto_pump"] and told_apart.candidates[0].alternatives == ()
+    assert "tell it apart" not in told_apart.verdict
 
 
 def test_an_effect_the_engineer_defines_is_recommended():

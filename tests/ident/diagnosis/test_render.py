@@ -78,3 +78,15 @@ def test_a_gain_measured_against_its_placebo_says_so():
     c.held_out = GAIN
     assert "placebo" not in explanation(c)
     assert not math.isfinite(candidate_json(c)["held_out"]["beyond_null_in_se"])
+
+
+def test_a_recommendation_the_data_cannot_tell_from_another_names_it():
+    c = Candidate(fx.EFFECTS["cold_engine"], screening=SCREENED, held_out=GAIN, spec="cold_engine",
+                  alternatives=("scales:ET1.EngOilTemp1",))
+    c.decide(Status.RECOMMENDED)
+    said = "these data do not tell it apart from scales:ET1.EngOilTemp1"
+    assert said in explanation(c) and said in verdict([c], EngineMap(MapStatus.NOT_NEEDED), Settings())
+    assert candidate_json(c)["alternatives"] == ["scales:ET1.EngOilTemp1"]
+    alone = Candidate(fx.EFFECTS["cold_engine"], screening=SCREENED, held_out=GAIN, spec="cold_engine")
+    alone.decide(Status.RECOMMENDED)
+    assert "tell it apart" not in explanation(alone) and candidate_json(alone)["alternatives"] == []
