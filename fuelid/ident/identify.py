@@ -50,36 +50,17 @@ class FitMemo:
     Ts [s], segments, operating point u0, y0 and start (init's θ, or the initialisation). pem is deterministic, so a
     fit asked for again from the same is the model already fitted; served as a copy (a caller changing it cannot
     change the next one's). A fit asked for with more iterations (max_iter) than one kept that stopped at its limit
-    continues that one's search (ident.pem.pem_with_search, `after`): the diagnosis's warm-started refit (30
-    iterations) is the start of the fit `identify` makes from the same model with the effects added in turn (100).
-    A fit kept that stopped before its limit (converged, or no damping lowered V) is the fit to any limit above its
-    iterations too: Levenberg–Marquardt's iterates do not depend on the limit.
+    continues that one's search (ident.pem.pem_with_search, `after`). A fit kept that stopped before its limit
+    (converged, or no damping lowered V) is the fit to any limit above its iterations too: Levenberg–Marquardt's
+    iterates do not depend on the limit. A memo serves one process's calls and is never stored."""
 
-    checkpoints: iteration limits below a warm-started fit's own at which its search is kept on the way, then
-    continued (the same model): a shorter fit of the same start asked for later — the diagnosis's warm-started refit,
-    in another process — is served. Two processes making fits on the same data (the diagnosis and its worker,
-    ident.diagnosis.builds) share them: `outgoing` is called with each fit made here (as `items()` entries, a
-    checkpoint's as soon as it is reached), and `incoming`, called before a fit not kept is made, returns the fits the
-    other made since. A memo serves one process's calls (or two such) and is never stored."""
-
-    def __init__(self, checkpoints=(), incoming=None, outgoing=None):
+    def __init__(self):
         self._fits: dict[tuple[bytes, int], tuple[PolyModel, LMResult]] = {}  # (key, max_iter) → model, search
-        self.checkpoints = tuple(sorted(checkpoints))
-        self.incoming, self.outgoing = incoming, outgoing
-        self.made = 0  # the fits made here (not served, nor received)
+        self.made = 0  # the fits made here (not served)
 
     def __len__(self) -> int:
-        """The number of fits kept (made here, received, or served by one kept)."""
+        """The number of fits kept (made here, or served by one kept)."""
         return len(self._fits)
-
-    def items(self) -> list[tuple[tuple[bytes, int], tuple[PolyModel, LMResult]]]:
-        """The fits kept, ((digest, max_iter), (model, search)): what another memo of the same calls takes (`update`;
-        the diagnosis's worker process, ident.diagnosis.builds)."""
-        return list(self._fits.items())
-
-    def update(self, items) -> None:
-        """Keep the fits `items` (another memo's `items()`) as if made here."""
-        self._fits.update(items)
 
     @staticmethod
     def _key(u, y, structure: Structure, Ts: float, segments, u0, y0: float, init: PolyModel | None) -> bytes:
@@ -98,30 +79,23 @@ class FitMemo:
     def pem(self, u, y, structure: Structure, Ts: float, *, segments, u0, y0: float,
             init: PolyModel | None = None, max_iter: int = 100) -> PolyModel:
         """pem(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=init, max_iter=max_iter), fitted once
-        per distinct call (here or by the other process, `incoming`), or continued from a kept fit with fewer
-        iterations that stopped at its limit, through the checkpoints below max_iter when warm-started."""
+        per distinct call, or continued from a kept fit with fewer iterations that stopped at its limit when
+        warm-started."""
         key = self._key(u, y, structure, Ts, segments, u0, y0, init)
-        if (key, max_iter) not in self._fits and self.incoming is not None:
-            self._fits.update(self.incoming())
         if (key, max_iter) not in self._fits:
             fit = functools.partial(pem_with_search, u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=init)
-            checkpoints = [c for c in self.checkpoints if c < max_iter] if init is not None else []
-            for limit in checkpoints + [max_iter]:
-                if (key, limit) not in self._fits:
-                    self._fits[key, limit] = self._stopped_before(key, limit) or self._fitted(key, limit, fit,
-                                                                                              init is not None)
+            self._fits[key, max_iter] = self._stopped_before(key, max_iter) or self._fitted(key, max_iter, fit,
+                                                                                            init is not None)
         return copy.deepcopy(self._fits[key, max_iter][0])
 
     def _fitted(self, key: bytes, limit: int, fit, warm: bool) -> tuple[PolyModel, LMResult]:
         """fit(max_iter=limit, after=...) (pem_with_search of the call of key), continued from the longest kept
-        search of key stopped at its limit when warm-started (init given), and sent `outgoing`."""
+        search of key stopped at its limit when warm-started (init given)."""
         shorter = [search for (k, kept), (_, search) in self._fits.items()
                    if k == key and kept < limit and search.reason == "max_iterations"]
         after = max(shorter, key=lambda search: search.iterations) if shorter and warm else None
         made = fit(max_iter=limit, after=after)
         self.made += 1
-        if self.outgoing is not None:
-            self.outgoing([((key, limit), made)])
         return made
 
     def _stopped_before(self, key: bytes, limit: int) -> tuple[PolyModel, LMResult] | None:

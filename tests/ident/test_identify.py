@@ -20,7 +20,7 @@ def test_a_model_without_an_input_is_the_same_model_with_its_coefficients_at_zer
 
 
 def test_a_model_built_through_a_memo_of_the_fits_before_it_is_the_same_to_the_bit():
-    """The diagnosis builds the model with effects E, then with E and one more (ident.diagnosis.builds.BuiltCheck):
+    """The diagnosis builds the model with effects E, then with E and one more (ident.diagnosis.selection.built):
     the second build's effects added in turn are the first's fits again, and a FitMemo serves them instead of fitting
     them anew."""
     ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
@@ -48,9 +48,9 @@ def test_a_memo_serves_a_copy_so_a_caller_cannot_change_the_next_fit():
 
 
 def test_a_memo_continues_a_fit_stopped_at_fewer_iterations_to_the_same_model_as_a_fit_from_scratch():
-    """The diagnosis's warm-started refit (selection._refit, 30 iterations) and the model identify builds from the
-    same model with the effect added in turn (100) start alike: the memo continues the first instead of starting
-    the second again, the same to the bit."""
+    """A warm-started refit stopped at its limit (3 iterations) and the model identify builds from the same model with
+    the effect added in turn (100) start alike: the memo continues the first instead of starting the second again,
+    the same to the bit."""
     ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
     base = identify_model(ds, hidden.PAPER)
     memo = FitMemo()
@@ -65,8 +65,8 @@ def test_a_memo_continues_a_fit_stopped_at_fewer_iterations_to_the_same_model_as
 
 
 def test_a_memo_serves_a_fit_that_stopped_short_of_its_limit_for_any_limit_above_its_iterations():
-    """Levenberg–Marquardt's iterates do not depend on the limit: a fit that converged serves a longer one, and a fit
-    kept on its way at a checkpoint is the shorter one — each the same to the bit as a fit made alone."""
+    """Levenberg–Marquardt's iterates do not depend on the limit: a fit that converged serves a longer one, the same
+    to the bit as a fit made alone."""
     ds, _, _ = hidden.simulated("dpf_regeneration", 3000)
     base = identify_model(ds, hidden.PAPER)
     memo = FitMemo()
@@ -78,13 +78,6 @@ def test_a_memo_serves_a_fit_that_stopped_short_of_its_limit_for_any_limit_above
     assert memo.made == 1 and np.array_equal(served.theta, alone.theta)
     assert served.info["stopping"] == alone.info["stopping"]
     assert served.info["loss_history"] == alone.info["loss_history"]
-
-    on_its_way = FitMemo(checkpoints=(3,))
-    whole = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=100, memo=on_its_way)
-    short = refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=3, memo=on_its_way)
-    assert on_its_way.made == 2  # to the checkpoint, then on from it
-    assert np.array_equal(whole.theta, converged.theta) and whole.info["loss_history"] == converged.info["loss_history"]
-    assert np.array_equal(short.theta, refit_with_effects(base, ds, ["dpf_regeneration"], max_iter=3).theta)
 
 
 # The initialisation's OE start as it is, and by LM alone (OE_LM_ITERATIONS = INIT_MAX_ITER: no variable projection),
