@@ -133,8 +133,8 @@ class Candidate:
     passed the yardstick, in the model with everything recommended once recommended; together_with: the candidate
     it was accepted with, when neither passed alone and the two together do, each beyond the other
     (ident.diagnosis.selection; held_out is then its gain beyond the other); alternatives: the candidates that passed
-    in the round it was accepted in whose models its own does not beat beyond the margin (these data cannot tell
-    them apart)."""
+    in the round it was accepted in whose models neither beat nor are beaten by its own beyond the margin (these
+    data cannot tell them apart)."""
 
     definition: fx.Effect
     status: Status = Status.NOT_TESTABLE

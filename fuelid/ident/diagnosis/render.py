@@ -37,8 +37,8 @@ def _alternatives_text(c: Candidate) -> str:
     """What is said of a recommended candidate's alternatives (ident.diagnosis.selection): '' without any."""
     if not c.alternatives:
         return ""
-    return f"; these data do not tell it apart from {', '.join(c.alternatives)}: its model does not simulate " \
-           "held-out blocks better than theirs beyond the margin"
+    return f"; these data do not tell it apart from {', '.join(c.alternatives)}: neither model simulates held-out " \
+           "blocks better than the other beyond the margin"
 
 
 def signals_text(effect) -> str:

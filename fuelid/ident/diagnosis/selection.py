@@ -9,8 +9,9 @@ direction its physics states, beyond their spread (ident.diagnosis.size.against_
 (AGAINST_ITS_PHYSICS): what it gains is not that effect. Of the others that pass, the one with the largest mean
 paired gain is accepted (an effect with stated physics — catalogued or the engineer's — before a generic form of a
 bus signal, which can stand in for it on one trip) — RECOMMENDED — and the base becomes the model refitted with it.
-The others that pass and whose models the accepted one's does not beat by the same yardstick are its `alternatives`:
-these data cannot tell them apart (two temperatures that rise together over a trip), and the engineer is told so.
+The others that pass and whose models neither beat nor are beaten by the accepted one's, by the same yardstick, are
+its `alternatives`: these data cannot tell them apart (two temperatures that rise together over a trip), and the
+engineer is told so.
 
 Forward selection's blind spot is two effects that mask each other: the model with either one alone fits it to data
 the other distorts, and neither passes although both together would. So when nothing passes in a round, each pair of
@@ -226,11 +227,12 @@ class _Builds:
         return True
 
     def alternatives(self, best: Candidate, passing: list[Candidate]) -> tuple[str, ...]:
-        """The others of `passing` (built this round, each passing) whose models best's model does not beat: the
-        yardstick of best's fold refits against theirs does not pass (these data cannot tell them apart)."""
-        mine = self.scored[best.effect]
-        return tuple(c.effect for c in passing if c is not best
-                     and not compare(self.scored[c.effect], mine, self.folds, self.settings).passes)
+        """The others of `passing` (built this round, each passing) that these data cannot tell from best: neither's
+        fold refits pass the yardstick against the other's."""
+        def beats(a: Candidate, b: Candidate) -> bool:
+            return compare(self.scored[b.effect], self.scored[a.effect], self.folds, self.settings).passes
+
+        return tuple(c.effect for c in passing if c is not best and not beats(best, c) and not beats(c, best))
 
     def passing_pair(self, single: list[Candidate]) -> tuple[list[Candidate], PolyModel | None, Scored] | None:
         """Of the pairs of `single` (built alone this round, none passing), the one whose model passes the
