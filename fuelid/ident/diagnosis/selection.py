@@ -349,10 +349,10 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             for c in chosen:
                 pool.remove(c)
     recommended = [c for c in accepted if c.effect != MAP_EFFECT]
+    ids = {c.effect for c in recommended}
     for c in recommended:  # sized in the model with everything recommended: one accepted later may have masked it
         c.size = effect_size(model, ds, c.definition) or c.size
-        # one accepted later adds beyond c: not an alternative to it
-        c.alternatives = tuple(a for a in c.alternatives if a not in {r.effect for r in recommended})
+        c.alternatives = tuple(a for a in c.alternatives if a not in ids)  # one accepted later adds beyond c
     return recommended, _map_status(in_model, accepted, term)
 
 
