@@ -316,8 +316,6 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 pool.remove(c)
         if passing:
             best = term if term in passing else max(passing, key=lambda c: (not _generic(c), c.held_out.mean_gain))
-            if best is not term:
-                best.alternatives = builds.alternatives(best, passing)
             chosen, whole, scored = [best], builds.whole.get(best.effect), builds.scored[best.effect]
         else:
             # forward selection's blind spot, effects that mask each other (module docstring)
@@ -338,6 +336,8 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
         for c in chosen:
             c.decide(Status.RECOMMENDED)
             accepted.append(c)
+        if passing and term not in chosen:  # accepted alone: the others that pass which these data cannot tell from it
+            chosen[0].alternatives = builds.alternatives(chosen[0], passing)
         for c in passing:
             if c not in chosen:  # re-screened on the new base next round, unless the rounds end here
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.SELECTION_STOPPED)
