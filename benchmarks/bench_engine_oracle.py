@@ -19,7 +19,14 @@ speed and torque), against that dataset's noise-free fuel:
 
     (a'), (a2'), (a3')  as (a), (a2), (a3);
     (j')  the Jensen gap: (a2') − (a'), the bins' mean of the true map against the true map at the bins' means;
+    (jb') the part of (j') the bus's own samples show: the mean of the true map over each bin's samples of speed and
+          torque as EEC1 sends them (every 20 ms, quantised to the DBC's 0.125 rpm and 1 %), against the true map
+          at the bins' means; what is left, (j') beside (jb'), is how 20 ms samples alias the torque's steps;
     (s')  the static P-spline (ident.enginemap.fit_map) of the identification trip, on the validation trip;
+    (t')  the model class with a perfect map: the true map at the bins' means and the engine model's torque-rise
+          columns with it (r, r·f, and both through a first-order lag of 1 s; ident.effects.torque_rise) as a static
+          least-squares regression fitted to the identification trip's measured fuel, on the validation trip;
+    (tb') (t') with the true map averaged over the bus's samples within each bin (as jb');
     (d')  the engine model identified on the identification trip (ident.modelchoice.identify_chosen, the model
           `fuelid identify --model engine` builds), simulated on the validation trip.
 
@@ -42,6 +49,11 @@ sys.path[:0] = [str(Path(__file__).resolve().parent)]
 import bench_engine_model as bem  # noqa: E402  (benchmarks/ on the path: its simulation and CLI helpers)
 
 
+EEC1_PERIOD_S = 0.02  # the simulated gateway's EEC1 period (sim.gateway.fms_schedule)
+SPEED_STEP_RPM = 0.125  # SPN 190's resolution
+RISE_LAG_S = 1.0  # [s] the first-order lag of (t')'s lagged torque-rise columns
+
+
 def _rms(x: np.ndarray) -> float:
     x = x[np.isfinite(x)]
     return float(np.sqrt(np.mean(x ** 2)))
@@ -61,7 +73,7 @@ def run_case(label: str, engine: str, seed: int, noise: float) -> dict:
     ident_cfg, valid_cfg = validation_pair(seed, "map", engine, noise)
     with tempfile.TemporaryDirectory(prefix="bench_oracle_") as tmp:
         folder = Path(tmp)
-        ident_mcap, _ = bem._recording(ident_cfg, folder, "ident")
+        ident_mcap, ident_trip = bem._recording(ident_cfg, folder, "ident")
         valid_mcap, trip = bem._recording(valid_cfg, folder, "valid")
         bem._cli_json("identify", ident_mcap, "-o", folder / "model.json", "--model", "engine", "--fuel-lag", "0")
         model = load_model(folder / "model.json")
@@ -72,22 +84,32 @@ def run_case(label: str, engine: str, seed: int, noise: float) -> dict:
     v = vecto.read_engine(engine)
     eng = mapfuel.sim_engine(v)
     to_l_h = 1.0 / (1000.0 * v.fuel_density_kg_l)
+
+    def map_l_h(n_rpm, T_bus_nm):  # the true map [L/h] at the bus's speed and torque (flywheel = bus − friction)
+        return v.fuel_g_h(n_rpm, T_bus_nm - eng.friction_torque_nm(n_rpm)) * to_l_h
+
+    def bus_mean(tr, cfg):  # per bin of trip tr: the true map's mean over EEC1's samples (every 20 ms, quantised)
+        step, every = int(round(ds.Ts / cfg.dt_s)), max(1, int(round(EEC1_PERIOD_S / cfg.dt_s)))
+        at = np.arange(0, len(tr.t_s), every)
+        n_q = np.round(tr.signals["engine_speed_rpm"][at] / SPEED_STEP_RPM) * SPEED_STEP_RPM
+        T_q = np.round(tr.signals["torque_reported_pct"][at]) / 100.0 * eng.reference_torque_nm
+        k = at // step
+        return np.bincount(k, map_l_h(n_q, T_q)) / np.bincount(k)
     noise_bin = trip.truth["fuel_noise_bin"]
 
     step = int(round(ds.Ts / valid_cfg.dt_s))
     starts = np.arange(0, len(trip.t_s), step)
     n_fine = trip.signals["engine_speed_rpm"]
     T_fine = trip.signals["torque_reported_pct"] / 100.0 * eng.reference_torque_nm
-    map_fine = v.fuel_g_h(n_fine, T_fine - eng.friction_torque_nm(n_fine)) * to_l_h
+    map_fine = map_l_h(n_fine, T_fine)
     k_tr = mapfuel.transient_factor(v, T_fine, valid_cfg.dt_s)
     per_bin = {"a2_bin_mean_of_true_map": bin_means(map_fine, starts),
                "a3_with_transient_factor": bin_means(map_fine * k_tr, starts),
                "b_with_ecu_hold": bin_means(mapfuel.ecu_reported(map_fine * k_tr, valid_cfg.dt_s), starts)}
 
-    def true_map(d) -> np.ndarray:  # at the bins' mean logged speed and torque (flywheel torque = bus − friction)
+    def true_map(d) -> np.ndarray:  # at the bins' mean logged speed and torque
         n, T = np.nan_to_num(d.u[:, 0]), np.nan_to_num(d.u[:, 1])
-        T_nm = T if d.input_units[1] == "Nm" else T / 100.0 * eng.reference_torque_nm
-        return v.fuel_g_h(n, T_nm - eng.friction_torque_nm(n)) * to_l_h
+        return map_l_h(n, T if d.input_units[1] == "Nm" else T / 100.0 * eng.reference_torque_nm)
 
     noise = bem.on_bins(ds, noise_bin, valid_cfg.start_unix_s)
     clean = ds.y - noise
@@ -107,15 +129,36 @@ def run_case(label: str, engine: str, seed: int, noise: float) -> dict:
     out["f_steady_state_vs_true_map"] = _rms((steady_state_map(model, n, T) - rows["a_true_map_at_bin_means"])[covered])
     out["d_model_vs_clean"] = _rms((run.y - run.ysim - noise)[settled])
     out["d_model_vs_measured"] = _rms((run.y - run.ysim)[settled])
-    out.update(_rebinned(*lagged, noise_bin, valid_cfg.start_unix_s, true_map, per_bin))
+    bus = [(bus_mean(tr, cfg), cfg.start_unix_s) for tr, cfg in ((ident_trip, ident_cfg), (trip, valid_cfg))]
+    out.update(_rebinned(*lagged, noise_bin, valid_cfg.start_unix_s, true_map, per_bin, bus))
     return out
 
 
-def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map, per_bin: dict) -> dict:
+def _rise_regression(ident, valid, f_ident: np.ndarray, f_valid: np.ndarray) -> np.ndarray:
+    """(t'): fuel ≈ α + β f + the torque-rise columns (r, r·f, and both through a first-order lag of RISE_LAG_S),
+    f a given map's fuel per sample [L/h]; least squares on the identification trip's valid samples (measured
+    fuel), evaluated on the validation trip [L/h]."""
+    from scipy.signal import lfilter
+
+    from fuelid.ident.effects import torque_rise
+
+    def columns(d, f):
+        r = np.nan_to_num(torque_rise(d.u[:, 1], d.t, d.input_units[1]))
+        a = d.Ts / (RISE_LAG_S + d.Ts)
+        lagged = lfilter([a], [1.0, a - 1.0], r)
+        return np.column_stack([np.ones(len(f)), f, r, r * f, lagged, lagged * f])
+
+    fit = ident.valid & np.isfinite(f_ident) & np.isfinite(ident.y)
+    coef, *_ = np.linalg.lstsq(columns(ident, np.nan_to_num(f_ident))[fit], ident.y[fit], rcond=None)
+    return columns(valid, np.nan_to_num(f_valid)) @ coef
+
+
+def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map, per_bin: dict, bus) -> dict:
     """The primed rows of the module docstring on the datasets built with the fuel's lag taken out: RMS [L/h]
     against the validation trip's noise-free fuel over the engine model's settled samples, and the model's against
     the measured fuel. true_map(dataset): the true map at its bins' means; per_bin: the truth's rows (a2), (a3)
-    per bin of the trip."""
+    per bin of the trip; bus: ((per bin, trip start [s]) of the identification trip, of the validation trip), the
+    true map's mean over the bus's samples (jb')."""
     from fuelid.ident.enginemap import fit_map
     from fuelid.ident.identify import MIN_SEGMENT_S
     from fuelid.ident.modelchoice import ModelKind, identify_chosen
@@ -136,11 +179,17 @@ def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map
     a = true_map(valid)
     a2, a3 = (bem.on_bins(valid, per_bin[k], start_unix_s)
               for k in ("a2_bin_mean_of_true_map", "a3_with_transient_factor"))
+    ab_ident, ab = (bem.on_bins(d, *b) for d, b in zip((ident, valid), bus))
+    t = _rise_regression(ident, valid, true_map(ident), a)
+    tb = _rise_regression(ident, valid, ab_ident, ab)
     return {"a'_true_map_at_bin_means_rebinned": _rms((a - clean)[settled]),
             "a2'_bin_mean_of_true_map_rebinned": _rms((a2 - clean)[settled]),
             "a3'_with_transient_factor_rebinned": _rms((a3 - clean)[settled]),
             "j'_jensen_gap_rebinned": _rms((a2 - a)[settled]),
+            "jb'_jensen_gap_bus_samples": _rms((ab - a)[settled]),
             "s'_static_pspline_rebinned": _rms((np.where(T > 0, static(n, T), 0.0) - clean)[settled]),
+            "t'_true_map_rise_columns": _rms((t - clean)[settled]),
+            "tb'_bus_mean_map_rise_columns": _rms((tb - clean)[settled]),
             "d'_model_rebinned_vs_clean": _rms((run.y - run.ysim - noise)[settled]),
             "d'_model_rebinned_vs_measured": _rms((run.y - run.ysim)[settled])}
 
