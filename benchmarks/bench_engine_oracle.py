@@ -19,14 +19,19 @@ speed and torque), against that dataset's noise-free fuel:
 
     (a'), (a2'), (a3')  as (a), (a2), (a3);
     (j')  the Jensen gap: (a2') − (a'), the bins' mean of the true map against the true map at the bins' means;
-    (jb') the part of (j') the bus's own samples show: the mean of the true map over each bin's samples of speed and
-          torque as EEC1 sends them (every 20 ms, quantised to the DBC's 0.125 rpm and 1 %), against the true map
-          at the bins' means; what is left, (j') beside (jb'), is how 20 ms samples alias the torque's steps;
+    (jb') the part of (j') the bus's own samples show: the mean of the true map over each bin's EEC1 samples of
+          speed and torque (as the recording holds them: every 20 ms, in the DBC's 0.125 rpm and 1 %), against the
+          true map at the bins' means; what is left, (j') beside (jb'), is how 20 ms samples alias the torque's steps;
     (s')  the static P-spline (ident.enginemap.fit_map) of the identification trip, on the validation trip;
     (t')  the model class with a perfect map: the true map at the bins' means and the engine model's torque-rise
           columns with it (r, r·f, and both through a first-order lag of 1 s; ident.effects.torque_rise) as a static
           least-squares regression fitted to the identification trip's measured fuel, on the validation trip;
     (tb') (t') with the true map averaged over the bus's samples within each bin (as jb');
+    (p')  what an identified map can do there: (t') with the P-spline (ident.enginemap) on the knots and smoothing of
+          (d')'s map in place of the true map, its coefficients fitted with the other columns (penalised least
+          squares, the torque-rise products with (d')'s map), basis at the bins' means;
+    (pb') (p') with the basis averaged over the bus's samples within each bin;
+    (p'i), (d'i)  (p') and (d') on the identification trip they were fitted to (in sample);
     (d')  the engine model identified on the identification trip (ident.modelchoice.identify_chosen, the model
           `fuelid identify --model engine` builds), simulated on the validation trip.
 
@@ -49,8 +54,6 @@ sys.path[:0] = [str(Path(__file__).resolve().parent)]
 import bench_engine_model as bem  # noqa: E402  (benchmarks/ on the path: its simulation and CLI helpers)
 
 
-EEC1_PERIOD_S = 0.02  # the simulated gateway's EEC1 period (sim.gateway.fms_schedule)
-SPEED_STEP_RPM = 0.125  # SPN 190's resolution
 RISE_LAG_S = 1.0  # [s] the first-order lag of (t')'s lagged torque-rise columns
 
 
@@ -75,6 +78,7 @@ def run_case(label: str, engine: str, seed: int, noise: float) -> dict:
         folder = Path(tmp)
         ident_mcap, ident_trip = bem._recording(ident_cfg, folder, "ident")
         valid_mcap, trip = bem._recording(valid_cfg, folder, "valid")
+        bus = [_eec1_samples(path) for path in (ident_mcap, valid_mcap)]
         bem._cli_json("identify", ident_mcap, "-o", folder / "model.json", "--model", "engine", "--fuel-lag", "0")
         model = load_model(folder / "model.json")
         with warnings.catch_warnings():
@@ -87,14 +91,6 @@ def run_case(label: str, engine: str, seed: int, noise: float) -> dict:
 
     def map_l_h(n_rpm, T_bus_nm):  # the true map [L/h] at the bus's speed and torque (flywheel = bus − friction)
         return v.fuel_g_h(n_rpm, T_bus_nm - eng.friction_torque_nm(n_rpm)) * to_l_h
-
-    def bus_mean(tr, cfg):  # per bin of trip tr: the true map's mean over EEC1's samples (every 20 ms, quantised)
-        step, every = int(round(ds.Ts / cfg.dt_s)), max(1, int(round(EEC1_PERIOD_S / cfg.dt_s)))
-        at = np.arange(0, len(tr.t_s), every)
-        n_q = np.round(tr.signals["engine_speed_rpm"][at] / SPEED_STEP_RPM) * SPEED_STEP_RPM
-        T_q = np.round(tr.signals["torque_reported_pct"][at]) / 100.0 * eng.reference_torque_nm
-        k = at // step
-        return np.bincount(k, map_l_h(n_q, T_q)) / np.bincount(k)
     noise_bin = trip.truth["fuel_noise_bin"]
 
     step = int(round(ds.Ts / valid_cfg.dt_s))
@@ -129,37 +125,78 @@ def run_case(label: str, engine: str, seed: int, noise: float) -> dict:
     out["f_steady_state_vs_true_map"] = _rms((steady_state_map(model, n, T) - rows["a_true_map_at_bin_means"])[covered])
     out["d_model_vs_clean"] = _rms((run.y - run.ysim - noise)[settled])
     out["d_model_vs_measured"] = _rms((run.y - run.ysim)[settled])
-    bus = [(bus_mean(tr, cfg), cfg.start_unix_s) for tr, cfg in ((ident_trip, ident_cfg), (trip, valid_cfg))]
-    out.update(_rebinned(*lagged, noise_bin, valid_cfg.start_unix_s, true_map, per_bin, bus))
+    ident_noise = bem.on_bins(lagged[0], ident_trip.truth["fuel_noise_bin"], ident_cfg.start_unix_s)
+    out.update(_rebinned(*lagged, noise_bin, valid_cfg.start_unix_s, true_map, map_l_h, per_bin, bus,
+                         eng.reference_torque_nm, ident_noise))
     return out
 
 
-def _rise_regression(ident, valid, f_ident: np.ndarray, f_valid: np.ndarray) -> np.ndarray:
-    """(t'): fuel ≈ α + β f + the torque-rise columns (r, r·f, and both through a first-order lag of RISE_LAG_S),
-    f a given map's fuel per sample [L/h]; least squares on the identification trip's valid samples (measured
-    fuel), evaluated on the validation trip [L/h]."""
+def _rise_columns(d, f: np.ndarray) -> np.ndarray:
+    """The engine model's torque-rise columns on dataset d (r, r·f, and both through a first-order lag of
+    RISE_LAG_S; ident.effects.torque_rise), f a map's fuel per sample [L/h]."""
     from scipy.signal import lfilter
 
     from fuelid.ident.effects import torque_rise
 
-    def columns(d, f):
-        r = np.nan_to_num(torque_rise(d.u[:, 1], d.t, d.input_units[1]))
-        a = d.Ts / (RISE_LAG_S + d.Ts)
-        lagged = lfilter([a], [1.0, a - 1.0], r)
-        return np.column_stack([np.ones(len(f)), f, r, r * f, lagged, lagged * f])
-
-    fit = ident.valid & np.isfinite(f_ident) & np.isfinite(ident.y)
-    coef, *_ = np.linalg.lstsq(columns(ident, np.nan_to_num(f_ident))[fit], ident.y[fit], rcond=None)
-    return columns(valid, np.nan_to_num(f_valid)) @ coef
+    r = np.nan_to_num(torque_rise(d.u[:, 1], d.t, d.input_units[1]))
+    a = d.Ts / (RISE_LAG_S + d.Ts)
+    lagged = lfilter([a], [1.0, a - 1.0], r)
+    f = np.nan_to_num(f)
+    return np.column_stack([r, r * f, lagged, lagged * f])
 
 
-def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map, per_bin: dict, bus) -> dict:
+def _regression(ident, valid, X_ident: np.ndarray, X_valid: np.ndarray, penalty: np.ndarray | None = None):
+    """Least squares of the identification trip's fuel on X_ident (valid samples, finite rows), plus λ'‖R c‖² on the
+    leading columns with `penalty` = λ'RᵀR; the fitted columns' prediction X_valid c on the validation trip [L/h]."""
+    fit = ident.valid & np.isfinite(ident.y) & np.isfinite(X_ident).all(axis=1)
+    X, y = X_ident[fit], ident.y[fit]
+    A = X.T @ X
+    if penalty is not None:
+        A[: len(penalty), : len(penalty)] += penalty
+    return X_valid @ np.linalg.lstsq(A, X.T @ y, rcond=None)[0]
+
+
+def _eec1_samples(mcap: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The recording's EEC1 samples from the engine (SA 0): log time [ns], speed [rpm] (SPN 190), actual torque [%]
+    (SPN 513), both present."""
+    from mcap.reader import make_reader
+
+    rows = []
+    with open(mcap, "rb") as f:
+        for _, _, msg in make_reader(f).iter_messages(topics=["/j1939/EEC1"]):
+            r = json.loads(msg.data)
+            if r.get("sa") == 0 and r.get("EngSpeed") is not None and r.get("ActualEngPercentTorque") is not None:
+                rows.append((msg.log_time, r["EngSpeed"], r["ActualEngPercentTorque"]))
+    t, n, T = zip(*rows)
+    return np.array(t, np.int64), np.array(n, float), np.array(T, float)
+
+
+def _bin_means(d, samples, values: np.ndarray) -> np.ndarray:
+    """Per sample of dataset d (its bins [k Ts, (k + 1) Ts) on the log clock): the mean of `values` (per bus sample,
+    1-D or N × K) over the bus samples in its bin, NaN where it has none."""
+    ts_ns = int(round(d.Ts * 1e9))
+    k0 = int(np.rint(d.t[0] / d.Ts))
+    k = samples[0] // ts_ns - k0
+    rows = np.rint(d.t / d.Ts).astype(np.int64) - k0
+    inside = (k >= 0) & (k < len(d.t))
+    count = np.bincount(k[inside], minlength=len(d.t))
+    cols = values.reshape(len(k), -1)[inside]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.column_stack([np.bincount(k[inside], c, minlength=len(d.t)) for c in cols.T]) / count[:, None]
+    out = out[rows]
+    return out[:, 0] if values.ndim == 1 else out
+
+
+def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map, map_l_h, per_bin: dict, bus,
+              reference_nm: float, ident_noise: np.ndarray) -> dict:
     """The primed rows of the module docstring on the datasets built with the fuel's lag taken out: RMS [L/h]
     against the validation trip's noise-free fuel over the engine model's settled samples, and the model's against
-    the measured fuel. true_map(dataset): the true map at its bins' means; per_bin: the truth's rows (a2), (a3)
-    per bin of the trip; bus: ((per bin, trip start [s]) of the identification trip, of the validation trip), the
-    true map's mean over the bus's samples (jb')."""
-    from fuelid.ident.enginemap import fit_map
+    the measured fuel. true_map(dataset): the true map at its bins' means; map_l_h(n [rpm], T [N m]): the true map;
+    per_bin: the truth's rows (a2), (a3) per bin of the trip; bus: the EEC1 samples (`_eec1_samples`) of the
+    identification trip, of the validation trip; reference_nm: the engine's
+    reference torque (SPN 544) [N m]; ident_noise: the identification trip's fuel noise per sample of ident [L/h]."""
+    from fuelid.ident.enginemap import fit_map, penalty_gram
+    from fuelid.ident.hammerstein import engine_map_of
     from fuelid.ident.identify import MIN_SEGMENT_S
     from fuelid.ident.modelchoice import ModelKind, identify_chosen
     from fuelid.ident.modelrun import run_model
@@ -179,9 +216,30 @@ def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map
     a = true_map(valid)
     a2, a3 = (bem.on_bins(valid, per_bin[k], start_unix_s)
               for k in ("a2_bin_mean_of_true_map", "a3_with_transient_factor"))
-    ab_ident, ab = (bem.on_bins(d, *b) for d, b in zip((ident, valid), bus))
-    t = _rise_regression(ident, valid, true_map(ident), a)
-    tb = _rise_regression(ident, valid, ab_ident, ab)
+    ab_ident, ab = (_bin_means(d, s, map_l_h(s[1], s[2] / 100.0 * reference_nm)) for d, s in zip((ident, valid), bus))
+
+    def with_rise(d, f):
+        return np.column_stack([np.ones(len(d.t)), f, _rise_columns(d, f)])
+
+    t = _regression(ident, valid, with_rise(ident, true_map(ident)), with_rise(valid, a))
+    tb = _regression(ident, valid, with_rise(ident, ab_ident), with_rise(valid, ab))
+    emap = engine_map_of(model)  # (p'), (pb'): its knots and smoothing, the rise products with its map
+
+    def unit(T_pct):  # bus torque [%] in the datasets' torque unit
+        return T_pct / 100.0 * reference_nm if valid.input_units[1] == "Nm" else T_pct
+
+    def spline_rise(d, basis):
+        return np.column_stack([basis, _rise_columns(d, emap(d.u[:, 0], d.u[:, 1]))])
+
+    phi_i, phi_v = (emap.basis(d.u[:, 0], d.u[:, 1]) for d in (ident, valid))
+    P = penalty_gram(*emap.coef.shape)
+    penalty = emap.smoothing * np.trace(phi_i[ident.valid].T @ phi_i[ident.valid]) / np.trace(P) * P  # λ' RᵀR
+    p_ = _regression(ident, valid, spline_rise(ident, phi_i), spline_rise(valid, phi_v), penalty)
+    pb_i, pb_v = (_bin_means(d, s, emap.basis(s[1], unit(s[2]))) for d, s in zip((ident, valid), bus))
+    pb = _regression(ident, valid, spline_rise(ident, pb_i), spline_rise(valid, pb_v), penalty)
+    p_in = _regression(ident, ident, spline_rise(ident, phi_i), spline_rise(ident, phi_i), penalty)
+    run_in = run_model(model, ident)
+    settled_in = np.isfinite(run_in.settled(run_in.ysim)) & np.isfinite(ident_noise)
     return {"a'_true_map_at_bin_means_rebinned": _rms((a - clean)[settled]),
             "a2'_bin_mean_of_true_map_rebinned": _rms((a2 - clean)[settled]),
             "a3'_with_transient_factor_rebinned": _rms((a3 - clean)[settled]),
@@ -190,6 +248,10 @@ def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map
             "s'_static_pspline_rebinned": _rms((np.where(T > 0, static(n, T), 0.0) - clean)[settled]),
             "t'_true_map_rise_columns": _rms((t - clean)[settled]),
             "tb'_bus_mean_map_rise_columns": _rms((tb - clean)[settled]),
+            "p'_identified_spline_rise_columns": _rms((p_ - clean)[settled]),
+            "pb'_bus_mean_spline_rise_columns": _rms((pb - clean)[settled]),
+            "p'i_on_identification_trip": _rms((p_in - (ident.y - ident_noise))[settled_in]),
+            "d'i_on_identification_trip": _rms((run_in.y - run_in.ysim - ident_noise)[settled_in]),
             "d'_model_rebinned_vs_clean": _rms((run.y - run.ysim - noise)[settled]),
             "d'_model_rebinned_vs_measured": _rms((run.y - run.ysim)[settled])}
 
