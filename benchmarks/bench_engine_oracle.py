@@ -145,15 +145,16 @@ def _rise_columns(d, f: np.ndarray) -> np.ndarray:
     return np.column_stack([r, r * f, lagged, lagged * f])
 
 
-def _regression(ident, valid, X_ident: np.ndarray, X_valid: np.ndarray, penalty: np.ndarray | None = None):
-    """Least squares of the identification trip's fuel on X_ident (valid samples, finite rows), plus λ'‖R c‖² on the
-    leading columns with `penalty` = λ'RᵀR; the fitted columns' prediction X_valid c on the validation trip [L/h]."""
+def _regression(ident, X_ident: np.ndarray, X_other: np.ndarray, penalty: np.ndarray | None = None):
+    """Least squares of dataset ident's fuel on X_ident (valid samples, finite rows), plus λ'‖R c‖² on the leading
+    columns with `penalty` = λ'RᵀR; the fitted columns' prediction X_other c [L/h] (another trip's columns, or
+    X_ident's own)."""
     fit = ident.valid & np.isfinite(ident.y) & np.isfinite(X_ident).all(axis=1)
     X, y = X_ident[fit], ident.y[fit]
     A = X.T @ X
     if penalty is not None:
         A[: len(penalty), : len(penalty)] += penalty
-    return X_valid @ np.linalg.lstsq(A, X.T @ y, rcond=None)[0]
+    return X_other @ np.linalg.lstsq(A, X.T @ y, rcond=None)[0]
 
 
 def _eec1_samples(mcap: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -177,12 +178,13 @@ def _bin_means(d, samples, values: np.ndarray) -> np.ndarray:
     ts_ns = int(round(d.Ts * 1e9))
     k0 = int(np.rint(d.t[0] / d.Ts))
     k = samples[0] // ts_ns - k0
-    rows = np.rint(d.t / d.Ts).astype(np.int64) - k0
-    inside = (k >= 0) & (k < len(d.t))
-    count = np.bincount(k[inside], minlength=len(d.t))
+    rows = np.rint(d.t / d.Ts).astype(np.int64) - k0  # each sample's bin, from the first (the grid may have gaps)
+    size = int(rows[-1]) + 1
+    inside = (k >= 0) & (k < size)
+    count = np.bincount(k[inside], minlength=size)
     cols = values.reshape(len(k), -1)[inside]
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.column_stack([np.bincount(k[inside], c, minlength=len(d.t)) for c in cols.T]) / count[:, None]
+        out = np.column_stack([np.bincount(k[inside], c, minlength=size) for c in cols.T]) / count[:, None]
     out = out[rows]
     return out[:, 0] if values.ndim == 1 else out
 
@@ -193,8 +195,8 @@ def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map
     against the validation trip's noise-free fuel over the engine model's settled samples, and the model's against
     the measured fuel. true_map(dataset): the true map at its bins' means; map_l_h(n [rpm], T [N m]): the true map;
     per_bin: the truth's rows (a2), (a3) per bin of the trip; bus: the EEC1 samples (`_eec1_samples`) of the
-    identification trip, of the validation trip; reference_nm: the engine's
-    reference torque (SPN 544) [N m]; ident_noise: the identification trip's fuel noise per sample of ident [L/h]."""
+    identification trip, of the validation trip; reference_nm: the engine's reference torque (SPN 544) [N m];
+    ident_noise: the identification trip's fuel noise per sample of ident [L/h]."""
     from fuelid.ident.enginemap import fit_map, penalty_gram
     from fuelid.ident.hammerstein import engine_map_of
     from fuelid.ident.identify import MIN_SEGMENT_S
@@ -221,8 +223,8 @@ def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map
     def with_rise(d, f):
         return np.column_stack([np.ones(len(d.t)), f, _rise_columns(d, f)])
 
-    t = _regression(ident, valid, with_rise(ident, true_map(ident)), with_rise(valid, a))
-    tb = _regression(ident, valid, with_rise(ident, ab_ident), with_rise(valid, ab))
+    t = _regression(ident, with_rise(ident, true_map(ident)), with_rise(valid, a))
+    tb = _regression(ident, with_rise(ident, ab_ident), with_rise(valid, ab))
     emap = engine_map_of(model)  # (p'), (pb'): its knots and smoothing, the rise products with its map
 
     def unit(T_pct):  # bus torque [%] in the datasets' torque unit
@@ -234,10 +236,10 @@ def _rebinned(ident, valid, noise_bin: np.ndarray, start_unix_s: float, true_map
     phi_i, phi_v = (emap.basis(d.u[:, 0], d.u[:, 1]) for d in (ident, valid))
     P = penalty_gram(*emap.coef.shape)
     penalty = emap.smoothing * np.trace(phi_i[ident.valid].T @ phi_i[ident.valid]) / np.trace(P) * P  # λ' RᵀR
-    p_ = _regression(ident, valid, spline_rise(ident, phi_i), spline_rise(valid, phi_v), penalty)
+    p_ = _regression(ident, spline_rise(ident, phi_i), spline_rise(valid, phi_v), penalty)
     pb_i, pb_v = (_bin_means(d, s, emap.basis(s[1], unit(s[2]))) for d, s in zip((ident, valid), bus))
-    pb = _regression(ident, valid, spline_rise(ident, pb_i), spline_rise(valid, pb_v), penalty)
-    p_in = _regression(ident, ident, spline_rise(ident, phi_i), spline_rise(ident, phi_i), penalty)
+    pb = _regression(ident, spline_rise(ident, pb_i), spline_rise(valid, pb_v), penalty)
+    p_in = _regression(ident, spline_rise(ident, phi_i), spline_rise(ident, phi_i), penalty)
     run_in = run_model(model, ident)
     settled_in = np.isfinite(run_in.settled(run_in.ysim)) & np.isfinite(ident_noise)
     return {"a'_true_map_at_bin_means_rebinned": _rms((a - clean)[settled]),
