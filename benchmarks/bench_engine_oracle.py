@@ -160,15 +160,12 @@ def _regression(ident, X_ident: np.ndarray, X_other: np.ndarray, penalty: np.nda
 def _eec1_samples(mcap: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The recording's EEC1 samples from the engine (SA 0): log time [ns], speed [rpm] (SPN 190), actual torque [%]
     (SPN 513), both present."""
-    from mcap.reader import make_reader
+    from fuelid.logger.mcap_log import read_messages
 
-    rows = []
-    with open(mcap, "rb") as f:
-        for _, _, msg in make_reader(f).iter_messages(topics=["/j1939/EEC1"]):
-            r = json.loads(msg.data)
-            if r.get("sa") == 0 and r.get("EngSpeed") is not None and r.get("ActualEngPercentTorque") is not None:
-                rows.append((msg.log_time, r["EngSpeed"], r["ActualEngPercentTorque"]))
-    t, n, T = zip(*rows)
+    t, n, T = zip(*((log_time, r["EngSpeed"], r["ActualEngPercentTorque"])
+                    for _, log_time, r in read_messages(mcap, "/j1939/EEC1")
+                    if r.get("sa") == 0 and r.get("EngSpeed") is not None
+                    and r.get("ActualEngPercentTorque") is not None))
     return np.array(t, np.int64), np.array(n, float), np.array(T, float)
 
 
