@@ -1,6 +1,6 @@
 """The daemon and replay through real SocketCAN: `fuelid log` on vcan0, `fuelid replay` onto it.
 
-All checks but the last share one session on vcan0 (one VM boot where the kernel has no vcan, ~4 min under
+All checks but the last share one session on vcan0 (one VM boot where the kernel has no vcan, about 2 min under
 software emulation): replay a log twice with the interface taken down and up in between, a flow-meter capture
 on a pseudo-terminal, SIGTERM; then a daemon killed with SIGKILL mid-replay and the next start recovering its
 file. The last, `fuelid log --identify` converging on a sped-up replay of a simulated trip, has its own.
@@ -36,6 +36,7 @@ wait_for() {  # FILE PATTERN SECONDS
     done
 }
 set -e
+step() { echo "== $(date +%T) $*"; }  # how far the script got, in the failure message
 # The daemons write to the VM's own file system (/tmp: an overlay in memory), like the in-cab box to its
 # local disk, not to the folder shared with the host (9p); the results are copied back at the end. On a
 # failure the trap also kills what is left running, so the VM does not wait for it.
@@ -43,9 +44,11 @@ OUT=$(mktemp -d)
 mkdir $OUT/run1 $OUT/run2
 ln -s $OUT/run1 run1; ln -s $OUT/run2 run2
 trap 'rc=$?; set +e; kill -KILL $(jobs -p) 2>/dev/null; rm run1 run2; cp -a $OUT/run1 $OUT/run2 .; exit $rc' EXIT
+trap 'exit 124' TERM  # the time limit: the EXIT trap still runs
 # Start-up takes ~20 s per Python process under emulation: start what can run side by side together.
 # run1: flow meter on a pty; replay, interface down and up, replay again; SIGTERM.
 # run2: a second daemon on the same bus, killed with SIGKILL during a third replay, then restarted.
+step "start the flow meter and two daemons"
 fuelid replay --flowmeter meter.flow --pty-link meter.pty --loop 2> flow-replay.err &
 FLOW=$!
 fuelid log --interface socketcan --channel vcan0 --serial meter.pty --output-dir run1 --truck vm-test > log1.err 2>&1 &
@@ -55,19 +58,24 @@ LOG2=$!
 wait_for run1/status.json '"state": "up"' 180
 wait_for run2/status.json '"state": "up"' 180
 wait_for run1/status.json '"state": "connected"' 60
+step "replay 1"
 fuelid replay drive.log --interface socketcan --channel vcan0 --json > replay1.json
 sleep 2
+step "vcan0 down and up"
 ip link set vcan0 down
 wait_for run1/status.json '"state": "down"' 30
 sleep 2
 ip link set vcan0 up
 wait_for run1/status.json '"connects": 2' 60
 wait_for run2/status.json '"connects": 2' 60
+step "replay 2"
 fuelid replay drive.log --interface socketcan --channel vcan0 --json > replay2.json
 sleep 2
 cat run1/status.json > status1.json  # cat reads the file it opened; cp fails when the daemon replaces it meanwhile
+step "SIGTERM to daemon 1 and the flow meter"
 kill -TERM $LOG1; wait $LOG1; echo $? > log1.rc
 kill -TERM $FLOW; wait $FLOW || true
+step "replay 3, SIGKILL to daemon 2"
 fuelid replay drive.log drive.log --interface socketcan --channel vcan0 > replay3.txt &
 REPLAY=$!
 i=0  # wait until the third replay is under way
@@ -79,12 +87,14 @@ sleep 1
 kill -KILL $LOG2; date +%s.%N > kill-time
 ls run2 > run2-before.txt
 rm run2/status.json
+step "restart daemon 2"
 fuelid log --interface socketcan --channel vcan0 --output-dir run2 > log3.err 2>&1 &
 LOG3=$!
 wait_for run2/status.json '"state": "up"' 180
 kill -TERM $LOG3; wait $LOG3
+step "end of replay 3"
 wait $REPLAY
-echo done
+step done
 """
 
 
@@ -93,7 +103,7 @@ def session(tmp_path_factory):
     work = tmp_path_factory.mktemp("vcan")
     sent = traffic.write_candump(work / "drive.log", DURATION_S)
     traffic.write_capture(work / "meter.flow", DURATION_S)
-    result = run_with_vcan(SCRIPT.replace("@FRAMES@", str(2 * len(sent) + 300)), work, timeout_s=900)
+    result = run_with_vcan(SCRIPT.replace("@FRAMES@", str(2 * len(sent) + 300)), work, timeout_s=600)
     if result.returncode != 0:
         logs = "\n".join(f"--- {p.name}\n{p.read_text()[-2000:]}" for p in sorted(work.glob("*.err")))
         pytest.fail(f"vcan session failed ({result.where}, exit {result.returncode}):\n{result.output[-4000:]}\n{logs}")
@@ -192,11 +202,14 @@ IDENTIFY_PGNS = {0xF004, 0xFEF2, 0xEC00, 0xEB00}
 
 IDENTIFY_SCRIPT = r"""
 set -e
+step() { echo "== $(date +%T) $*"; }
 OUT=$(mktemp -d)
 ln -s $OUT ident
 trap 'rc=$?; set +e; kill -KILL $(jobs -p) 2>/dev/null; rm ident; cp -a $OUT ident; exit $rc' EXIT
+trap 'exit 124' TERM
 # the estimator's compiled loop, built on the host for any x86-64 CPU (no JIT compile under emulation)
 export NUMBA_CACHE_DIR=$PWD/numba-cache NUMBA_CPU_NAME=generic
+step "start the daemon"
 fuelid log --interface socketcan --channel vcan0 --output-dir ident --identify --orders "@ORDERS@" \
     --replay-speed @SPEED@ --snapshot-s 5 > log.err 2>&1 &
 LOG=$!
@@ -205,11 +218,13 @@ until grep -q '"state": "up"' ident/status.json 2>/dev/null; do
     i=$((i + 1)); [ $i -gt 1500 ] && { echo "TIMEOUT: daemon not up"; exit 1; }
     sleep 0.2
 done
+step "replay the trip"
 fuelid replay trip.log --interface socketcan --channel vcan0 --speed @SPEED@ --json > replay.json
 sleep 3
 cat ident/status.json > status.json  # cat reads the file it opened; cp fails when the daemon replaces it meanwhile
+step "SIGTERM to the daemon"
 kill -TERM $LOG; wait $LOG; echo $? > log.rc
-echo done
+step done
 """
 
 
@@ -229,7 +244,7 @@ def identify_session(tmp_path_factory):
     subprocess.run([sys.executable, "-c", build], cwd=REPO, env=env, check=True)
     subprocess.run([sys.executable, "-m", "compileall", "-q", "fuelid/ident"], cwd=REPO, check=True)  # read-only in the VM
     script = IDENTIFY_SCRIPT.replace("@ORDERS@", IDENTIFY_ORDERS).replace("@SPEED@", str(IDENTIFY_SPEED))
-    result = run_with_vcan(script, work, timeout_s=900)
+    result = run_with_vcan(script, work, timeout_s=600)
     if result.returncode != 0:
         log = (work / "log.err").read_text()[-3000:] if (work / "log.err").exists() else ""
         pytest.fail(f"vcan identify session failed ({result.where}, exit {result.returncode}):\n"
