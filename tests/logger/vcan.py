@@ -28,6 +28,7 @@ VENV_BIN = Path(sys.executable).parent
 # has not got there in this time is stuck in its boot and is started once more.
 BOOT_S = 240.0
 STOP_GRACE_S = 10  # a script at its time limit gets SIGTERM (the daemons close their files), SIGKILL this later
+POWEROFF_S = 30.0  # the script has written its exit code: the VM is stopped if it has not powered off by then
 TIMED_OUT = 124  # the returncode of a script stopped at its time limit (coreutils timeout's)
 
 # Under software emulation importing asammdf (pandas, numpy) takes ~50 s, and nothing here reads MF4:
@@ -110,7 +111,7 @@ def run_with_vcan(script: str, workdir: Path, timeout_s: float = 600) -> Result:
     for attempt in (1, 2):
         out.unlink(missing_ok=True)
         rc.unlink(missing_ok=True)
-        booted = _run_vm(cmd, env, console, started=out, limit_s=BOOT_S + timeout_s + 2 * STOP_GRACE_S)
+        booted = _run_vm(cmd, env, console, started=out, finished=rc, limit_s=BOOT_S + timeout_s + 2 * STOP_GRACE_S)
         if booted:
             break
     if not rc.exists():
@@ -120,17 +121,22 @@ def run_with_vcan(script: str, workdir: Path, timeout_s: float = 600) -> Result:
     return Result(int(rc.read_text().strip() or 99), out.read_text(), mode)
 
 
-def _run_vm(cmd: list[str], env: dict, console: Path, started: Path, limit_s: float) -> bool:
-    """Run the VM until it powers off, for at most `limit_s` [s]; False when it did not reach the script
-    (`started` absent) within `BOOT_S`. The VM's process group is killed on the way out in every case."""
+def _run_vm(cmd: list[str], env: dict, console: Path, started: Path, finished: Path, limit_s: float) -> bool:
+    """Run the VM until it powers off, for at most `limit_s` [s] and `POWEROFF_S` after `finished` appears;
+    False when it did not reach the script (`started` absent) within `BOOT_S`. The VM's process group is
+    killed on the way out in every case."""
     t0 = time.monotonic()
+    done_at = None
     with console.open("w") as log:
         vm = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env,
                               start_new_session=True)
         try:
             while vm.poll() is None:
                 elapsed = time.monotonic() - t0
-                if elapsed > limit_s or (elapsed > BOOT_S and not started.exists()):
+                if done_at is None and finished.exists():
+                    done_at = elapsed
+                if (elapsed > limit_s or (elapsed > BOOT_S and not started.exists())
+                        or (done_at is not None and elapsed > done_at + POWEROFF_S)):
                     break
                 time.sleep(0.5)
             return started.exists()
