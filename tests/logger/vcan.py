@@ -5,8 +5,8 @@ else skip the test with the reason.
 The VM's root file system is the host's, read-only, except `workdir`, which the script writes into.
 The script's output and exit code come back through files in `workdir` (virtme-ng's console fallback does
 not pass them back reliably); its output is written as it runs, so a script stopped at its time limit still
-tells how far it got. The VM runs in a process group of its own that is killed whatever happens: qemu runs
-three processes below `vng`, and killing `vng` alone would leave it running.
+tells how far it got. The VM runs in a process group of its own that is killed whatever happens: `vng` starts
+qemu through two processes of its own, and killing `vng` alone would leave qemu running.
 """
 from __future__ import annotations
 
@@ -29,7 +29,6 @@ VENV_BIN = Path(sys.executable).parent
 BOOT_S = 240.0
 STOP_GRACE_S = 10  # a script at its time limit gets SIGTERM (the daemons close their files), SIGKILL this later
 POWEROFF_S = 30.0  # the script has written its exit code: the VM is stopped if it has not powered off by then
-TIMED_OUT = 124  # the returncode of a script stopped at its time limit (coreutils timeout's)
 
 # Under software emulation importing asammdf (pandas, numpy) takes ~50 s, and nothing here reads MF4:
 # python-can imports it optionally, so a module that refuses to import makes it skip MF4 support.
@@ -80,7 +79,7 @@ def vcan_mode() -> str:
 def run_with_vcan(script: str, workdir: Path, timeout_s: float = 600) -> Result:
     """Run `script` (sh) in `workdir` with vcan0 up and the project venv first on PATH, for at most `timeout_s`
     [s] (the VM's boot not counted): then every process it started gets SIGTERM, SIGKILL `STOP_GRACE_S` later,
-    and the result has returncode `TIMED_OUT` with the output so far."""
+    and the result has returncode 124 (coreutils timeout's) with the output so far."""
     mode = vcan_mode()
     workdir = workdir.resolve()
     body = workdir / "vcan-script.sh"
@@ -108,7 +107,7 @@ def run_with_vcan(script: str, workdir: Path, timeout_s: float = 600) -> Result:
         cmd.insert(3, "--disable-kvm")
     env = {**os.environ, "PATH": f"{VENV_BIN}:{os.environ.get('PATH', '')}"}
     console = workdir / "vm-console.txt"
-    for attempt in (1, 2):
+    for _ in range(2):
         out.unlink(missing_ok=True)
         rc.unlink(missing_ok=True)
         booted = _run_vm(cmd, env, console, started=out, finished=rc, limit_s=BOOT_S + timeout_s + 2 * STOP_GRACE_S)
