@@ -77,13 +77,16 @@ def vcan_mode() -> str:
 
 
 def run_with_vcan(script: str, workdir: Path, timeout_s: float = 600) -> Result:
-    """Run `script` (sh) in `workdir` with vcan0 up and the project venv first on PATH, for at most `timeout_s`
-    [s] (the VM's boot not counted): then every process it started gets SIGTERM, SIGKILL `STOP_GRACE_S` later,
-    and the result has returncode 124 (coreutils timeout's) with the output so far."""
+    """Run `script` (sh) in `workdir` with vcan0 up, the project venv first on PATH and `step TEXT` printing
+    "== hh:mm:ss TEXT", for at most `timeout_s` [s] (the VM's boot not counted): then every process it started
+    gets SIGTERM (its EXIT trap runs), SIGKILL `STOP_GRACE_S` later, and the result has returncode 124
+    (coreutils timeout's) with the output so far."""
     mode = vcan_mode()
     workdir = workdir.resolve()
     body = workdir / "vcan-script.sh"
-    body.write_text(f"set -u\nexport PATH={VENV_BIN}:$PATH\ncd {workdir}\n{script}\n")
+    # `step` marks how far the script got; at the time limit, TERM exits the shell so that its EXIT trap still runs
+    prologue = 'step() { echo "== $(date +%T) $*"; }\ntrap \'exit 124\' TERM\n'
+    body.write_text(f"set -u\nexport PATH={VENV_BIN}:$PATH\ncd {workdir}\n{prologue}{script}\n")
     limited = ["timeout", "-k", str(STOP_GRACE_S), str(timeout_s), "sh", str(body)]
     if mode == "native":
         done = subprocess.run(limited, capture_output=True, text=True)
