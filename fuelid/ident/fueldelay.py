@@ -12,7 +12,6 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from scipy.ndimage import shift as _spline_shift
 
 from fuelid.ident.polymodel import Structure
 
@@ -24,10 +23,12 @@ estimated and tested on it, since its dynamics cannot absorb a delay the way the
 def shift_signal(y, shift_samples: float, segments=None) -> np.ndarray:
     """y(t + s·Ts): y advanced by s samples (fractional allowed) by cubic-spline interpolation, separately in
     each segment (slices; default the whole array); the samples within |s| of a segment's end are held."""
+    from scipy.ndimage import shift as spline_shift  # here: only a model with the fuel delay needs scipy.ndimage
+
     y = np.asarray(y, float)
     out = np.full_like(y, np.nan)
     for seg in segments or [slice(0, y.size)]:
-        out[seg] = _spline_shift(y[seg], -shift_samples, order=3, mode="nearest")
+        out[seg] = spline_shift(y[seg], -shift_samples, order=3, mode="nearest")
     return out
 
 

@@ -255,20 +255,22 @@ def test_a_request_body_trickling_past_the_request_deadline_gets_408(tmp_path):
         data = make_mcap(tmp_path / "a.mcap", "T1", seed=7).read_bytes()
         conn = put_headers(s, token, hashlib.sha256(data).hexdigest(), len(data))
         t0 = time.monotonic()
-        stop = threading.Event()
+        stop, sock = threading.Event(), conn.sock  # the socket itself: reply() closes conn, which drops conn.sock
 
         def trickle():  # one byte every 0.5 s: never idle for 1 s, never complete
             for byte in data:
                 if stop.wait(0.5):
                     return
                 try:
-                    conn.sock.sendall(bytes([byte]))
-                except OSError:
+                    sock.sendall(bytes([byte]))
+                except OSError:  # the server closed the connection, or reply() did
                     return
 
-        threading.Thread(target=trickle, daemon=True).start()
+        sender = threading.Thread(target=trickle, daemon=True)
+        sender.start()
         status, body = reply(conn)
         stop.set()
+        sender.join(5)
         assert status == 408 and "not complete within 2 s" in body["detail"]
         assert 1.9 < time.monotonic() - t0 < 4.0
         # what arrived stays for the resume
