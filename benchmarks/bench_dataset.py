@@ -39,13 +39,14 @@ CACHE = REPO / "benchmarks" / ".cache" / "dataset"
 TRIP = REPO / "replay_logs" / "diesel_ident_90min.log.gz"
 
 
-def converted_trip() -> Path:
-    out = CACHE / "diesel_ident_90min.mcap"
+def converted_trip(name: str = TRIP.name.removesuffix(".log.gz")) -> Path:
+    """replay_logs/NAME.log.gz converted by `fuelid convert`, made once into CACHE."""
+    out = CACHE / f"{name}.mcap"
     if not out.exists():
         CACHE.mkdir(parents=True, exist_ok=True)
         tmp = out.with_suffix(".part.mcap")
-        subprocess.run([sys.executable, "-m", "fuelid.cli", "convert", str(TRIP), "-o", str(tmp), "--json"],
-                       check=True, stdout=subprocess.DEVNULL, cwd=REPO)
+        subprocess.run([sys.executable, "-m", "fuelid.cli", "convert", str(TRIP.with_name(f"{name}.log.gz")), "-o",
+                        str(tmp), "--json"], check=True, stdout=subprocess.DEVNULL, cwd=REPO)
         tmp.rename(out)
     return out
 
