@@ -1,6 +1,14 @@
 """The diagnosis loop end to end through the commands a user runs, on a short simulated trip with a hidden DPF
 regeneration: identify → diagnose names it → identify --effect → compare shows the error falling."""
+import fcntl
 import json
+import os
+import pty
+import select
+import struct
+import subprocess
+import sys
+import termios
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +47,37 @@ def test_identify_diagnose_add_the_effect_and_watch_the_error_fall(trip, capsys)
     rmse = [m["rmse"]["simulation"] for m in compared["models"]]
     floor = float(np.sqrt(np.mean(np.load(trip / "trip.truth.npz")["noise"] ** 2)))  # the simulator's noise H e
     assert (rmse[1] <= 0.75 * rmse[0] or rmse[1] <= 1.05 * floor) and rmse[1] < 0.85 * rmse[0]
+
+
+def error_output_on_a_terminal(command: list[str]) -> str:
+    """What `command` writes to its error output when that is a terminal (a pseudo-terminal of 120 columns); its
+    standard output goes nowhere."""
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 120, 0, 0))
+    proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=slave)
+    os.close(slave)
+    shown = b""
+    while True:  # read as it runs: a full terminal buffer would stop the command
+        if select.select([master], [], [], 1.0)[0]:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # the command has exited and closed the terminal
+                chunk = b""
+            if not chunk:
+                break
+            shown += chunk
+        elif proc.poll() is not None:
+            break
+    os.close(master)
+    assert proc.wait(timeout=60) == 0
+    return shown.decode(errors="replace")
+
+
+def test_on_a_terminal_diagnose_shows_each_model_it_builds(trip, capsys):
+    data, model = trip / "trip.mcap", trip / "shown.json"
+    run_json(capsys, "identify", data, "-o", model)
+    shown = error_output_on_a_terminal([sys.executable, "-m", "fuelid.cli", "diagnose", str(model), str(data)])
+    assert "diagnose:" in shown and "round 1: dpf_regeneration" in shown
 
 
 def test_identify_says_in_one_plain_line_what_the_estimators_warnings_mean(trip, capsys):

@@ -7,6 +7,7 @@ from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.hammerstein import map_summary
 from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
+from fuelid.progress import progress
 
 DEFAULTS = Settings()
 
@@ -92,12 +93,22 @@ def format_report(result: dict, top: int = 8) -> str:
     return "\n".join(lines)
 
 
+def diagnosed(model, ds, settings, effects=()):
+    """diagnose(model, ds, settings, effects=effects) with a progress bar on a terminal: a step per model built."""
+    with progress(desc="diagnose", unit="build") as bar:
+        def told(step):
+            bar.set_postfix_str(str(step), refresh=False)
+            bar.update(1)
+
+        return diagnose(model, ds, settings, effects=effects, progress=told)
+
+
 def run(args) -> int:
     settings = settings_from(args)
     effects = defined_effects(args.effects_file)  # a bad effect file fails before any work
     model = load_model(args.model)
     ds = build_for_models(args, args.inputs, [(args.model, model)])
-    result = diagnose(model, ds, settings, effects=effects).to_json()
+    result = diagnosed(model, ds, settings, effects).to_json()
     result["data"]["files"] = list(map(str, args.inputs))
     result["model"]["file"] = args.model
     result["model"]["engine_map"] = map_summary(model)

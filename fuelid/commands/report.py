@@ -5,9 +5,8 @@ from pathlib import Path
 import numpy as np
 
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
-from fuelid.commands.diagnose import add_settings_arguments, settings_from
+from fuelid.commands.diagnose import add_settings_arguments, diagnosed, settings_from
 from fuelid.errors import FuelidError
-from fuelid.ident.diagnosis import diagnose
 from fuelid.ident.modelfile import load_model
 from fuelid.ident.report import write_report
 from fuelid.logger.mcap_log import read_metadata
@@ -101,7 +100,7 @@ def run(args) -> int:
         diagnosis = saved_diagnosis(args.diagnosis, model_paths[0], data_paths)
         verdict = diagnosis["verdict"]
     else:
-        diagnosis = diagnose(model, ds, settings_from(args))
+        diagnosis = diagnosed(model, ds, settings_from(args))
         verdict = diagnosis.verdict
     out = write_report(args.output, model, ds, diagnosis=diagnosis, label=Path(model_paths[0]).name,
                        after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],

@@ -18,7 +18,8 @@ The package follows the method, each module using only those before it:
 from fuelid.ident.diagnosis.candidate import Candidate, MapStatus, Reason, Status, confirmed_effects, effects_to_add
 from fuelid.ident.diagnosis.pipeline import diagnose
 from fuelid.ident.diagnosis.render import Diagnosis
+from fuelid.ident.diagnosis.selection import Progress
 from fuelid.ident.diagnosis.settings import Settings
 
-__all__ = ["Candidate", "Diagnosis", "MapStatus", "Reason", "Settings", "Status", "confirmed_effects", "diagnose",
-           "effects_to_add"]
+__all__ = ["Candidate", "Diagnosis", "MapStatus", "Progress", "Reason", "Settings", "Status", "confirmed_effects",
+           "diagnose", "effects_to_add"]

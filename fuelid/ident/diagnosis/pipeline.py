@@ -19,18 +19,20 @@ from fuelid.ident.validation import metrics
 
 
 @in_one_blas_thread  # narrow N × d products: BLAS threads cost more than they save (fuelid.blas)
-def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), candidates=None) -> Diagnosis:
+def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), candidates=None,
+             progress=None) -> Diagnosis:
     """The diagnosis of `model` on dataset ds (docs/explanation/diagnosis.md). effects: effects the engineer defined
     (ident.effectfile), tested beside the built-in ones; candidates: the effects to test instead of every one
-    (`selection.candidate_effects`). Runs in this process. Raises InputError when no segment of the data is long
-    enough to test."""
+    (`selection.candidate_effects`); progress: called with what is built (`selection.Progress`) before each model
+    the yardstick builds, for a progress bar. Runs in this process. Raises InputError when no segment of the data is
+    long enough to test."""
     mrun = run_model(model, ds)
     mrun.require_tested()
     run = run_gradients(mrun)
     folds = make_folds(ds, settings)
     memo = FitMemo()
     try:
-        base = base_refits(model, ds, folds, settings, effects, memo)
+        base = base_refits(model, ds, folds, settings, effects, memo, progress)
     except BUILD_ERRORS:
         base = None  # nothing can be built: whatever the screening names is not recommended (BUILD_FAILED)
     held_out = None if base is None else held_out_summary(base, ds)
@@ -40,7 +42,7 @@ def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), 
             for e in family if e.id not in CURVATURE]
     if MAP_EFFECT in included:
         carried_by_engine_model(rows)
-    accepted, emap = select(rows, model, ds, run, base, folds, settings, effects, memo)
+    accepted, emap = select(rows, model, ds, run, base, folds, settings, effects, memo, progress)
     order = {id(c): k for k, c in enumerate(accepted)}
     rows.sort(key=lambda c: (order.get(id(c), len(order)), STATUS_ORDER.index(c.status),
                              c.screening.log10_p if c.screening else 0.0))

@@ -61,6 +61,26 @@ from fuelid.ident.polymodel import PolyModel, Structure
 OPEN = (Status.NOT_SIGNIFICANT, Status.TOO_SMALL)  # statuses a later round may change
 
 
+@dataclasses.dataclass(frozen=True)
+class Progress:
+    """What the yardstick builds next, for a progress bar: the round (0: the base model's refits), the effects added
+    to the base (none for the base), and whether it is a placebo (the effects on their bus signals shifted)."""
+
+    round: int
+    effects: tuple[str, ...] = ()
+    placebo: bool = False
+
+    def __str__(self) -> str:
+        built = " + ".join(self.effects) or "the base model"
+        return f"round {self.round}: {built}{' (placebo)' if self.placebo else ''}" if self.round else built
+
+
+def _told(progress, step: Progress) -> None:
+    """Tells `progress` (a callable or None) the next step."""
+    if progress is not None:
+        progress(step)
+
+
 def candidate_effects(ds, defined=()) -> list[fx.Effect]:
     """The candidate family: the built-in effects, installed plug-ins', the engineer's (`defined`, ident.effectfile)
     and the generic forms of every other decoded bus signal (ident.effects.generic_effects); the first of each id."""
@@ -136,10 +156,12 @@ def _joint(model: PolyModel) -> bool:
     return MAP_EFFECT in {fx.parse_effect(e)[0] for e in model.effects}
 
 
-def base_refits(model: PolyModel, ds, folds: Folds, settings: Settings, defined, memo: FitMemo) -> Scored:
+def base_refits(model: PolyModel, ds, folds: Folds, settings: Settings, defined, memo: FitMemo,
+                progress=None) -> Scored:
     """The fold refits the candidates are held to: on an engine-model base, of the model `fuelid identify` builds on
     ds with the model's effects (`built`: the candidates are built so too); otherwise of `model` itself. Raises
     BUILD_ERRORS."""
+    _told(progress, Progress(0))
     start = built(model, ds, [], defined, memo) if _joint(model) else model
     return refits(start, ds, folds, [], settings, defined)
 
@@ -156,9 +178,10 @@ class _Builds:
     """One round's builds against its base: each candidate's model (on an engine-model base, as `fuelid identify`
     builds it on all of ds: `built`; else nested in the base's fold models), its fold refits, and the yardstick."""
 
-    def __init__(self, model: PolyModel, base: Scored, ds, folds: Folds, settings: Settings, defined, memo: FitMemo):
+    def __init__(self, model: PolyModel, base: Scored, ds, folds: Folds, settings: Settings, defined, memo: FitMemo,
+                 progress: Progress, tell=None):
         self.model, self.base, self.ds, self.folds, self.settings = model, base, ds, folds, settings
-        self.defined, self.memo = defined, memo
+        self.defined, self.memo, self.progress, self.tell = defined, memo, progress, tell
         self.tried: set[str] = set()
         self.scored: dict[str, Scored] = {}  # a candidate's fold refits (each without its fold)
         self.whole: dict[str, PolyModel] = {}  # its model on all of ds (an engine-model base)
@@ -166,6 +189,7 @@ class _Builds:
     def _build(self, specs: list[str], ds=None) -> tuple[Scored, PolyModel | None]:
         """(the fold refits, the model on all of ds or None) of the base with `specs`, on ds (default the round's).
         Raises BUILD_ERRORS."""
+        _told(self.tell, dataclasses.replace(self.progress, effects=tuple(specs), placebo=ds is not None))
         ds = self.ds if ds is None else ds
         if _joint(self.model):  # the candidate's model as identify builds it, then its fold refits
             whole = built(self.model, ds, specs, self.defined, self.memo)
@@ -264,10 +288,11 @@ class _Builds:
 
 
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
-           settings: Settings, defined, memo: FitMemo) -> tuple[list[Candidate], EngineMap]:
+           settings: Settings, defined, memo: FitMemo, progress=None) -> tuple[list[Candidate], EngineMap]:
     """Forward selection (module docstring) over `candidates` (their status set here) from `model` (run: its Run,
     base: `base_refits`, None when they failed; defined: the engineer's effects; memo: the FitMemo base_refits used,
-    which the builds share); returns (those recommended in the order accepted, the engine map's status)."""
+    which the builds share; progress: told each build, `Progress`); returns (those recommended in the order
+    accepted, the engine map's status)."""
     pool = [c for c in candidates if c.status is not Status.ALREADY_IN_MODEL]
     in_model = bool(set(CURVATURE) & {fx.parse_effect(e)[0] for e in model.effects})
     term = None if in_model else Candidate(fx.EFFECTS[MAP_EFFECT])  # the engine map, while not accepted
@@ -307,7 +332,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             for c in eligible:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
-        builds = _Builds(model, base, ds, folds, settings, defined, memo)
+        builds = _Builds(model, base, ds, folds, settings, defined, memo, Progress(rnd), progress)
         passing = [c for c in eligible[:settings.max_builds + (term in eligible)] if builds.held(c)]
         for c in eligible:
             if c.effect not in builds.tried:

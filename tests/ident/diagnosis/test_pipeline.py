@@ -45,6 +45,15 @@ def test_a_hidden_effect_is_recommended_first_and_lowers_the_held_out_error(effe
     assert out["candidates"][0]["id"] == expected and f"add {expected} (" in out["verdict"]
 
 
+def test_progress_is_told_the_base_then_each_model_built_round_by_round():
+    steps = []
+    _, d = diagnosed("dpf_regeneration", 11, progress=steps.append)
+    assert steps[0] == dg.Progress(0) and str(steps[0]) == "the base model"
+    assert [s.round for s in steps] == sorted(s.round for s in steps) and steps[1].round == 1
+    assert dg.Progress(1, ("dpf_regeneration",)) in steps and recommended(d)[:1] == ["dpf_regeneration"]
+    assert str(dg.Progress(2, ("fan", "gear_shift"), placebo=True)) == "round 2: fan + gear_shift (placebo)"
+
+
 def test_two_hidden_effects_are_both_recommended_by_forward_selection():
     _, d = diagnosed(("dpf_regeneration", "cold_engine"), 12, n=5000)
     assert set(recommended(d)[:2]) == {"dpf_regeneration", "cold_engine"}
