@@ -179,9 +179,9 @@ class _Builds:
     builds it on all of ds: `built`; else nested in the base's fold models), its fold refits, and the yardstick."""
 
     def __init__(self, model: PolyModel, base: Scored, ds, folds: Folds, settings: Settings, defined, memo: FitMemo,
-                 progress: Progress, tell=None):
+                 rnd: int, progress=None):
         self.model, self.base, self.ds, self.folds, self.settings = model, base, ds, folds, settings
-        self.defined, self.memo, self.progress, self.tell = defined, memo, progress, tell
+        self.defined, self.memo, self.round, self.progress = defined, memo, rnd, progress
         self.tried: set[str] = set()
         self.scored: dict[str, Scored] = {}  # a candidate's fold refits (each without its fold)
         self.whole: dict[str, PolyModel] = {}  # its model on all of ds (an engine-model base)
@@ -189,7 +189,7 @@ class _Builds:
     def _build(self, specs: list[str], ds=None) -> tuple[Scored, PolyModel | None]:
         """(the fold refits, the model on all of ds or None) of the base with `specs`, on ds (default the round's).
         Raises BUILD_ERRORS."""
-        _told(self.tell, dataclasses.replace(self.progress, effects=tuple(specs), placebo=ds is not None))
+        _told(self.progress, Progress(self.round, tuple(specs), placebo=ds is not None))
         ds = self.ds if ds is None else ds
         if _joint(self.model):  # the candidate's model as identify builds it, then its fold refits
             whole = built(self.model, ds, specs, self.defined, self.memo)
@@ -332,7 +332,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
             for c in eligible:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
-        builds = _Builds(model, base, ds, folds, settings, defined, memo, Progress(rnd), progress)
+        builds = _Builds(model, base, ds, folds, settings, defined, memo, rnd, progress)
         passing = [c for c in eligible[:settings.max_builds + (term in eligible)] if builds.held(c)]
         for c in eligible:
             if c.effect not in builds.tried:
