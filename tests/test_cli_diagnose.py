@@ -9,6 +9,7 @@ import struct
 import subprocess
 import sys
 import termios
+import time
 from pathlib import Path
 
 import numpy as np
@@ -56,20 +57,25 @@ def error_output_on_a_terminal(command: list[str]) -> str:
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 120, 0, 0))
     proc = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=slave)
     os.close(slave)
-    shown = b""
-    while True:  # read as it runs: a full terminal buffer would stop the command
-        if select.select([master], [], [], 1.0)[0]:
-            try:
-                chunk = os.read(master, 65536)
-            except OSError:  # the command has exited and closed the terminal
-                chunk = b""
-            if not chunk:
+    shown, deadline = b"", time.monotonic() + 600
+    try:
+        while time.monotonic() < deadline:  # read as it runs: a full terminal buffer would stop the command
+            if select.select([master], [], [], 1.0)[0]:
+                try:
+                    chunk = os.read(master, 65536)
+                except OSError:  # the command has exited and closed the terminal
+                    chunk = b""
+                if not chunk:
+                    break
+                shown += chunk
+            elif proc.poll() is not None:
                 break
-            shown += chunk
-        elif proc.poll() is not None:
-            break
-    os.close(master)
-    assert proc.wait(timeout=60) == 0
+        assert proc.wait(timeout=30) == 0
+    finally:
+        os.close(master)
+        if proc.poll() is None:  # past the deadline: no command is left running
+            proc.kill()
+            proc.wait()
     return shown.decode(errors="replace")
 
 
