@@ -26,6 +26,7 @@ def diagnose(model: PolyModel, ds, settings: Settings = Settings(), effects=(), 
     (`selection.candidate_effects`); progress: called with what is built (`selection.Progress`) before each model
     the yardstick builds, for a progress bar. Runs in this process. Raises InputError when no segment of the data is
     long enough to test."""
+    progress = progress or (lambda step: None)
     mrun = run_model(model, ds)
     mrun.require_tested()
     run = run_gradients(mrun)

@@ -75,12 +75,6 @@ class Progress:
         return f"round {self.round}: {built}{' (placebo)' if self.placebo else ''}" if self.round else built
 
 
-def _told(progress, step: Progress) -> None:
-    """Tells `progress` (a callable or None) the next step."""
-    if progress is not None:
-        progress(step)
-
-
 def candidate_effects(ds, defined=()) -> list[fx.Effect]:
     """The candidate family: the built-in effects, installed plug-ins', the engineer's (`defined`, ident.effectfile)
     and the generic forms of every other decoded bus signal (ident.effects.generic_effects); the first of each id."""
@@ -157,11 +151,11 @@ def _joint(model: PolyModel) -> bool:
 
 
 def base_refits(model: PolyModel, ds, folds: Folds, settings: Settings, defined, memo: FitMemo,
-                progress=None) -> Scored:
+                progress) -> Scored:
     """The fold refits the candidates are held to: on an engine-model base, of the model `fuelid identify` builds on
-    ds with the model's effects (`built`: the candidates are built so too); otherwise of `model` itself. Raises
-    BUILD_ERRORS."""
-    _told(progress, Progress(0))
+    ds with the model's effects (`built`: the candidates are built so too); otherwise of `model` itself; progress is
+    told `Progress(0)` first. Raises BUILD_ERRORS."""
+    progress(Progress(0))
     start = built(model, ds, [], defined, memo) if _joint(model) else model
     return refits(start, ds, folds, [], settings, defined)
 
@@ -179,7 +173,7 @@ class _Builds:
     builds it on all of ds: `built`; else nested in the base's fold models), its fold refits, and the yardstick."""
 
     def __init__(self, model: PolyModel, base: Scored, ds, folds: Folds, settings: Settings, defined, memo: FitMemo,
-                 rnd: int, progress=None):
+                 rnd: int, progress):
         self.model, self.base, self.ds, self.folds, self.settings = model, base, ds, folds, settings
         self.defined, self.memo, self.round, self.progress = defined, memo, rnd, progress
         self.tried: set[str] = set()
@@ -189,7 +183,7 @@ class _Builds:
     def _build(self, specs: list[str], ds=None) -> tuple[Scored, PolyModel | None]:
         """(the fold refits, the model on all of ds or None) of the base with `specs`, on ds (default the round's).
         Raises BUILD_ERRORS."""
-        _told(self.progress, Progress(self.round, tuple(specs), placebo=ds is not None))
+        self.progress(Progress(self.round, tuple(specs), placebo=ds is not None))
         ds = self.ds if ds is None else ds
         if _joint(self.model):  # the candidate's model as identify builds it, then its fold refits
             whole = built(self.model, ds, specs, self.defined, self.memo)
@@ -288,7 +282,7 @@ class _Builds:
 
 
 def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored | None, folds: Folds,
-           settings: Settings, defined, memo: FitMemo, progress=None) -> tuple[list[Candidate], EngineMap]:
+           settings: Settings, defined, memo: FitMemo, progress) -> tuple[list[Candidate], EngineMap]:
     """Forward selection (module docstring) over `candidates` (their status set here) from `model` (run: its Run,
     base: `base_refits`, None when they failed; defined: the engineer's effects; memo: the FitMemo base_refits used,
     which the builds share; progress: told each build, `Progress`); returns (those recommended in the order
