@@ -10,10 +10,11 @@ the state in registers:
 
 with b and a zero-padded to one length n ≤ MAX_TAPS and divided by a₀, from zero state — as scipy does; the
 numbers agree with scipy's to rounding (tests/ident/test_filters.py). `lfilter_each` filters many 1-D signals, each
-through its own filter: two of one filter length and signal length go through the kernel side by side
-(`_iir.iir_pair`, the two halves of an SSE2 register), the pair in about the time of one (pem's Jacobian filters
-10–20 signals an iteration). A FIR filter of 1-D or 2-D data is scipy's own np.convolve(b / a₀, x) of each lane
-cut to its length, called directly (scipy wraps it in a per-lane loop that costs as much as the convolution).
+through its own filter and restarted at the starts of the data's segments: two of one filter length and segment
+length go through the kernel side by side (`_iir.iir_pair`, the two halves of an SSE2 register), the pair in about
+the time of one (pem's Jacobian filters 10–20 signals an iteration), each segment written in place. A FIR filter
+of 1-D or 2-D data is scipy's own np.convolve(b / a₀, x) of each lane cut to its length, called directly (scipy
+wraps it in a per-lane loop that costs as much as the convolution).
 Everything else (more than two dimensions; complex data; longer filters) and an install built without a C compiler
 go to scipy itself, imported on first use: `fuelid identify`, and the in-cab live estimator, which simulates models
 through this module (ident.polymodel), do not load SciPy's signal package.
@@ -67,25 +68,34 @@ def lfilter(b, a, x, axis: int = -1) -> np.ndarray:
         return y
     lanes = np.moveaxis(x, axis, -1)  # each 1-D lane filtered alike, as scipy does
     out = np.moveaxis(y, axis, -1)
-    filtered = _through_kernel([(bn, an, np.ascontiguousarray(lane, dtype=np.float64)) for lane in lanes])
+    filtered = [np.empty(x.shape[axis]) for _ in range(len(lanes))]
+    _through_kernel([(bn, an, np.ascontiguousarray(lane, dtype=np.float64), into)
+                     for lane, into in zip(lanes, filtered)])
     for k, lane in enumerate(filtered):
         out[k] = lane
     return y
 
 
-def lfilter_each(jobs) -> list[np.ndarray]:
-    """[lfilter(b, a, x) for b, a, x in jobs] for 1-D signals x. IIR filters of one length
-    through signals of one length run two at a time, side by side (`_iir.iir_pair`), in about the time of one."""
-    jobs = list(jobs)
-    if len(jobs) == 1:  # nothing to pair
-        return [lfilter(*jobs[0])]
+def lfilter_each(jobs, starts=(0,)) -> list[np.ndarray]:
+    """[lfilter(b, a, x) for b, a, x in jobs] for 1-D signals x, each filter restarted from zero state at each index
+    of `starts` (the segments' first samples, the first 0; every x as long as the others when there are several).
+    IIR filters of one length through segments of one length run two at a time, side by side (`_iir.iir_pair`), in
+    about the time of one."""
     jobs = [(np.asarray(b), np.asarray(a), np.asarray(x)) for b, a, x in jobs]
-    kernels = [_kernel_form(b, a, x) if x.ndim == 1 else None for b, a, x in jobs]  # None for a FIR filter
-    paired = [k for k, form in enumerate(kernels) if form is not None]
-    out = [None if form is not None else lfilter(*job) for job, form in zip(jobs, kernels)]
-    done = _through_kernel([(*kernels[k], np.ascontiguousarray(jobs[k][2], dtype=np.float64)) for k in paired])
-    for k, y in zip(paired, done):
-        out[k] = y
+    if len(jobs) == 1 and len(starts) == 1:  # nothing to pair
+        return [lfilter(*jobs[0])]
+    out, through = [], []  # through: the IIR jobs' segments, each into its place in out
+    for b, a, x in jobs:
+        segments = [slice(lo, hi) for lo, hi in zip(starts, [*starts[1:], x.size])]
+        form = _kernel_form(b, a, x) if x.ndim == 1 else None  # None for a FIR filter
+        if form is None:
+            pieces = [lfilter(b, a, x[s]) for s in segments]
+            out.append(pieces[0] if len(pieces) == 1 else np.concatenate(pieces))
+        else:
+            x, y = np.ascontiguousarray(x, dtype=np.float64), np.empty(x.size)
+            through += [(*form, x[s], y[s]) for s in segments]
+            out.append(y)
+    _through_kernel(through)
     return out
 
 
@@ -110,17 +120,16 @@ def _kernel_form(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> tuple[np.ndarra
     return bn, an
 
 
-def _through_kernel(jobs) -> list[np.ndarray]:
-    """Each x of jobs [(b, a, x)] (b, a as `_kernel_form` returns them, x C-contiguous 1-D float64) through its
-    filter by the compiled kernel, two of one filter length and signal length side by side."""
-    out = [np.empty(x.size) for _, _, x in jobs]
+def _through_kernel(jobs) -> None:
+    """Each x of jobs [(b, a, x, y)] (b, a as `_kernel_form` returns them, x C-contiguous 1-D float64) through its
+    filter into y (as long as x, C-contiguous) by the compiled kernel, two of one filter length and signal length
+    side by side."""
     waiting = {}  # (filter length, signal length) → the job that waits for a partner
-    for k, (b, a, x) in enumerate(jobs):
+    for k, (b, a, x, y) in enumerate(jobs):
         j = waiting.pop((b.size, x.size), None)
         if j is None:
             waiting[b.size, x.size] = k
         else:
-            _iir.iir_pair(*jobs[j], out[j], b, a, x, out[k])
+            _iir.iir_pair(*jobs[j], b, a, x, y)
     for k in waiting.values():
-        _iir.iir(*jobs[k], out[k])
-    return out
+        _iir.iir(*jobs[k])

@@ -194,6 +194,8 @@ class _Lagged(NamedTuple):
         """Rows a … b − 1 (a slice of samples, step 1) as a (b − a) × d array in Fortran order."""
         a, b, _ = samples.indices(self.n)
         out = np.empty((max(b - a, 0), self.shape[1]), order="F")
+        longest = max((max(lags, default=0) for _, lags in self.blocks), default=0)
+        inside = [start for start in self.starts[1:] if a - longest < start < b]  # those whose first rows are here
         c = 0
         for sig, lags in self.blocks:
             for lag in lags:
@@ -201,7 +203,7 @@ class _Lagged(NamedTuple):
                 lo = a - lag  # the sample of sig in the chunk's first row
                 col[max(-lo, 0):] = sig[max(lo, 0) : b - lag]
                 col[: max(-lo, 0)] = 0.0
-                for start in self.starts[1:]:  # the segments' first `lag` samples
+                for start in inside:  # the segments' first `lag` samples
                     col[max(start - a, 0) : max(min(start + lag, b) - a, 0)] = 0.0
                 c += 1
         return out
@@ -251,13 +253,8 @@ def _filter_each(starts):
         jobs = list(jobs)
         out = [x if len(b) == len(a) == 1 and b[0] == a[0] == 1.0 else None for b, a, x in jobs]
         todo = [k for k, y in enumerate(out) if y is None]
-        if len(starts) == 1:
-            for k, y in zip(todo, lfilter_each([jobs[k] for k in todo])):
-                out[k] = y
-            return out
-        pieces = lfilter_each([(jobs[k][0], jobs[k][1], p) for k in todo for p in np.split(jobs[k][2], starts[1:])])
-        for j, k in enumerate(todo):
-            out[k] = np.concatenate(pieces[j * len(starts):(j + 1) * len(starts)])
+        for k, y in zip(todo, lfilter_each([jobs[k] for k in todo], starts)):
+            out[k] = y
         return out
     return each
 

@@ -92,6 +92,19 @@ def test_many_signals_each_through_its_own_filter_are_filtered_as_scipy_does(fil
         assert agree(ours, scipy_lfilter(b, a, x))
 
 
+@settings(max_examples=100, deadline=None)
+@given(st.lists(stable_filters(max_taps=6), min_size=1, max_size=5), st.integers(1, 300), st.data())
+def test_each_filter_restarts_at_the_segment_starts(filters_, n, data):
+    """lfilter_each(jobs, starts): every signal filtered as scipy filters each of its segments alone, from zero
+    state (the segments' first samples at `starts`), FIR filters among them."""
+    starts = (0, *sorted(data.draw(st.sets(st.integers(1, n - 1), max_size=4)) if n > 1 else ()))
+    jobs = [(b, a[:1] if data.draw(st.booleans()) else a, data.draw(hnp.arrays(np.float64, n, elements=finite)))
+            for b, a in filters_]
+    for (b, a, x), ours in zip(jobs, filters.lfilter_each(jobs, starts), strict=True):
+        want = np.concatenate([scipy_lfilter(b, a, p) for p in np.split(x, starts[1:])])
+        assert agree(ours, want)
+
+
 def test_views_lists_and_integers_are_taken_as_scipy_takes_them():
     x = np.arange(60, dtype=float)[::3]  # not contiguous
     assert agree(filters.lfilter([1.0], [1.0, -0.5], x), scipy_lfilter([1.0], [1.0, -0.5], x))

@@ -95,7 +95,8 @@ def test_an_output_error_model_filters_only_through_b_and_f(monkeypatch):
     nothing (they run in every LM iteration of the initialisation's OE fit, hundreds on a real trip)."""
     calls = []
     monkeypatch.setattr(pem_module, "lfilter", lambda b, a, x, axis=-1: calls.append(1) or lfilter(b, a, x, axis=axis))
-    monkeypatch.setattr(pem_module, "lfilter_each", lambda jobs: calls.extend(jobs) or lfilter_each(jobs))
+    monkeypatch.setattr(pem_module, "lfilter_each",
+                        lambda jobs, starts: calls.extend(jobs) or lfilter_each(jobs, starts))
     s = Structure(nb=(4, 5), nf=(5, 5), nk=(3, 0))
     rng = np.random.default_rng(0)
     prediction_errors(0.05 * rng.normal(size=s.n_params), s, rng.normal(size=(500, 2)), rng.normal(size=500),
@@ -109,7 +110,8 @@ def test_an_fir_input_has_no_x_over_f_filtered_for_the_jacobian(monkeypatch):
     no column."""
     jobs = []
     monkeypatch.setattr(pem_module, "lfilter", lambda b, a, x, axis=-1: jobs.append(1) or lfilter(b, a, x, axis=axis))
-    monkeypatch.setattr(pem_module, "lfilter_each", lambda each: jobs.extend(each) or lfilter_each(each))
+    monkeypatch.setattr(pem_module, "lfilter_each",
+                        lambda each, starts: jobs.extend(each) or lfilter_each(each, starts))
     s = Structure(nb=(4, 5), nf=(5, 0), nk=(3, 0), nc=2, nd=2)
     rng = np.random.default_rng(1)
     eps, psi = prediction_errors(0.05 * rng.normal(size=s.n_params), s, rng.normal(size=(500, 2)),
@@ -151,6 +153,8 @@ def test_the_jacobian_made_chunk_by_chunk_is_the_whole_one(monkeypatch):
     lagged = pem_module._jacobian(r, s, u, y, starts)
     whole = lagged[:]
     np.testing.assert_array_equal(np.vstack([lagged[a : a + 333] for a in range(0, 3000, 333)]), whole)
+    for a in (998, 1001, 1004, 2299, 2302):  # chunks whose first rows hold a segment's first lags
+        np.testing.assert_array_equal(lagged[a : a + 40], whole[a : a + 40])
     used = pem_module._used(3000, starts, s.n_start)
     monkeypatch.setattr(pem_module, "QR_CHUNK", 450)
     got, want = (np.abs(pem_module._triangular_factor(m, r.eps, used)) for m in (lagged, whole))
