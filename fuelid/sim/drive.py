@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fuelid.errors import InputError
 from fuelid.sim import gearbox
 from fuelid.sim.driver import Driver, acceleration_noise, lowpass_noise
 from fuelid.sim.engine import RPM_TO_RAD_S, Engine
@@ -30,6 +31,17 @@ SYNC_UP_RPM_S, SYNC_DOWN_RPM_S = 1500.0, 1200.0
 """Fastest engine speed change while synchronising in neutral: throttle blip up, exhaust brake down [rpm/s]."""
 IDLE_RIPPLE_RPM = 3.0
 """Standard deviation of the idle governor's speed ripple [rpm]."""
+
+
+def _check_startable(need_n: float, can_n: float, truck: Truck, road: RoadProfile) -> None:
+    """InputError when the engine's launch torque in first gear (can_n [N] at the wheels) cannot hold the truck on
+    the route's steepest grade (need_n [N], rolling resistance and grade): such a truck would stand in its launch
+    for the rest of the trip, a recording of nothing but a slipping clutch."""
+    if can_n < need_n:
+        raise InputError(f"the engine cannot start this truck: at {LAUNCH_RPM:g} rpm in first gear it pushes "
+                         f"{can_n / 1000:.1f} kN, the {truck.mass_kg / 1000:g} t truck needs {need_n / 1000:.1f} kN "
+                         f"on the route's steepest grade ({100 * np.tan(np.max(road.grade_rad)):.1f} %); the "
+                         "simulator's truck needs a heavy-truck engine")
 
 
 @dataclass
@@ -79,6 +91,7 @@ def simulate_drive(profile: SpeedProfile, road: RoadProfile, truck: Truck, engin
     tau = engine.pt1_time_constant_s(rpm_grid)
     k_pt1 = np.where(tau > 0.0, -np.expm1(-dt / np.maximum(tau, 1e-9)), 1.0).tolist()
     j_engine, idle = engine.inertia_kgm2, engine.idle_speed_rpm
+    _check_startable(max(roll_mg), t_max[int(LAUNCH_RPM)] * force_per_nm[0], truck, road)
     k_sync = dt / engine.idle_governor_tau_s
     k_torque = dt / driver.torque_tau_s
     rad_s_per_rpm_dt = RPM_TO_RAD_S / dt

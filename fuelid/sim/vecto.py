@@ -10,9 +10,15 @@ VECTO (the European Commission's truck CO2 certification simulator) describes an
              FileVersion 5:    Body "Fuels": [{"FuelMap", "FuelType", "WHTC-Urban", ...}, ...], one entry per
                                fuel (two for a dual-fuel engine; the first is the primary fuel and the one read)
            RatedPower or RatedSpeed absent or 0: taken from the full-load curve (its largest power T ω); the
-           largest torque is always the curve's (a declared MaxTorque is not used).
+           largest torque is always the curve's (a declared MaxTorque is not used). A WHTC factor that is absent
+           or 0 (engineering-mode files leave the declaration factors at 0) is "WHTC-Engineering" when that is
+           given and not 0, else 1 (no correction). A comma before a closing } or ] is accepted, as VECTO's JSON
+           reader (Json.NET) accepts it; VECTO's own generic dual-fuel engine file has one.
     .vmap  CSV, one header line: engine speed [rpm], flywheel torque [N m], fuel consumption [g/h]; the grid need
-           not be rectangular (the full-load line cuts it at high torque)
+           not be rectangular (the full-load line cuts it at high torque). When the header names all three
+           ("engine speed", "torque", "fuel consumption", units in brackets aside) the columns are found by name,
+           else they are the first three; further columns (a waste-heat-recovery engine's "whr power electrical
+           [W]", "whr power mechanical [W]") are not read.
     .vfld  CSV, one header line: engine speed [rpm], full-load torque [N m], motoring torque [N m] (<= 0),
            optionally a PT1 time constant of the torque build-up [s]
 
@@ -25,6 +31,7 @@ point.
 """
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from importlib.resources import files
 from pathlib import Path
@@ -40,7 +47,9 @@ SHIPPED = {"vecto_325kW": "vecto_325kW_12.7l/Engine_325kW_12.7l.veng"}
 
 REQUIRED_VENG = ("IdlingSpeed", "Inertia", "FullLoadCurve")
 WHTC_FIELDS = ("WHTC-Urban", "WHTC-Rural", "WHTC-Motorway")
-"""Transient correction factors; VECTO's engineering-mode files may omit them (then 1: no correction)."""
+"""Transient correction factors of declaration mode; VECTO's engineering-mode files may omit them or leave them 0."""
+WHTC_ENGINEERING = "WHTC-Engineering"
+"""The one correction factor of engineering mode, used where a declaration factor is not given."""
 FUEL_TYPES = ("DieselCI", "EthanolCI", "PetrolPI", "EthanolPI", "LPGPI", "NGPI", "NGCI")
 """VECTO's fuel types, in the order of their numbers (a FuelType given as a number indexes this)."""
 LIQUID_DENSITY_KG_L = {"DieselCI": 0.835, "EthanolCI": 0.820, "PetrolPI": 0.748, "EthanolPI": 0.786,
@@ -132,7 +141,7 @@ def read_engine(name_or_path) -> VectoEngine:
         known = ", ".join(SHIPPED)
         raise FuelidError(f"{path}: no such engine file (give a VECTO .veng file or one of: {known})")
     try:
-        doc = json.loads(path.read_text(encoding="utf-8-sig"))  # VECTO's own files often start with a BOM
+        doc = _json(path.read_text(encoding="utf-8-sig"))  # VECTO's own files often start with a BOM
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FuelidError(f"{path}: not a VECTO engine file (JSON): {exc}") from None
     body = doc.get("Body") if isinstance(doc, dict) else None
@@ -146,8 +155,7 @@ def read_engine(name_or_path) -> VectoEngine:
     idle = _number(path, body, "IdlingSpeed", 200.0, 1500.0)
     inertia = _number(path, body, "Inertia", 0.1, 50.0)
     displacement = _number(path, body, "Displacement", 100.0, 100000.0) if "Displacement" in body else None
-    whtc = {k.split("-")[1].lower(): (_number(path, fuel_doc, k, 0.8, 1.5) if k in fuel_doc else 1.0)
-            for k in WHTC_FIELDS}
+    whtc = _whtc(path, fuel_doc)
     fld_rpm, full, motoring, pt1 = _read_full_load(_beside(path, body, "FullLoadCurve"))
     map_path = _beside(path, fuel_doc, "FuelMap")
     map_rpm, map_nm, map_g_h = _read_map(map_path)
@@ -183,6 +191,33 @@ def describe(engine: VectoEngine) -> dict:
             "max_torque_nm": engine.max_torque_nm, "whtc": engine.whtc, "map_points": int(len(engine.map_rpm)),
             "speed_range_rpm": [float(engine.fld_rpm[0]), float(engine.fld_rpm[-1])],
             "pt1": engine.pt1_s is not None}
+
+
+_TRAILING_COMMA = re.compile(r'("(?:[^"\\]|\\.)*")|,(\s*[}\]])')
+"""A JSON string (kept as it is) or a comma before a closing bracket (dropped)."""
+
+
+def _json(text: str):
+    """The JSON document of text; a comma before } or ] (outside strings) is accepted, as Json.NET accepts it."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        try:
+            return json.loads(_TRAILING_COMMA.sub(lambda m: m.group(1) or m.group(2), text))
+        except json.JSONDecodeError:
+            raise exc from None
+
+
+def _whtc(path: Path, fuel_doc: dict) -> dict:
+    """The WHTC correction factors {"urban", "rural", "motorway"} (module docstring): each declaration factor, else
+    WHTC-Engineering, else 1; a factor given and not 0 must lie in 0.8..1.5."""
+    def given(key: str) -> float | None:
+        if key not in fuel_doc or _number(path, fuel_doc, key, 0.0, 1.5) == 0.0:
+            return None
+        return _number(path, fuel_doc, key, 0.8, 1.5)
+
+    engineering = given(WHTC_ENGINEERING)
+    return {k.split("-")[1].lower(): given(k) or engineering or 1.0 for k in WHTC_FIELDS}
 
 
 def _file_version(path: Path, doc: dict) -> int | None:
@@ -247,9 +282,9 @@ def _beside(path: Path, body: dict, key: str) -> Path:
     return target
 
 
-def _read_table(path: Path, columns: tuple, optional: int = 0) -> np.ndarray:
-    """Rows of a VECTO CSV file (one header line, '#' comments) as floats; `columns` name the required columns,
-    `optional` more may follow."""
+def _read_table(path: Path, columns: tuple, optional: float = 0) -> tuple[list[str], np.ndarray]:
+    """(the header's column names, lower case and without their units in brackets; the rows as floats) of a VECTO
+    CSV file (one header line, '#' comments); `columns` name the required columns, `optional` more may follow."""
     try:
         lines = path.read_text(encoding="utf-8-sig").splitlines()
     except UnicodeDecodeError as exc:
@@ -274,12 +309,13 @@ def _read_table(path: Path, columns: tuple, optional: int = 0) -> np.ndarray:
         rows.append(row)
     if len(rows) < 2:
         raise FuelidError(f"{path}: fewer than two rows of {', '.join(columns)}")
-    return np.array(rows)
+    header = [re.sub(r"\[.*?\]", "", c).strip().lower() for c in body[0][1].split("#")[0].split(",")]
+    return header, np.array(rows)
 
 
 def _read_full_load(path: Path):
     cols = ("engine speed [rpm]", "full load torque [Nm]", "motoring torque [Nm]")
-    a = _read_table(path, cols, optional=1)
+    _, a = _read_table(path, cols, optional=1)
     rpm, full, motoring = a[:, 0], a[:, 1], a[:, 2]
     if np.any(np.diff(rpm) <= 0):
         k = int(np.argmax(np.diff(rpm) <= 0)) + 1
@@ -296,7 +332,9 @@ def _read_full_load(path: Path):
 
 def _read_map(path: Path):
     cols = ("engine speed [rpm]", "torque [Nm]", "fuel consumption [g/h]")
-    a = _read_table(path, cols)
+    header, a = _read_table(path, cols, optional=math.inf)
+    names = [c.split(" [")[0] for c in cols]
+    a = a[:, [header.index(c) for c in names] if set(names) <= set(header) else [0, 1, 2]]
     if len(a) < 3:
         raise FuelidError(f"{path}: fewer than three map points")
     if np.any(a[:, 2] < 0):

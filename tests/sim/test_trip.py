@@ -1,4 +1,6 @@
 """Determinism and physical sanity of simulated trips."""
+import shutil
+
 import numpy as np
 import pytest
 
@@ -92,3 +94,20 @@ def test_the_noise_floor_of_the_paper_truth_is_its_noise(trip):
     assert 0.5 <= quieter.summary["noise_floor"]["rms"] / floor["rms"] < 0.55
     assert quieter.summary["fuel_truth"]["noise_std"] == 0.9 and quieter.summary["config"]["noise"] == 0.9
     assert "noise" not in t.summary["config"]  # the default: the files stay as they were
+
+
+def test_an_engine_too_weak_to_start_the_truck_is_refused_not_simulated_standing(tmp_path):
+    from fuelid.errors import InputError
+    from fuelid.sim.vecto import engine_file
+
+    src = engine_file("vecto_325kW").parent
+    for f in src.iterdir():
+        shutil.copy(f, tmp_path / f.name)
+    fld = tmp_path / "325kW.vfld"  # a van engine's torque (a seventh) in the 40 t truck
+    lines = fld.read_text().splitlines()
+    fld.write_text("\n".join([lines[0]] + [",".join([n, f"{float(t) / 7:g}", m]) for n, t, m in
+                                           (line.split(",")[:3] for line in lines[1:])]) + "\n")
+    with pytest.raises(InputError, match="the engine cannot start this truck") as err:
+        simulate(TripConfig(truth="map", engine=str(tmp_path / "Engine_325kW_12.7l.veng"), duration_s=300.0,
+                            hilliness=3.0))
+    assert "\n" not in str(err.value)

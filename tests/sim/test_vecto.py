@@ -244,3 +244,34 @@ def test_a_broken_file_version_5_set_is_one_line_naming_the_field(tmp_path, fuel
     with pytest.raises(FuelidError) as err:
         read_engine(veng)
     assert message in str(err.value) and str(veng) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_comma_before_a_closing_bracket_is_read_as_vecto_reads_it(tmp_path):
+    veng = _v5(tmp_path, [DIESEL], {"ModelName": "one, } two"}, bom=False)  # a string that looks like one stays
+    veng.write_bytes(veng.read_bytes().replace(b'"CFRegPer": 1.0', b'"CFRegPer": 1.0,')
+                     .rstrip().removesuffix(b"}") + b",\r\n}")
+    e = read_engine(veng)
+    assert e.fuel_type == "DieselCI" and e.name == "one, } two"
+
+
+def test_engineering_mode_factors_stand_in_for_declaration_factors_left_at_zero(tmp_path):
+    zero = {**DIESEL, "WHTC-Urban": 0.0, "WHTC-Rural": 0.0, "WHTC-Motorway": 0.0}
+    e = read_engine(_v5(tmp_path, [{**zero, "WHTC-Engineering": 1.03}]))
+    assert e.whtc == {"urban": 1.03, "rural": 1.03, "motorway": 1.03}
+    assert read_engine(_v5(tmp_path, [{**zero, "WHTC-Engineering": 0.0}])).whtc["urban"] == 1.0
+    with pytest.raises(FuelidError, match="field 'WHTC-Engineering' = 0.5 is outside 0.8..1.5"):
+        read_engine(_v5(tmp_path, [{**zero, "WHTC-Engineering": 0.5}]))
+
+
+def test_map_columns_are_found_by_their_header_and_further_columns_are_not_read(tmp_path):
+    veng = _v5(tmp_path, [DIESEL], bom=False)
+    plain = read_engine(veng)
+    rows = [line.split(",") for line in _non_rectangular_map().splitlines()]
+    # a waste-heat-recovery engine's map: a column more; and the same columns in another order
+    (tmp_path / "diesel.vmap").write_text("\n".join(",".join(r + ["whr power electrical [W]" if k == 0 else "0"])
+                                                    for k, r in enumerate(rows)) + "\n")
+    np.testing.assert_array_equal(read_engine(veng).map_g_h, plain.map_g_h)
+    (tmp_path / "diesel.vmap").write_text("\n".join(",".join([r[2], r[0], r[1]]) for r in rows) + "\n")
+    e = read_engine(veng)
+    np.testing.assert_array_equal(e.map_g_h, plain.map_g_h)
+    np.testing.assert_array_equal(e.map_rpm, plain.map_rpm)
