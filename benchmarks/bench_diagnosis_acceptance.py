@@ -26,6 +26,10 @@ and case group:
                  is not missing from it
     oracle share (e_base − e_rec) / (e_base − e_oracle) on the other day's trip, median over the cases found
     harmful      e_rec > (1 + HARM) e_base on the other day's trip
+    beyond spread  harmful by the yardstick `fuelid identify` chooses its model with: on the blocks of the other day's
+                 trip (ident.modelchoice.blocks), the base's paired improvement over the model with what is
+                 recommended, d_b = 1 − e_base,b / e_rec,b, clears the model choice's margin (mean(d) above the t
+                 quantile of the blocks times its standard error and above 2 %: ident.modelchoice.paired_improvement)
     agree        the verdict's words and every candidate's `recommended` flag say the same
 
 Rates are given with their 95 % Wilson interval. Seeds: the reporting seeds start at --first-seed (default 20000);
@@ -36,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import json
 import math
 import multiprocessing
 import sys
@@ -46,13 +51,15 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import fuelid  # noqa: E402,F401  (before numpy)
+import numpy as np  # noqa: E402
 from fuelid.errors import FuelidError  # noqa: E402
 from fuelid.ident import diagnosis as dg  # noqa: E402
 from fuelid.ident.diagnosis.candidate import IN_ENGINE_MODEL  # noqa: E402
 from fuelid.ident.effectfile import read_effects_file  # noqa: E402
 from fuelid.ident.identify import MIN_SEGMENT_S  # noqa: E402
 from fuelid.ident.fuellag import identify_lag_chosen  # noqa: E402
-from fuelid.ident.modelchoice import ModelKind, identify_chosen  # noqa: E402
+from fuelid.ident.modelchoice import (ModelKind, block_rmse, blocks, identify_chosen,  # noqa: E402
+                                      paired_improvement)
 from fuelid.ident.validation import evaluate  # noqa: E402
 from fuelid.sim.catalog import EFFECT_TRIPS  # noqa: E402
 from fuelid.sim.effects import ALL_EFFECTS  # noqa: E402
@@ -138,6 +145,16 @@ def rmse_on(ds, effects, kind: ModelKind, valid, defined) -> float:
     return evaluate(identified(ds, effects, defined, kind), valid)["rmse"]["simulation"]
 
 
+def worse_beyond_spread(base, recommended, valid) -> bool:
+    """Whether `recommended` simulates the other day's trip `valid` worse than `base` beyond the fits' spread (module
+    docstring, "beyond spread"); False when the trip has too few blocks to judge."""
+    masks = blocks(valid, MIN_SEGMENT_S)
+    e_base = np.array([block_rmse(base, valid, m) for m in masks])
+    e_rec = np.array([block_rmse(recommended, valid, m) for m in masks])
+    scored = np.isfinite(e_base) & np.isfinite(e_rec)
+    return paired_improvement(e_rec[scored], e_base[scored]).better
+
+
 def one_case(case: dict, seed: int, truth: str, engine: str, defined) -> dict:
     effects = defined if case["kind"] == "defined" else ()
     # the model `fuelid identify` builds by default, its fuel lag chosen; every later model on the same data, and
@@ -159,9 +176,11 @@ def one_case(case: dict, seed: int, truth: str, engine: str, defined) -> dict:
            "missing": [c["id"] for c in result["candidates"] if c["recommended"]], "model": kind.value,
            "alternatives": sorted({a for c in result["candidates"] for a in c["alternatives"]})}
     try:
-        e_base = rmse_on(ds, [], kind, valid, defined)
-        e_rec = rmse_on(ds, rec, kind, valid, defined) if rec else e_base
+        base = identified(ds, [], defined, kind)
+        with_rec = identified(ds, rec, defined, kind) if rec else base
+        e_base, e_rec = (evaluate(m, valid)["rmse"]["simulation"] for m in (base, with_rec))
         row["harmful"] = e_rec > (1 + HARM) * e_base
+        row["harmful_beyond_spread"] = bool(rec) and worse_beyond_spread(base, with_rec, valid)
         if case["hidden"] and truth_ids and case["kind"] != "generic":
             e_oracle = rmse_on(ds, truth_ids, kind, valid, defined)
             if e_oracle < e_base:
@@ -199,7 +218,7 @@ def report(label: str, rows: list[tuple[dict, dict]]) -> None:
         groups[key].append(row)
     print(f"\n{label}")
     print(f"  {'group':18s} {'found / recommended':28s} {'or alternative':28s} {'where it helps':28s} "
-          f"{'harmful':24s} {'agree':24s} oracle share (median)")
+          f"{'harmful':24s} {'beyond spread':24s} {'agree':24s} oracle share (median)")
     for key, rs in sorted(groups.items()):
         hit = [r["found"] for r in rs] if not key.startswith(("clean", "trap")) else [bool(r["missing"]) for r in rs]
         alt = [r["or_alternative"] for r in rs] if not key.startswith(("clean", "trap")) else []
@@ -209,6 +228,7 @@ def report(label: str, rows: list[tuple[dict, dict]]) -> None:
         print(f"  {key:18s} {wilson(sum(hit), len(hit)):28s} {wilson(sum(alt), len(alt)):28s} "
               f"{wilson(sum(helps), len(helps)):28s} "
               f"{wilson(sum(r.get('harmful', False) for r in rs), len(rs)):24s}"
+              f" {wilson(sum(r.get('harmful_beyond_spread', False) for r in rs), len(rs)):24s}"
               f" {wilson(sum(r['agree'] for r in rs), len(rs)):24s} {med}")
     t = sorted(r["seconds"] for _, r in rows)
     print(f"  diagnosis time: median {t[len(t) // 2]:.1f} s, largest {t[-1]:.1f} s over {len(t)} trips")
@@ -221,8 +241,11 @@ def main():
     p.add_argument("--engines", nargs="*", help="'paper' and/or VECTO .veng paths (default: paper and every engine "
                                                  "under ../shared/engines)")
     p.add_argument("--cases", nargs="*", help="only these kinds (effect generic defined pair clean trap) or effects")
+    p.add_argument("--json", metavar="PATH", help="also write every case's row (engine, case, seed and what is "
+                                                 "reported of it) to PATH as JSON")
     p.add_argument("--jobs", type=int, default=1, help="cases run at once, each in a process of its own (default 1)")
     args = p.parse_args()
+    every = []
     with concurrent.futures.ProcessPoolExecutor(args.jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         for label, truth, engine in engines(args.engines):
             jobs = [(case, args.first_seed + 1000 * k, truth, engine)
@@ -234,11 +257,15 @@ def main():
                     print(f"  [{label}] {case['kind']} {what} seed {seed}: {row}", flush=True)
                     continue
                 rows.append((case, row))
+                every.append({"engine": label, "case": case, "seed": seed, **row})
                 print(f"  [{label}] {case['kind']:7s} {what:32s} ×{case['scale']:g} seed {seed} ({row['model']}): found "
                       f"{row['found'] if case['hidden'] else '-'!s:5s} recommended {','.join(row['missing']) or '-':40s} "
-                      f"harmful {row.get('harmful')} share {row.get('share', float('nan')):.2f} agree {row['agree']} "
+                      f"harmful {row.get('harmful')} ({row.get('harmful_beyond_spread')}) "
+                      f"share {row.get('share', float('nan')):.2f} agree {row['agree']} "
                       f"{row['seconds']:.1f} s alternatives {','.join(row['alternatives']) or '-'}", flush=True)
             report(label, rows)
+    if args.json:
+        Path(args.json).write_text(json.dumps(every, indent=1))
 
 
 if __name__ == "__main__":
