@@ -4,10 +4,12 @@ import shutil
 import numpy as np
 import pytest
 
+from fuelid.errors import InputError
 from fuelid.sim import gearbox
 from fuelid.sim.drive import NEUTRAL
 from fuelid.sim.engine import ENGINES
 from fuelid.sim.trip import TripConfig, simulate, write
+from fuelid.sim.vecto import engine_file
 
 
 def test_same_seed_gives_byte_identical_files(tmp_path):
@@ -97,9 +99,6 @@ def test_the_noise_floor_of_the_paper_truth_is_its_noise(trip):
 
 
 def test_an_engine_too_weak_to_start_the_truck_is_refused_not_simulated_standing(tmp_path):
-    from fuelid.errors import InputError
-    from fuelid.sim.vecto import engine_file
-
     src = engine_file("vecto_325kW").parent
     for f in src.iterdir():
         shutil.copy(f, tmp_path / f.name)
