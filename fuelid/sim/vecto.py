@@ -334,7 +334,8 @@ def _read_map(path: Path):
     cols = ("engine speed [rpm]", "torque [Nm]", "fuel consumption [g/h]")
     header, a = _read_table(path, cols, optional=math.inf)
     names = [c.split(" [")[0] for c in cols]
-    a = a[:, [header.index(c) for c in names] if set(names) <= set(header) else [0, 1, 2]]
+    by_name = set(names) <= set(header) and len(header) == a.shape[1]  # a header that names the rows' columns
+    a = a[:, [header.index(c) for c in names] if by_name else [0, 1, 2]]
     if len(a) < 3:
         raise FuelidError(f"{path}: fewer than three map points")
     if np.any(a[:, 2] < 0):

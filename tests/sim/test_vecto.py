@@ -275,3 +275,7 @@ def test_map_columns_are_found_by_their_header_and_further_columns_are_not_read(
     e = read_engine(veng)
     np.testing.assert_array_equal(e.map_g_h, plain.map_g_h)
     np.testing.assert_array_equal(e.map_rpm, plain.map_rpm)
+    # a header with a name more than the rows have columns does not name them: the first three are read
+    lines = [",".join(["point", *rows[0]])] + [",".join(r) for r in rows[1:]]
+    (tmp_path / "diesel.vmap").write_text("\n".join(lines) + "\n")
+    np.testing.assert_array_equal(read_engine(veng).map_g_h, plain.map_g_h)
