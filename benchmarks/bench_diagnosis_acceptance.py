@@ -177,10 +177,13 @@ def one_case(case: dict, seed: int, truth: str, engine: str, defined) -> dict:
            "alternatives": sorted({a for c in result["candidates"] for a in c["alternatives"]})}
     try:
         base = identified(ds, [], defined, kind)
-        with_rec = identified(ds, rec, defined, kind) if rec else base
-        e_base, e_rec = (evaluate(m, valid)["rmse"]["simulation"] for m in (base, with_rec))
+        e_base = e_rec = evaluate(base, valid)["rmse"]["simulation"]
+        row["harmful_beyond_spread"] = False
+        if rec:
+            with_rec = identified(ds, rec, defined, kind)
+            e_rec = evaluate(with_rec, valid)["rmse"]["simulation"]
+            row["harmful_beyond_spread"] = worse_beyond_spread(base, with_rec, valid)
         row["harmful"] = e_rec > (1 + HARM) * e_base
-        row["harmful_beyond_spread"] = bool(rec) and worse_beyond_spread(base, with_rec, valid)
         if case["hidden"] and truth_ids and case["kind"] != "generic":
             e_oracle = rmse_on(ds, truth_ids, kind, valid, defined)
             if e_oracle < e_base:
