@@ -58,7 +58,7 @@ from fuelid.ident.diagnosis.candidate import IN_ENGINE_MODEL  # noqa: E402
 from fuelid.ident.effectfile import read_effects_file  # noqa: E402
 from fuelid.ident.identify import MIN_SEGMENT_S  # noqa: E402
 from fuelid.ident.fuellag import identify_lag_chosen  # noqa: E402
-from fuelid.ident.modelchoice import (ModelKind, block_rmse, blocks, identify_chosen,  # noqa: E402
+from fuelid.ident.modelchoice import (ModelKind, block_rmses, blocks, identify_chosen,  # noqa: E402
                                       paired_improvement)
 from fuelid.ident.validation import evaluate  # noqa: E402
 from fuelid.sim.catalog import EFFECT_TRIPS  # noqa: E402
@@ -149,8 +149,7 @@ def worse_beyond_spread(base, recommended, valid) -> bool:
     """Whether `recommended` simulates the other day's trip `valid` worse than `base` beyond the fits' spread (module
     docstring, "beyond spread"); False when the trip has too few blocks to judge."""
     masks = blocks(valid, MIN_SEGMENT_S)
-    e_base = np.array([block_rmse(base, valid, m) for m in masks])
-    e_rec = np.array([block_rmse(recommended, valid, m) for m in masks])
+    e_base, e_rec = np.array(block_rmses(base, valid, masks)), np.array(block_rmses(recommended, valid, masks))
     scored = np.isfinite(e_base) & np.isfinite(e_rec)
     return paired_improvement(e_rec[scored], e_base[scored]).better
 

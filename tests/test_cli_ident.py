@@ -1,4 +1,4 @@
-"""fuelid dataset / identify / compare end to end on a synthetic MCAP recording."""
+"""fuelid dataset / identify / compare end to end on a synthetic MCAP recording and on real truck recordings."""
 import json
 
 import numpy as np
@@ -235,3 +235,35 @@ def test_a_fuel_lag_is_kept_in_the_model_and_used_to_compare(recording, tmp_path
         assert main(args) == 1
         err = capsys.readouterr().err
         assert "--fuel-lag" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("name", ["systemscyber_truck_drive_normal.log", "kenworth_free_rev.txt"])
+def test_identify_a_short_real_recording(real_log, tmp_path, capsys, name):
+    """30 s of a real truck driving, 65 s of one revving at a standstill: a model, the warning that so few samples
+    cannot support the paper's orders, no drive cycle for the cycle fuel error (null in the model file, "-" in the
+    table), compare reads the model back, and diagnose says in one line that the data are too short for it."""
+    rec, model = tmp_path / "rec.mcap", tmp_path / "m.json"
+    assert main(["convert", str(real_log(name)), "-o", str(rec)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(rec), "-o", str(model)]) == 0
+    out, err = capsys.readouterr()
+    assert "samples for 41 parameters" in err and "Akaike's FPE" in err
+    assert json.loads(model.read_text())["validation"]["cycle_fuel_error_percent"] == {"mean": None, "rms": None}
+    assert main(["compare", str(model), str(rec)]) == 0
+    assert "0 drive cycles" in capsys.readouterr().out
+    assert main(["diagnose", str(model), str(rec)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("fuelid diagnose: error: too little data") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("command", ["identify", "online"])
+def test_a_recording_of_an_engine_that_is_off_is_refused(real_log, tmp_path, capsys, command):
+    """The PACCAR MX trace: 77 s of the bus with the engine off (0 rpm, 0 L/h). Nothing to learn: no model, no fit
+    and no fuel change printed, one line says why."""
+    rec = tmp_path / "rec.mcap"
+    assert main(["convert", str(real_log("paccar_mx_pcanview.trc")), "-o", str(rec)]) == 0
+    capsys.readouterr()
+    assert main([command, str(rec), "-o", str(tmp_path / "m.json")]) == 1
+    assert capsys.readouterr().err == (f"fuelid {command}: error: the fuel flow never varies in these data (0 L/h "
+                                       "over 77 s): there is nothing to identify\n")
+    assert not (tmp_path / "m.json").exists()

@@ -8,6 +8,7 @@ from fuelid.commands.dataset import add_dataset_arguments, build
 from fuelid.commands.identify import ORDERS_HELP
 from fuelid.errors import FuelidError
 from fuelid.ident.effects import reference_torque
+from fuelid.ident.identify import check_variation
 from fuelid.ident.live import check_online, fuel_scale, input_scales, prior_estimator
 from fuelid.ident.modeldata import model_data
 from fuelid.ident.modelfile import load_model, save_model
@@ -62,6 +63,7 @@ def run(args) -> int:
                           f"{list(ds.input_units)} -> {ds.output_unit}")
     if prior is not None and abs(prior.Ts - ds.Ts) > 1e-9:
         raise FuelidError(f"prior Ts = {prior.Ts} s but the data are resampled to {ds.Ts} s (use --ts {prior.Ts})")
+    check_variation(ds, ds.u, ds.y, np.flatnonzero(ds.valid & np.isfinite(ds.u).all(axis=1) & np.isfinite(ds.y)))
     est = make_estimator(args, structure, ds, prior)
     # an engine model's map is fixed (the prior's): its inputs are computed from speed and torque like the others
     u, y = model_data(prior, ds) if prior is not None and prior.effects else (ds.u, ds.y)
@@ -121,7 +123,7 @@ def run(args) -> int:
         fit = metrics["fit_percent"]
         print(f"{args.output}: {args.method} over {len(ds)} samples ({len(ds) * ds.Ts / 3600:.2f} h), "
               f"{result['updates']} updates, {len(breaks)} restarts")
-        print(f"final model fit: simulation {fit['simulation']:.1f} %, prediction {fit.get('prediction', float('nan')):.1f} %"
+        print(f"final model fit: simulation {_pct(fit['simulation'])}, prediction {_pct(fit.get('prediction'))}"
               f" (running over the last window: {_pct(result['running_fit_percent']['simulation'])} / "
               f"{_pct(result['running_fit_percent']['prediction'])})")
         change = result["fuel_change_percent"]
@@ -132,7 +134,8 @@ def run(args) -> int:
 
 
 def _pct(v) -> str:
-    return "-" if v is None else f"{v:.1f} %"
+    """A fit [%] as printed: "-" when there is none (None or NaN)."""
+    return "-" if v is None or v != v else f"{v:.1f} %"
 
 
 def make_estimator(args, structure, ds, prior):

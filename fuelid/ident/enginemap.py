@@ -392,8 +392,8 @@ def fit_map(n, T, y, op, y0: float, units=("rpm", "%", "L/h"), smoothing: float 
     n, T, y = n[ok], T[ok], y[ok]
     fuelled = T > CUT_TORQUE
     if fuelled.sum() < MIN_SAMPLES:
-        raise InputError(f"engine map: {int(fuelled.sum())} samples with torque above {CUT_TORQUE:g} "
-                         f"{units[1]}, at least {MIN_SAMPLES} needed")
+        raise InputError(f"too little data for an engine map: {int(fuelled.sum())} samples with torque above "
+                         f"{CUT_TORQUE:g} {units[1]}, at least {MIN_SAMPLES} needed")
     tn, tt = knots(n.min(), n.max()), knots(max(T[fuelled].min(), CUT_TORQUE), T.max())
     shell = EngineMap(tn, tt, np.zeros((len(tn) - DEGREE - 1) * (len(tt) - DEGREE - 1)), (0, 0, 0), op, 1.0, 0.0,
                       np.zeros((COVERAGE_BINS, COVERAGE_BINS)), *units)

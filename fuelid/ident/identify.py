@@ -33,7 +33,7 @@ import warnings
 
 import numpy as np
 
-from fuelid.errors import FuelidError
+from fuelid.errors import FuelidError, InputError
 from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.fueldelay import shift_signal, sweep_fuel_shift
 from fuelid.ident.hammerstein import JOINT_ROUNDS, MAP_EFFECT, joint_fit
@@ -178,6 +178,7 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     if n_train - len(segs) * extended.n_start <= 2 * extended.n_params:
         raise FuelidError(f"too little valid data to identify {extended.n_params} parameters "
                           f"({int(ds.valid.sum())} valid samples, {len(segs)} stretches ≥ {min_segment_s:g} s)")
+    check_variation(ds, u, y, np.concatenate([np.arange(s.start, s.stop) for s in segs]))
     u0 = np.r_[ds.u0, np.zeros(fx.u.shape[1])]
     given = init if init is not None and init.structure == extended else None
     starts = {"initialisation" if given is None else "given model": given}
@@ -215,6 +216,20 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
     model.info["data_warnings"] = data_warnings(model, ds, u[np.concatenate([np.arange(s.start, s.stop) for s in segs])],
                                                 n_train - len(segs) * extended.n_start)
     return model
+
+
+def check_variation(ds, u: np.ndarray, y: np.ndarray, used: np.ndarray) -> None:
+    """InputError when the samples `used` (indices into ds) cannot identify anything: the fuel y, or engine speed
+    and torque (u's first two columns) both, constant over them (a recording of an engine that is off or standing
+    still, a fuel signal stuck at one value)."""
+    seconds = f"{len(used) * ds.Ts:.0f} s"
+    if len(used) and np.ptp(y[used]) == 0:
+        raise InputError(f"the fuel flow never varies in these data ({y[used[0]]:g} {ds.output_unit} over "
+                         f"{seconds}): there is nothing to identify")
+    if len(used) and not np.ptp(u[used, :2], axis=0).any():
+        raise InputError(f"engine speed and torque never vary in these data ({u[used[0], 0]:g} "
+                         f"{ds.input_units[0]}, {u[used[0], 1]:g} {ds.input_units[1]} over {seconds}): the fuel's "
+                         "dependence on them is not in the data")
 
 
 def _first_inputs(s: Structure, m: int) -> Structure:

@@ -5,7 +5,7 @@ Blocks: the identification samples (the valid stretches of at least min_segment_
 `n_blocks` blocks of equal sample count (at most MAX_BLOCKS, each at least MIN_BLOCK_S long; at least MIN_BLOCKS).
 Both models are identified on the first half of the blocks (the first half of the trip, in long stretches as the
 final fit sees them) and simulated on each block of the second half: per block b the RMS simulation errors e_lin,b
-and e_eng,b [fuel unit] of models that never saw its fuel (`block_rmse`: each valid stretch of the trip simulated
+and e_eng,b [fuel unit] of models that never saw its fuel (`block_rmses`: each valid stretch of the trip simulated
 as a whole from its speed and torque, from zero state, the stretch's first n_start samples left out), and the paired
 relative improvement (the engine model fitted on the first half refined by FOLD_ROUNDS joint rounds, fewer than the
 final fit's: if anything, the judge favours the linear model)
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -168,20 +167,18 @@ def _on(ds, mask: np.ndarray):
     return dataclasses.replace(ds, valid=ds.valid & mask)
 
 
-def block_rmse(model: PolyModel, ds, mask: np.ndarray) -> float:
-    """RMS simulation error [fuel unit] of `model` on the samples of the block `mask` of ds: each valid stretch of ds
-    simulated as a whole from zero state (from the speed and torque alone, never the fuel), the block's samples
-    scored after the stretch's first n_start."""
+def block_rmses(model: PolyModel, ds, masks) -> tuple[float, ...]:
+    """RMS simulation error [fuel unit] of `model` on the samples of each block (a mask over ds's samples): each
+    valid stretch of ds simulated once, as a whole from zero state (from the speed and torque alone, never the fuel),
+    each block's samples scored after its stretch's first n_start (NaN for a block with none)."""
     u, y = model_data(model, ds)
-    n0 = model.structure.n_start
-    err = []
+    scored = np.zeros(len(y), bool)
+    err = np.zeros(len(y))
     for s in ds.segments():
-        scored = mask[s].copy()
-        scored[:n0] = False
-        if scored.any():
-            err.append((y[s] - simulate(model, u[s]))[scored])
-    err = np.concatenate(err) if err else np.array([np.nan])
-    return float(np.sqrt(np.mean(err ** 2)))
+        err[s] = y[s] - simulate(model, u[s])
+        scored[s] = True
+        scored[s.start : s.start + model.structure.n_start] = False
+    return tuple(float(np.sqrt(np.mean(err[m & scored] ** 2))) if (m & scored).any() else np.nan for m in masks)
 
 
 def engine_model(ds, structure: Structure, effects, linear: PolyModel, *, min_segment_s: float, files=(),
@@ -235,7 +232,7 @@ def held_out_choice(ds, masks: list[np.ndarray], structure: Structure, effects, 
     rmse_lin = ()
     try:
         lin = identify_model(fitted_on, structure, effects, **fit)
-        rmse_lin = tuple(block_rmse(lin, ds, mask) for mask in masks[half:]) if kind is not ModelKind.ENGINE else ()
+        rmse_lin = block_rmses(lin, ds, masks[half:]) if kind is not ModelKind.ENGINE else ()
         if kind is ModelKind.LINEAR:
             return ModelChoice(kind, kind, Reason.ASKED, PairedImprovement(rmse_lin))
         eng = engine_model(fitted_on, structure, effects, lin, joint_rounds=FOLD_ROUNDS, **fit)
@@ -243,7 +240,7 @@ def held_out_choice(ds, masks: list[np.ndarray], structure: Structure, effects, 
         if kind is not ModelKind.AUTO:
             raise
         return ModelChoice(ModelKind.LINEAR, kind, Reason.ENGINE_FAILED, PairedImprovement(rmse_lin), str(exc))
-    rmse_eng = tuple(block_rmse(eng, ds, mask) for mask in masks[half:])
+    rmse_eng = block_rmses(eng, ds, masks[half:])
     if kind is not ModelKind.AUTO:
         return ModelChoice(kind, kind, Reason.ASKED, PairedImprovement(rmse_lin, rmse_eng))
     p = paired_improvement(rmse_lin, rmse_eng)

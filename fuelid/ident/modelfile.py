@@ -28,6 +28,7 @@ import numpy as np
 
 from fuelid.errors import FuelidError
 from fuelid.ident.polymodel import PolyModel, parameter_names
+from fuelid.output import json_safe
 
 FORMAT = "fuelid-model"
 VERSION = 3  # 2: on an engine model an effect that scales the fuel has the column x·m; 3: a torque, x·∂m/∂T
@@ -46,7 +47,8 @@ def _plain(x):
 
 
 def to_dict(model: PolyModel) -> dict:
-    """The model.json content of `model`."""
+    """The model.json content of `model`: its figures that could not be computed (NaN or inf: a cycle fuel error
+    without a complete drive cycle, say) as null, as every `--json` prints them."""
     s = model.structure
     cov = model.covariance
     return _plain({
@@ -63,9 +65,9 @@ def to_dict(model: PolyModel) -> dict:
         "parameters": {"names": parameter_names(s),
                        "std_errors": None if cov is None else model.std_errors,
                        "covariance": cov},
-        "training": model.training,
-        "validation": model.validation,
-        "info": model.info,
+        "training": json_safe(model.training),
+        "validation": json_safe(model.validation),
+        "info": json_safe(model.info),
     })
 
 

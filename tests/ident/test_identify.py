@@ -1,11 +1,14 @@
 """Identification with effects (ident.identify): the model with an effect the diagnosis recommends is never worse
 than the model without it — on its own identification data (its loss V) and on another day's trip."""
+import re
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from fuelid.errors import InputError
 from fuelid.ident import pem as pem_module
+from fuelid.ident.dataset import Dataset
 from fuelid.ident.identify import FitMemo, identify_model, kept_fit, refit_with_effects, with_inputs
 from fuelid.ident.polymodel import Structure, simulate
 from fuelid.ident.validation import evaluate
@@ -161,3 +164,24 @@ def test_the_lower_loss_is_kept_unless_another_fit_simulates_grossly_better():
     fits = [SimpleNamespace(info={"loss_V": 318.0}), SimpleNamespace(info={"loss_V": 347.0})]
     assert kept_fit(fits, [1.69, 0.50]) == 1  # 3.4× better in simulation [L/h RMS]: the noise model carried the rest
     assert kept_fit(fits, [1.646, 1.636]) == 0  # alike in simulation: PEM's own criterion decides
+
+
+@pytest.mark.parametrize("still, message", [("fuel", "the fuel flow never varies in these data (2.5 L/h over 300 s)"),
+                                            ("engine", "engine speed and torque never vary in these data (650 rpm, "
+                                                       "80 Nm over 300 s)")])
+def test_data_that_cannot_identify_anything_are_refused_in_one_line(still, message):
+    """A recording of an engine that is off, or a fuel signal stuck at one value: an InputError naming what never
+    varies, not a fit of NaNs."""
+    rng = np.random.default_rng(0)
+    n = 1000
+    u = np.column_stack([650 + rng.normal(0, 50, n), 80 + rng.normal(0, 30, n)])
+    y = 2.5 + 0.01 * (u[:, 0] - 650) + rng.normal(0, 0.1, n)
+    if still == "fuel":
+        y[:] = 2.5
+    else:
+        u[:] = [650.0, 80.0]
+    ds = Dataset(Ts=0.3, t=np.arange(n) * 0.3, u=u, y=y, input_names=("EEC1.EngSpeed", "EngTorque"),
+                 input_units=("rpm", "Nm"), output_name="LFE1.EngFuelRate", output_unit="L/h",
+                 u0=np.array([650.0, 80.0]), y0=2.5, valid=np.ones(n, bool), cycle=np.zeros(n, np.int64))
+    with pytest.raises(InputError, match=re.escape(message)):
+        identify_model(ds, hidden.STRUCTURE, min_segment_s=30.0)

@@ -1,4 +1,5 @@
 """ident.modelfile: model.json round trip (bit for bit), malformed files, the paper's appendix models."""
+import dataclasses
 import json
 import os
 import stat
@@ -43,6 +44,19 @@ def test_saving_to_a_pipe_writes_into_it_and_leaves_it_a_pipe(fitted, tmp_path):
     reader.join(timeout=10)
     assert stat.S_ISFIFO(fifo.stat().st_mode) and json.loads(got[0])["format"] == "fuelid-model"
     assert not (tmp_path / "out.fifo.tmp").exists()
+
+
+def test_figures_that_could_not_be_computed_are_saved_as_null(fitted, tmp_path):
+    """Data shorter than a drive cycle have no cycle fuel error (NaN): the file is strict JSON with null there."""
+    p = tmp_path / "m.json"
+    save_model(dataclasses.replace(fitted, validation={"cycle_fuel_error_percent": {"mean": np.nan, "rms": np.inf}}), p)
+
+    def refuse(constant):
+        raise ValueError(f"{constant} in the file")
+
+    assert json.loads(p.read_text(), parse_constant=refuse)["validation"]["cycle_fuel_error_percent"] == \
+        {"mean": None, "rms": None}
+    assert load_model(p).validation["cycle_fuel_error_percent"]["mean"] is None
 
 
 def test_round_trip_bit_for_bit(fitted, tmp_path):
