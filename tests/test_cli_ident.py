@@ -264,6 +264,6 @@ def test_a_recording_of_an_engine_that_is_off_is_refused(real_log, tmp_path, cap
     assert main(["convert", str(real_log("paccar_mx_pcanview.trc")), "-o", str(rec)]) == 0
     capsys.readouterr()
     assert main([command, str(rec), "-o", str(tmp_path / "m.json")]) == 1
-    assert capsys.readouterr().err == (f"fuelid {command}: error: the fuel flow never varies in these data (0 L/h "
-                                       "over 77 s): there is nothing to identify\n")
+    assert capsys.readouterr().err == (f"fuelid {command}: error: the engine is off throughout these data: engine "
+                                       "speed stays below 325 rpm, half its idle speed\n")
     assert not (tmp_path / "m.json").exists()

@@ -25,8 +25,10 @@ clock, computed in integer ns so that a sample on a boundary always opens the ne
 - a bin without a sample of an averaged signal holds the previous value if it is at most `max_gap_s` old at
   the bin's end; after a longer gap the samples are NaN and invalid. Extras hold up to
   max(max_gap_s, 3 × their median period) and never decide validity.
-A sample is valid when speed, torque and fuel are all finite; maximal runs of valid samples are the
-segments (identification runs per segment). Stretches with no data for longer than max_gap_s are not
+A sample is valid when speed, torque and fuel are all finite and the engine runs: a speed below half the idle
+speed (`RUNNING_SHARE` of idle_rpm, below) is an engine that is off, cranking or stalling, whose fuel no model of
+the running engine describes (real recordings start and end so; the simulator's engines always run). Maximal runs of
+valid samples are the segments (identification runs per segment). Stretches with no data for longer than max_gap_s are not
 filled with empty rows: the grid keeps one invalid row there and jumps, so `t` is increasing but not
 uniform across such breaks (rotated files and several days of logs stay small).
 
@@ -83,6 +85,8 @@ AVERAGED = {SPEED, TORQUE_PCT, VEHICLE_SPEED, *(name for name, _ in FUEL_SIGNALS
 NOT_SIGNALS = {"t", "pgn", "sa", "da", "invalid", "tp", "device_t", "raw", "status"}
 NUMBER_OR_NULL = {int, float, type(None)}
 MEDIANS = {REF_TORQUE, IDLE_SPEED}  # signals whose median value is used
+# An engine runs from half its idle speed up: a diesel cranks at 100–250 rpm and idles at 500–800 rpm.
+RUNNING_SHARE = 0.5
 
 
 @dataclass
@@ -821,6 +825,15 @@ def build_dataset(
         warnings.warn(notes[-1], stacklevel=2)
     u = np.column_stack([speed, torque])
     valid = np.isfinite(u).all(axis=1) & np.isfinite(y)
+    stopped = valid & (speed < RUNNING_SHARE * idle_rpm)
+    if stopped.any():
+        valid &= ~stopped
+        if not valid.any():
+            raise FuelidError(f"the engine is off throughout these data: engine speed stays below "
+                              f"{RUNNING_SHARE * idle_rpm:g} rpm, half its idle speed")
+        notes.append(f"{stopped.sum() * Ts:.0f} s with the engine off or starting (below {RUNNING_SHARE * idle_rpm:g} "
+                     "rpm) left out")
+        warnings.warn(notes[-1], stacklevel=2)
 
     extra = {}
     for name in list(chosen):

@@ -9,7 +9,8 @@ EEC1.ActualEngPercentTorque [%] × EC1.EngReferenceTorque [Nm] / 100 (a model in
 minus the fuel signal's reporting lag `fuel_lag_s` (a prior model's `training.fuel_lag_s`), so a bin
 closes that much later. Only the engine's records (source
 address engine_sa, default 0x00) are used; null (not available) values are no sample. A silence longer than
-max_gap_s (engine off, logger restart) restarts the estimator's filters.
+max_gap_s (engine off, logger restart) restarts the estimator's filters; so does an engine turning below half its
+idle speed (off, cranking or stalling) for longer than max_gap_s: its bins are not available, as offline.
 
 Replay at `speed` × real time (fuelid replay --speed): receive times run `speed` times faster than the
 recording, so the grid step and max_gap_s are divided by `speed` on the receive-time axis; the estimator still
@@ -65,6 +66,7 @@ import math
 import numpy as np
 
 from fuelid.errors import FuelidError
+from fuelid.ident.dataset import RUNNING_SHARE
 from fuelid.ident.modelfile import load_model, save_model
 from fuelid.ident.polymodel import Structure, parameter_names, parse_orders
 
@@ -334,6 +336,8 @@ class LiveEstimator:
         else:
             torque = pct * self.ref_torque / 100.0 if self.ref_torque is not None else math.nan
         u = np.array([speed, torque])
+        if speed < RUNNING_SHARE * self._idle[0]:  # the engine off or starting: a gap, as offline (ident.dataset)
+            u, fuel = np.full(2, np.nan), math.nan
         if self.est is None and not self._watch_idle(u, fuel):
             return []
         if self.engine_map is None:

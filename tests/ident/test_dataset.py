@@ -99,6 +99,20 @@ def test_very_long_break_keeps_grid_small():
     assert len(ds.segments()) == 2
 
 
+def test_an_engine_that_is_off_or_starting_is_not_valid_data():
+    """A stop with the engine off (0 rpm) and its restart (cranking at 200 rpm) inside a trip: those bins are not
+    valid (they split the trip, a note says how long), an engine off throughout is a one-line error."""
+    def speed(t):
+        return 0.0 if 20 <= t < 30 else 200.0 if 30 <= t < 31 else 600 + 10 * t
+
+    with pytest.warns(UserWarning, match=r"11 s with the engine off or starting \(below 300 rpm\) left out"):
+        ds = build_dataset(trip(speed=speed), Ts=0.3)
+    assert not ds.valid[(ds.t >= 20.1) & (ds.t < 30.9)].any() and len(ds.segments()) == 2
+    assert (ds.u[ds.valid, 0] >= 300).all()
+    with pytest.raises(FuelidError, match="the engine is off throughout these data: engine speed stays below 300 rpm"):
+        build_dataset(trip(speed=lambda t: 0.0), Ts=0.3)
+
+
 def test_source_preference_and_nulls():
     recs = trip(t_end=20.0)
     # a second ECU (0x17) sends EEC1 with other values and nulls; LFE1 only from 0x17

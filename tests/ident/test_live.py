@@ -268,3 +268,19 @@ def test_the_daemons_estimator_runs_an_engine_model(engine_trip):
     eps = _series(res, "eps")[100:]
     offline = load_model(path).validation["rmse"]["prediction"]
     assert np.sqrt(np.nanmean(eps ** 2)) < 1.25 * offline, (np.sqrt(np.nanmean(eps ** 2)), offline)
+
+
+def test_an_engine_that_stops_is_a_gap_and_the_filters_restart():
+    """Two minutes with the engine off (0 rpm, 0 L/h, the bus still on) inside a trip: no update and no prediction
+    there, as offline (ident.dataset), and the estimator goes on tracking after the restart."""
+    truth = diesel_truth()
+    truth.input_units, truth.output_unit, truth.u0 = ("rpm", "%"), "L/h", (600.0, 0.0)
+    u, y, _ = paper_data(truth, n=3000, seed=4, sigma_e=SIGMA_E)
+    off = slice(1500, 1900)
+    u[off], y[off] = [-600.0, 0.0], 0.0  # speed 0 rpm
+    live = LiveEstimator.from_model(truth, forgetting=0.9995)
+    out = [(t, r) for topic, t, rec in records(u, y, fuel_na_every=None) for topic_out, t, r in live.feed(topic, t, rec)
+           if topic_out == "/ident/residual"]
+    eps = np.array([np.nan if r["eps"] is None else r["eps"] for _, r in out])
+    assert np.isnan(eps[off]).all() and np.isfinite(eps[1910:]).mean() > 0.95
+    assert np.nanstd(eps[2000:]) < 2 * SIGMA_E
