@@ -816,6 +816,11 @@ def build_dataset(
     if idle_rpm is None:
         idle_rpm = chosen[IDLE_SPEED].median_value() if IDLE_SPEED in chosen else 600.0
     fuel_period_s = chosen[fuel_name].median_step() * 1e-9 if chosen[fuel_name].n > 1 else 0.0
+    if fuel_period_s >= 2 * Ts:  # most bins hold an older report: the fuel's faster dynamics are not in the data
+        notes.append(f"the fuel signal ({fuel_name}) arrives every {fuel_period_s:.3g} s, slower than the grid's "
+                     f"{Ts:g} s: most bins hold an earlier value, so the data say nothing of the fuel's dynamics "
+                     f"faster than that; --ts {fuel_period_s:.3g} matches it")
+        warnings.warn(notes[-1], stacklevel=2)
     speed, pct, y = grid(SPEED), grid(TORQUE_PCT), grid(fuel_name)
     if ref_torque is not None:
         torque, torque_unit = pct * ref_torque / 100.0, "Nm"

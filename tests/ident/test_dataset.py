@@ -113,6 +113,18 @@ def test_an_engine_that_is_off_or_starting_is_not_valid_data():
         build_dataset(trip(speed=lambda t: 0.0), Ts=0.3)
 
 
+def test_a_fuel_signal_slower_than_the_grid_is_noted():
+    """LFE1 once a second on the 0.3 s grid: each report held over three bins, which a note says."""
+    recs = [r for r in trip() if r[0] != "/j1939/LFE1" or round(r[1] / NS, 2) % 1.0 == 0.0]
+    with pytest.warns(UserWarning, match=r"the fuel signal \(LFE1.EngFuelRate\) arrives every 1 s, slower than the "
+                                         r"grid's 0.3 s.*--ts 1 matches it"):
+        ds = build_dataset(recs, Ts=0.3)
+    assert ds.fuel_period_s == pytest.approx(1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        build_dataset(recs, Ts=1.0)
+
+
 def test_source_preference_and_nulls():
     recs = trip(t_end=20.0)
     # a second ECU (0x17) sends EEC1 with other values and nulls; LFE1 only from 0x17
