@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fuelid.errors import FuelidError
+from fuelid.errors import FuelidError, InputError
 from fuelid.ident.identify import MIN_SEGMENT_S, training_segments
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure, as_inputs, residuals
@@ -58,7 +58,11 @@ def estimate_delays(u, y, *, segments=None, max_delay: int = 10, order: int = 10
     nb = order + max_delay + 1
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        arx = pem(u, y, Structure.arx(order, (nb,) * m, (0,) * m), 1.0, segments=segments, max_iter=5)
+        try:
+            arx = pem(u, y, Structure.arx(order, (nb,) * m, (0,) * m), 1.0, segments=segments, max_iter=5)
+        except InputError as exc:
+            raise InputError(f"too little data to estimate the delays for --orders auto ({exc}, in a high-order ARX "
+                             "model); give the orders (--orders paper or a SPEC) or use longer data") from None
     t = np.abs(arx.theta / arx.std_errors)[order:].reshape(m, nb)[:, : max_delay + 1]
     return tuple(int(np.argmax(row > z)) if np.any(row > z) else max_delay for row in t)
 

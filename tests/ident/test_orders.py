@@ -1,7 +1,9 @@
 """ident.orders: delay estimation and the greedy search for the lowest orders passing eqs. 18-19."""
 import numpy as np
+import pytest
 from scipy.signal import lfilter
 
+from fuelid.errors import InputError
 from fuelid.ident.orders import estimate_delays, residual_tests, search_orders
 from fuelid.ident.polymodel import PolyModel, simulate
 
@@ -31,3 +33,11 @@ def test_search_finds_passing_low_orders():
     assert s.n_params <= TRUTH.structure.n_params + 4  # lowest on the path, not a big over-fit
     assert not any(t.passed for t in res.trials[:-1])
     assert residual_tests(res.model, u, y) == (True, (True, True))
+
+
+def test_data_too_short_for_the_delay_estimate_are_an_input_error_saying_what_to_do():
+    """30 s at 0.3 s: fewer samples than the delays' ARX model needs; the error says to give the orders."""
+    u, y = data(n=100)
+    with pytest.raises(InputError, match=r"too little data to estimate the delays for --orders auto \(100 samples .* "
+                                         r"52 parameters.*give the orders"):
+        search_orders(u, y, 0.3)
