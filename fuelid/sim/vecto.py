@@ -12,8 +12,10 @@ VECTO (the European Commission's truck CO2 certification simulator) describes an
            RatedPower or RatedSpeed absent or 0: taken from the full-load curve (its largest power T ω); the
            largest torque is always the curve's (a declared MaxTorque is not used). A WHTC factor that is absent
            or 0 (engineering-mode files leave the declaration factors at 0) is "WHTC-Engineering" when that is
-           given and not 0, else 1 (no correction). A comma before a closing } or ] is accepted, as VECTO's JSON
-           reader (Json.NET) accepts it; VECTO's own generic dual-fuel engine file has one.
+           given and not 0, else 1 (no correction). FileVersion 1 and 2 (VECTO 2) name the curve in
+           "FullLoadCurves": [{"Path": "x.vfld", "Gears": "0 - 99"}, ...], the first the engine's, and hold no
+           WHTC factors VECTO reads (1 here), as VECTO reads them. A comma before a closing } or ] is accepted,
+           as VECTO's JSON reader (Json.NET) accepts it; VECTO's own generic dual-fuel engine file has one.
     .vmap  CSV, one header line: engine speed [rpm], flywheel torque [N m], fuel consumption [g/h]; the grid need
            not be rectangular (the full-load line cuts it at high torque). When the header names all three
            ("engine speed", "torque", "fuel consumption", units in brackets aside) the columns are found by name,
@@ -45,7 +47,7 @@ from fuelid.errors import FuelidError
 SHIPPED = {"vecto_325kW": "vecto_325kW_12.7l/Engine_325kW_12.7l.veng"}
 """Short name -> engine file of the sets shipped in fuelid/sim/engines/ (each with its SOURCES.md)."""
 
-REQUIRED_VENG = ("IdlingSpeed", "Inertia", "FullLoadCurve")
+REQUIRED_VENG = ("IdlingSpeed", "Inertia")
 WHTC_FIELDS = ("WHTC-Urban", "WHTC-Rural", "WHTC-Motorway")
 """Transient correction factors of declaration mode; VECTO's engineering-mode files may omit them or leave them 0."""
 WHTC_ENGINEERING = "WHTC-Engineering"
@@ -155,8 +157,8 @@ def read_engine(name_or_path) -> VectoEngine:
     idle = _number(path, body, "IdlingSpeed", 200.0, 1500.0)
     inertia = _number(path, body, "Inertia", 0.1, 50.0)
     displacement = _number(path, body, "Displacement", 100.0, 100000.0) if "Displacement" in body else None
-    whtc = _whtc(path, fuel_doc)
-    fld_rpm, full, motoring, pt1 = _read_full_load(_beside(path, body, "FullLoadCurve"))
+    whtc = _whtc(path, fuel_doc, version)
+    fld_rpm, full, motoring, pt1 = _read_full_load(_full_load_path(path, body, version))
     map_path = _beside(path, fuel_doc, "FuelMap")
     map_rpm, map_nm, map_g_h = _read_map(map_path)
     if fld_rpm[0] > idle:
@@ -208,10 +210,13 @@ def _json(text: str):
             raise exc from None
 
 
-def _whtc(path: Path, fuel_doc: dict) -> dict:
+def _whtc(path: Path, fuel_doc: dict, version: int | None) -> dict:
     """The WHTC correction factors {"urban", "rural", "motorway"} (module docstring): each declaration factor, else
-    WHTC-Engineering, else 1; a factor given and not 0 must lie in 0.8..1.5."""
+    WHTC-Engineering, else 1; a factor given and not 0 must lie in 0.8..1.5. FileVersion 1–2: 1 (VECTO reads the
+    factors from FileVersion 3 on)."""
     def given(key: str) -> float | None:
+        if version is not None and version < 3:
+            return None
         if key not in fuel_doc or _number(path, fuel_doc, key, 0.0, 1.5) == 0.0:
             return None
         return _number(path, fuel_doc, key, 0.8, 1.5)
@@ -270,6 +275,20 @@ def _number(path: Path, body: dict, key: str, low: float, high: float) -> float:
     if not (math.isfinite(x) and low <= x <= high):
         raise FuelidError(f"{path}: field {key!r} = {x:g} is outside {low:g}..{high:g}")
     return x
+
+
+def _full_load_path(path: Path, body: dict, version: int | None) -> Path:
+    """The .vfld file: Body.FullLoadCurve, or in FileVersion 1–2 the Path of Body.FullLoadCurves' first entry (its
+    gears 0 – 99: the engine's own curve; later entries limit single gears), as VECTO reads them."""
+    if version is not None and version < 3 and "FullLoadCurve" not in body:
+        curves = body.get("FullLoadCurves")
+        if not isinstance(curves, list) or not curves or not isinstance(curves[0], dict) or "Path" not in curves[0]:
+            raise FuelidError(f"{path}: field 'FullLoadCurves' must list objects with a 'Path' (FileVersion "
+                              f"{version}), got {curves!r:.60}")
+        return _beside(path, curves[0], "Path")
+    if "FullLoadCurve" not in body:
+        raise FuelidError(f"{path}: field 'FullLoadCurve' missing")
+    return _beside(path, body, "FullLoadCurve")
 
 
 def _beside(path: Path, body: dict, key: str) -> Path:

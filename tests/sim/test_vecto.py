@@ -72,6 +72,7 @@ def _edit_json(path, **changes):
     (lambda p: _edit_json(p, Inertia="heavy"), "field 'Inertia' is not a number: 'heavy'"),
     (lambda p: _edit_json(p, IdlingSpeed=-600), "field 'IdlingSpeed' = -600 is outside"),
     (lambda p: _edit_json(p, FullLoadCurve="missing.vfld"), "field 'FullLoadCurve' names"),
+    (lambda p: _edit_json(p, FullLoadCurve=None), "field 'FullLoadCurve' missing"),
     (lambda p: _edit_json(p, FuelMap=""), "field 'FuelMap' must name a file"),
     (lambda p: _edit_json(p, IdlingSpeed=500.0), "IdlingSpeed 500 rpm is below the full-load curve's first speed"),
 ])
@@ -81,6 +82,33 @@ def test_a_broken_engine_file_is_one_line_naming_the_field(engine_set, edit, mes
         read_engine(engine_set)
     text = str(err.value)
     assert message in text and str(engine_set) in text and "\n" not in text
+
+
+def _as_file_version_2(veng, curves):
+    """The set rewritten as VECTO 2 wrote it: FileVersion 2, the curve in FullLoadCurves, WHTC fields in g/kWh."""
+    doc = json.loads(veng.read_text())
+    doc["Header"]["FileVersion"] = 2
+    doc["Body"]["FullLoadCurves"] = curves(doc["Body"].pop("FullLoadCurve"))
+    doc["Body"].update({"WHTC-Urban": 214.0, "WHTC-Rural": 196.0, "WHTC-Motorway": 188.0})
+    veng.write_text(json.dumps(doc))
+
+
+def test_a_file_version_2_set_reads_its_engine_curve_as_vecto_does(engine_set):
+    shipped = read_engine(engine_set)
+    _as_file_version_2(engine_set, lambda vfld: [{"Path": vfld, "Gears": "0 - 99"},
+                                                 {"Path": "none.vfld", "Gears": "1"}])  # a gear's: not read
+    e = read_engine(engine_set)
+    assert e.file_version == 2 and e.whtc == {"urban": 1.0, "rural": 1.0, "motorway": 1.0}  # VECTO 2 reads none
+    assert np.array_equal(e.full_load_nm, shipped.full_load_nm) and np.array_equal(e.map_g_h, shipped.map_g_h)
+
+
+@pytest.mark.parametrize("curves, message", [(lambda vfld: vfld, "field 'FullLoadCurves' must list objects"),
+                                             (lambda vfld: [{"Path": "none.vfld"}], "field 'Path' names")])
+def test_a_broken_file_version_2_curve_is_one_line(engine_set, curves, message):
+    _as_file_version_2(engine_set, curves)
+    with pytest.raises(FuelidError) as err:
+        read_engine(engine_set)
+    assert message in str(err.value) and "\n" not in str(err.value)
 
 
 def _replace_line(path, number, line):
