@@ -27,10 +27,10 @@ clock, computed in integer ns so that a sample on a boundary always opens the ne
   max(max_gap_s, 3 × their median period) and never decide validity.
 A sample is valid when speed, torque and fuel are all finite and the engine runs: a speed below half the idle
 speed (`RUNNING_SHARE` of idle_rpm, below) is an engine that is off, cranking or stalling, whose fuel no model of
-the running engine describes (real recordings start and end so; the simulator's engines always run). Maximal runs of
-valid samples are the segments (identification runs per segment). Stretches with no data for longer than max_gap_s are not
-filled with empty rows: the grid keeps one invalid row there and jumps, so `t` is increasing but not
-uniform across such breaks (rotated files and several days of logs stay small).
+the running engine describes (real recordings start and end so; the simulator's engines always run). Maximal runs
+of valid samples are the segments (identification runs per segment). Stretches with no data for longer than
+max_gap_s are not filled with empty rows: the grid keeps one invalid row there and jumps, so `t` is increasing but
+not uniform across such breaks (rotated files and several days of logs stay small).
 
 Operating point (paper: idle, 600 rpm). Idle samples are valid samples with |speed − idle_rpm| ≤
 idle_tol_rpm and, when CCVS1 is logged, vehicle speed < 2 km/h, in runs lasting at least idle_min_s
