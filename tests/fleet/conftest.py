@@ -72,6 +72,7 @@ class Server:
                 if self.proc.poll() is not None:
                     raise RuntimeError(f"server exited with {self.proc.returncode}")
                 time.sleep(0.1)
+        self.stop()  # a server that never answered is not left running after the test
         raise RuntimeError("server did not start in 30 s")
 
     def token(self, role: str, truck: str | None = None) -> str:
