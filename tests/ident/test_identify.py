@@ -170,8 +170,8 @@ def test_the_lower_loss_is_kept_unless_another_fit_simulates_grossly_better():
                                             ("engine", "engine speed and torque never vary in these data (650 rpm, "
                                                        "80 Nm over 300 s)")])
 def test_data_that_cannot_identify_anything_are_refused_in_one_line(still, message):
-    """A recording of an engine that is off, or a fuel signal stuck at one value: an InputError naming what never
-    varies, not a fit of NaNs."""
+    """A fuel signal stuck at one value, or an engine held at one speed and torque throughout: an InputError naming
+    what never varies, not a fit of NaNs."""
     rng = np.random.default_rng(0)
     n = 1000
     u = np.column_stack([650 + rng.normal(0, 50, n), 80 + rng.normal(0, 30, n)])
