@@ -63,7 +63,7 @@ def run(args) -> int:
                           f"{list(ds.input_units)} -> {ds.output_unit}")
     if prior is not None and abs(prior.Ts - ds.Ts) > 1e-9:
         raise FuelidError(f"prior Ts = {prior.Ts} s but the data are resampled to {ds.Ts} s (use --ts {prior.Ts})")
-    check_variation(ds, ds.u, ds.y, np.flatnonzero(ds.valid & np.isfinite(ds.u).all(axis=1) & np.isfinite(ds.y)))
+    check_variation(ds, ds.u, ds.y, np.flatnonzero(ds.valid))  # valid: speed, torque and fuel finite
     est = make_estimator(args, structure, ds, prior)
     # an engine model's map is fixed (the prior's): its inputs are computed from speed and torque like the others
     u, y = model_data(prior, ds) if prior is not None and prior.effects else (ds.u, ds.y)

@@ -830,14 +830,14 @@ def build_dataset(
         warnings.warn(notes[-1], stacklevel=2)
     u = np.column_stack([speed, torque])
     valid = np.isfinite(u).all(axis=1) & np.isfinite(y)
-    stopped = valid & (speed < RUNNING_SHARE * idle_rpm)
+    running_rpm = RUNNING_SHARE * idle_rpm
+    stopped = valid & (speed < running_rpm)
     if stopped.any():
         valid &= ~stopped
         if not valid.any():
-            raise FuelidError(f"the engine is off throughout these data: engine speed stays below "
-                              f"{RUNNING_SHARE * idle_rpm:g} rpm, half its idle speed")
-        notes.append(f"{stopped.sum() * Ts:.0f} s with the engine off or starting (below {RUNNING_SHARE * idle_rpm:g} "
-                     "rpm) left out")
+            raise FuelidError(f"the engine is off throughout these data: engine speed stays below {running_rpm:g} "
+                              "rpm, half its idle speed")
+        notes.append(f"{stopped.sum() * Ts:.0f} s with the engine off or starting (below {running_rpm:g} rpm) left out")
         warnings.warn(notes[-1], stacklevel=2)
 
     extra = {}
