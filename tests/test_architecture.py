@@ -156,7 +156,8 @@ def test_logger_imports_nothing_from_ident():
 
 
 # Each layer (docs/dev/architecture.md) and the layers it may import; the command line on top may import them all.
-FOUNDATION = {"fuelid", "fuelid.blas", "fuelid.errors", "fuelid.output", "fuelid.paths", "fuelid.progress"}
+FOUNDATION = {"fuelid", "fuelid.blas", "fuelid.errors", "fuelid.output", "fuelid.parallel", "fuelid.paths",
+              "fuelid.progress"}
 LAYERS = {
     "foundation": set(),
     "dbc": {"foundation"},

@@ -36,6 +36,7 @@ def test_identify_diagnose_add_the_effect_and_watch_the_error_fall(trip, capsys)
     assert top["id"] == "dpf_regeneration" and top["recommended"] and 3700 in top["spns"]
     assert top["status"] == "recommended" and "add dpf_regeneration (" in result["verdict"]
     assert top["held_out"]["passes"] and top["rmse_drop_percent"] >= 1
+    assert run_json(capsys, "diagnose", before, data, "--jobs", 1) == result  # in one process: the same diagnosis
     strict = run_json(capsys, "diagnose", before, data, "--min-drop", 100)  # a fall no effect can reach
     assert "no missing effect recommended" in strict["verdict"]
     dpf = next(c for c in strict["candidates"] if c["effect"] == "dpf_regeneration")
@@ -114,6 +115,9 @@ def test_bad_input_is_one_line_on_stderr(trip, capsys):
     assert main(["diagnose", str(trip / "missing.json"), str(trip / "trip.mcap")]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("fuelid diagnose: error:") and "\n" not in err
+    with pytest.raises(SystemExit) as usage:
+        main(["diagnose", str(trip / "missing.json"), str(trip / "trip.mcap"), "--jobs", "0"])
+    assert usage.value.code == 2 and "--jobs: must be at least 1, got 0" in capsys.readouterr().err
 
 
 EXAMPLE_EFFECTS = Path(__file__).resolve().parents[1] / "docs" / "effects-example.toml"

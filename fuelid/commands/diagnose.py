@@ -1,5 +1,7 @@
 """fuelid diagnose: where a fuel model fails on measurements, which physical effect it is missing, and whether adding
 it helps on data the fit did not see."""
+import argparse
+
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
 from fuelid.errors import InputError
 from fuelid.ident.diagnosis import Settings, diagnose
@@ -7,6 +9,7 @@ from fuelid.ident.effectfile import defined_effects
 from fuelid.ident.hammerstein import map_summary
 from fuelid.ident.modelfile import load_model
 from fuelid.output import print_json
+from fuelid.parallel import available_cpus, jobs
 from fuelid.progress import progress
 
 DEFAULTS = Settings()
@@ -39,6 +42,27 @@ def settings_from(args) -> Settings:
                     min_effect_percent=args.min_effect, max_builds=args.builds)
 
 
+DEFAULT_JOBS = min(4, available_cpus())  # a round of the diagnosis builds at most 4 models; its folds are 4
+
+
+def jobs_argument(text: str) -> int:
+    """--jobs: a whole number ≥ 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def add_jobs_argument(p):
+    """--jobs, for the commands that diagnose (fuelid.parallel)."""
+    p.add_argument("--jobs", type=jobs_argument, default=DEFAULT_JOBS, metavar="N",
+                   help="fits run side by side in up to N processes: this one and N-1 workers, each holding a copy of "
+                        "the data (default: the CPUs available, at most 4; 1 runs everything here)")
+
+
 def add_arguments(p):
     p.add_argument("model", metavar="MODEL.json", help="model file (fuelid identify)")
     p.add_argument("inputs", nargs="+", metavar="DATA.mcap",
@@ -49,6 +73,7 @@ def add_arguments(p):
                         "repeatable")
     p.add_argument("--top", type=int, default=8, metavar="N", help="candidates shown in the report (default 8)")
     add_dataset_arguments(p)
+    add_jobs_argument(p)
     p.add_argument("--json", action="store_true", help="print the full result as JSON")
 
 
@@ -93,8 +118,12 @@ def format_report(result: dict, top: int = 8) -> str:
     return "\n".join(lines)
 
 
+PRELOAD = ("fuelid.ident.diagnosis",)  # the package of the workers' calls
+
+
 def diagnosed(model, ds, settings, effects=()):
-    """diagnose(model, ds, settings, effects=effects) with a progress bar on a terminal: a step per model built."""
+    """diagnose(model, ds, settings, effects=effects) with a progress bar on a terminal: a step per model built (in
+    the `fuelid.parallel.jobs` context the command opened)."""
     with progress(desc="diagnose", unit="build") as bar:
         def told(step):
             bar.set_postfix_str(str(step), refresh=False)
@@ -107,8 +136,9 @@ def run(args) -> int:
     settings = settings_from(args)
     effects = defined_effects(args.effects_file)  # a bad effect file fails before any work
     model = load_model(args.model)
-    ds = build_for_models(args, args.inputs, [(args.model, model)])
-    result = diagnosed(model, ds, settings, effects).to_json()
+    with jobs(args.jobs, PRELOAD):  # the workers start while the data are read
+        ds = build_for_models(args, args.inputs, [(args.model, model)])
+        result = diagnosed(model, ds, settings, effects).to_json()
     result["data"]["files"] = list(map(str, args.inputs))
     result["model"]["file"] = args.model
     result["model"]["engine_map"] = map_summary(model)

@@ -5,11 +5,12 @@ from pathlib import Path
 import numpy as np
 
 from fuelid.commands.dataset import add_dataset_arguments, build_for_models
-from fuelid.commands.diagnose import add_settings_arguments, diagnosed, settings_from
+from fuelid.commands.diagnose import PRELOAD, add_jobs_argument, add_settings_arguments, diagnosed, settings_from
 from fuelid.errors import FuelidError
 from fuelid.ident.modelfile import load_model
 from fuelid.ident.report import write_report
 from fuelid.logger.mcap_log import read_metadata
+from fuelid.parallel import jobs
 from fuelid.paths import readable_file
 from fuelid.sim.vecto import read_engine
 
@@ -27,6 +28,7 @@ def add_arguments(p):
     p.add_argument("--max-points", type=int, default=6000, metavar="N",
                    help="points per curve before min/max decimation (default 6000)")
     add_dataset_arguments(p)
+    add_jobs_argument(p)
 
 
 def truck_name(paths) -> str | None:
@@ -100,7 +102,8 @@ def run(args) -> int:
         diagnosis = saved_diagnosis(args.diagnosis, model_paths[0], data_paths)
         verdict = diagnosis["verdict"]
     else:
-        diagnosis = diagnosed(model, ds, settings_from(args))
+        with jobs(args.jobs, PRELOAD):
+            diagnosis = diagnosed(model, ds, settings_from(args))
         verdict = diagnosis.verdict
     out = write_report(args.output, model, ds, diagnosis=diagnosis, label=Path(model_paths[0]).name,
                        after=[(Path(p).name, m) for p, m in zip(model_paths[1:], after)],

@@ -42,6 +42,7 @@ import math
 import re
 import string
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 
 import cantools
@@ -165,18 +166,25 @@ def evaluate(node, ds) -> np.ndarray | None:
     return fx.rate(x, ds.t)  # rate
 
 
-def _builder(node, label: str, unit: str, enters: str):
-    """Effect.build for a transform: the columns its way of entering adds (module docstring)."""
-    def build(ds):
-        x = evaluate(node, ds)
+@dataclass(frozen=True)
+class _Build:
+    """Effect.build for a transform: the columns its way of entering adds (module docstring). A class rather than a
+    closure, so that the effect pickles: the diagnosis builds candidates in worker processes (fuelid.parallel)."""
+
+    node: tuple
+    label: str
+    unit: str
+    enters: str
+
+    def __call__(self, ds):
+        x = evaluate(self.node, ds)
         if x is None:
             return None
-        if node[0] == "state" and enters == "scales_fuel":
-            return fx.regime(ds, x, label)
-        if enters == "scales_fuel":
-            return fx.scaling(ds, x, label, unit)
-        return fx.Regressors(x[:, None], (label,), (unit,))
-    return build
+        if self.node[0] == "state" and self.enters == "scales_fuel":
+            return fx.regime(ds, x, self.label)
+        if self.enters == "scales_fuel":
+            return fx.scaling(ds, x, self.label, self.unit)
+        return fx.Regressors(x[:, None], (self.label,), (self.unit,))
 
 
 # ---- one effect ------------------------------------------------------------------------------------------
@@ -252,7 +260,7 @@ def effect_from_table(table: dict, source: str = "") -> fx.Effect:
     spns = tuple(p for p in map(fx.spn_of, signals) if p is not None)
     form = "regime" if node[0] == "state" else "input"
     lags = (0,) if enters in ("scales_fuel", "torque") or form == "regime" else (0, 1, 2)
-    return fx.Effect(eid, name, physics, signals, spns, form, _builder(node, name, unit, enters),
+    return fx.Effect(eid, name, physics, signals, spns, form, _Build(node, name, unit, enters),
                      orders=tuple(orders), lags=lags, sign=sign, enters=enters, template=template, source=source,
                      definition=dict(table))
 

@@ -41,6 +41,7 @@ from fuelid.ident.modeldata import EffectInputs, apply_effects, at_operating_poi
 from fuelid.ident.pem import LMResult, pem, pem_with_search
 from fuelid.ident.polymodel import PolyModel, Structure, simulate
 from fuelid.ident.validation import evaluate, rmse
+from fuelid.parallel import side_by_side
 
 MIN_SEGMENT_S = 30.0  # [s] shortest valid stretch a model is fitted on (`fuelid identify --min-segment`)
 
@@ -52,11 +53,18 @@ class FitMemo:
     change the next one's). A fit asked for with more iterations (max_iter) than one kept that stopped at its limit
     continues that one's search (ident.pem.pem_with_search, `after`). A fit kept that stopped before its limit
     (converged, or no damping lowered V) is the fit to any limit above its iterations too: Levenberg–Marquardt's
-    iterates do not depend on the limit. A memo serves one process's calls and is never stored."""
+    iterates do not depend on the limit. A memo serves one process's calls and is never stored; a copy a worker
+    process used (fuelid.parallel) hands its fits back by `update`."""
 
     def __init__(self):
         self._fits: dict[tuple[bytes, int], tuple[PolyModel, LMResult]] = {}  # (key, max_iter) → model, search
-        self.made = 0  # the fits made here (not served)
+        self.made = 0  # the fits made by this memo's calls (not served; a copy's own are not counted here)
+
+    def update(self, other: FitMemo) -> None:
+        """Keep the fits of `other` (a copy of this memo a worker process used) that this one lacks."""
+        if other is not self:
+            for key, fit in other._fits.items():
+                self._fits.setdefault(key, fit)
 
     def __len__(self) -> int:
         """The number of fits kept (made here, or served by one kept)."""
@@ -191,10 +199,10 @@ def identify_model(ds, structure: Structure, effects=(), *, min_segment_s: float
         if fx.u.shape[1]:
             if base is None or base.structure != structure:
                 base = fit(ds.u, y, structure, ds.Ts, segments=segs, u0=ds.u0, y0=ds.y0)
-            nested, stages = effects_added_in_turn(base, u, y, fx, segs, ds.Ts, y0=ds.y0, fit=fit)
+            nested, stages = effects_added_in_turn(base, u, y, fx, segs, ds.Ts, y0=ds.y0, memo=memo)
             starts["effects added in turn"] = with_inputs(nested, extended)
-        fits = {name: fit(u, y, extended, ds.Ts, segments=segs, u0=u0, y0=ds.y0, init=start)
-                for name, start in starts.items()}
+        fits = dict(zip(starts, fits_from(list(starts.values()), u, y, extended, ds.Ts, segments=segs, u0=u0,
+                                          y0=ds.y0, memo=memo)))
     scores = {name: simulation_rmse(m, u, y, segs) for name, m in fits.items()}
     kept = list(fits)[kept_fit(list(fits.values()), list(scores.values()))]
     model = fits[kept]
@@ -257,14 +265,38 @@ def simulation_rmse(model: PolyModel, u: np.ndarray, y: np.ndarray, segments) ->
     return float(np.sqrt(np.mean(np.concatenate(err) ** 2)))
 
 
+def fits_from(starts: list[PolyModel | None], u, y, structure: Structure, Ts: float, *, segments, u0, y0: float,
+              memo: FitMemo | None = None) -> list[PolyModel]:
+    """[pem(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=start) for start in starts] (None: from the
+    initialisation), through memo's pem when given: fits independent of each other, run side by side
+    (fuelid.parallel; the copy of memo a worker used hands its fits back)."""
+    calls = [functools.partial(_fitted_from, start, u, y, structure, Ts, segments, u0, y0, memo) for start in starts]
+    out = []
+    for model, used in side_by_side(calls):
+        if memo is not None:
+            memo.update(used)
+        out.append(model)
+    return out
+
+
+def _fitted_from(start: PolyModel | None, u, y, structure: Structure, Ts: float, segments, u0, y0: float,
+                 memo: FitMemo | None) -> tuple[PolyModel, FitMemo | None]:
+    """(pem's fit from start, through memo when given, its warnings left out: they are in its info; memo)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        fit = memo.pem if memo is not None else pem
+        return fit(u, y, structure, Ts, segments=segments, u0=u0, y0=y0, init=start), memo
+
+
 def effects_added_in_turn(base: PolyModel, u: np.ndarray, y: np.ndarray, fx: EffectInputs, segments, Ts: float, *,
-                          y0: float, fit=pem) -> tuple[PolyModel, list[dict]]:
+                          y0: float, memo: FitMemo | None = None) -> tuple[PolyModel, list[dict]]:
     """The model with every effect of fx that adds inputs but the last, built from `base` (the model of u's first
     inputs, speed and torque, identified on the same samples) by adding them in turn: each stage identified by PEM
     on u's leading columns from the usual initialisation and from the stage before with the new coefficients at
     zero (`with_inputs`), one kept by `kept_fit` (module docstring). u: N × (2 + k) inputs (speed [rpm], torque,
     then fx.u), y: the (shifted) fuel [L/h], segments as in `pem`, Ts [s], y0 the fuel's operating point [L/h];
-    fit: `pem` or a `FitMemo`'s. Returns (that model, [{effects, loss_V, simulation_rmse} per stage])."""
+    memo: the `FitMemo` to fit through (`fits_from`). Returns (that model, [{effects, loss_V, simulation_rmse} per
+    stage])."""
     model, stages = base, []
     n_base = len(base.B)
     full = fx.extend(base.structure)
@@ -275,8 +307,8 @@ def effects_added_in_turn(base: PolyModel, u: np.ndarray, y: np.ndarray, fx: Eff
         m = n_base + int(end)
         sub = _first_inputs(full, m)
         u0 = np.r_[base.u0, np.zeros(m - n_base)]
-        fits = [fit(u[:, :m], y, sub, Ts, segments=segments, u0=u0, y0=y0, init=start)
-                for start in (None, with_inputs(model, sub))]
+        fits = fits_from([None, with_inputs(model, sub)], u[:, :m], y, sub, Ts, segments=segments, u0=u0, y0=y0,
+                         memo=memo)
         scores = [simulation_rmse(f, u[:, :m], y, segments) for f in fits]
         k = kept_fit(fits, scores)
         model = fits[k]

@@ -40,6 +40,7 @@ fuel at and below zero torque): on an engine-model base, and once the map is acc
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import warnings
 
@@ -57,6 +58,7 @@ from fuelid.ident.effectfile import effects_of_model
 from fuelid.ident.identify import FitMemo, identify_model, refit_with_effects
 from fuelid.ident.modelrun import run_model
 from fuelid.ident.polymodel import PolyModel, Structure
+from fuelid.parallel import side_by_side
 
 OPEN = (Status.NOT_SIGNIFICANT, Status.TOO_SMALL)  # statuses a later round may change
 
@@ -168,9 +170,26 @@ class _Judged:
     size: EffectSize | None
 
 
+def _with_specs(model: PolyModel, base_models, ds, specs: list[str], folds: Folds, settings: Settings, defined,
+                memo: FitMemo) -> tuple[tuple[Scored, PolyModel | None] | Exception, FitMemo]:
+    """((the fold refits, the model on all of ds or None), memo) of the base `model` with `specs` on ds: on an
+    engine-model base the candidate's model as identify builds it (`built`) and its fold refits; else nested in the
+    base's fold models (base_models, each refitted with the candidate's coefficients at zero). A BUILD_ERRORS
+    exception comes back in place of the pair: a pure call for fuelid.parallel, whose memo (a copy, in a worker)
+    comes back with the fits made."""
+    try:
+        if _joint(model):
+            whole = built(model, ds, specs, defined, memo)
+            return (refits(whole, ds, folds, [], settings, defined), whole), memo
+        return (refits(list(base_models), ds, folds, specs, settings, defined), None), memo
+    except BUILD_ERRORS as exc:
+        return exc, memo
+
+
 class _Builds:
     """One round's builds against its base: each candidate's model (on an engine-model base, as `fuelid identify`
-    builds it on all of ds: `built`; else nested in the base's fold models), its fold refits, and the yardstick."""
+    builds it on all of ds: `built`; else nested in the base's fold models), its fold refits, and the yardstick.
+    The builds of a round are independent of each other: they run side by side (fuelid.parallel)."""
 
     def __init__(self, model: PolyModel, base: Scored, ds, folds: Folds, settings: Settings, defined, memo: FitMemo,
                  rnd: int, progress):
@@ -180,46 +199,46 @@ class _Builds:
         self.scored: dict[str, Scored] = {}  # a candidate's fold refits (each without its fold)
         self.whole: dict[str, PolyModel] = {}  # its model on all of ds (an engine-model base)
 
-    def _build(self, specs: list[str], ds=None) -> tuple[Scored, PolyModel | None]:
-        """(the fold refits, the model on all of ds or None) of the base with `specs`, on ds (default the round's).
-        Raises BUILD_ERRORS."""
-        self.progress(Progress(self.round, tuple(specs), placebo=ds is not None))
-        ds = self.ds if ds is None else ds
-        if _joint(self.model):  # the candidate's model as identify builds it, then its fold refits
-            whole = built(self.model, ds, specs, self.defined, self.memo)
-            return refits(whole, ds, self.folds, [], self.settings, self.defined), whole
-        # nested in the base's fold models: each refitted with the candidate's coefficients at zero
-        return refits(list(self.base.models), ds, self.folds, specs, self.settings, self.defined), None
+    def _built(self, wanted: list[tuple[list[str], object]]) -> list[tuple[Scored, PolyModel | None] | Exception]:
+        """`_with_specs` of the base with each (specs, ds) of `wanted` (ds None: the round's; else a placebo's),
+        side by side, progress told of each first: (the fold refits, the model on all of ds or None) or the
+        BUILD_ERRORS exception its build raised."""
+        for specs, ds in wanted:
+            self.progress(Progress(self.round, tuple(specs), placebo=ds is not None))
+        calls = [functools.partial(_with_specs, self.model, self.base.models, self.ds if ds is None else ds,
+                                   list(specs), self.folds, self.settings, self.defined, self.memo)
+                 for specs, ds in wanted]
+        out = []
+        for result, memo in side_by_side(calls):
+            self.memo.update(memo)
+            out.append(result)
+        return out
 
-    def _null(self, c: Candidate) -> Scored | None:
-        """The fold refits of c's placebo (ident.diagnosis.yardstick.placebo: c built as it is, on its bus signals
-        shifted by half the data); None when c has none (it reads engine speed, torque or the fuel) or it fails."""
-        shifted = placebo(self.ds, c.definition.signals)
-        if shifted is None:
-            return None
-        try:
-            return self._build([c.spec], shifted)[0]
-        except BUILD_ERRORS:
-            return None
-
-    def held(self, c: Candidate) -> bool:
-        """Builds c, holds it to the yardstick against the base and decides it unless it passes; whether it does."""
-        self.tried.add(c.effect)
-        c.spec = _spec(c)
-        try:
-            scored, whole = self._build([c.spec])
-        except BUILD_ERRORS:
-            c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
-            return False
-        self.scored[c.effect] = scored
-        if whole is not None:
-            self.whole[c.effect] = whole
-        held_out = compare(self.base, scored, self.folds, self.settings)
-        if not held_out.passes and held_out.floors_met:  # a gain in few blocks decides its own spread: the placebo's
-            null = self._null(c)
-            if null is not None:
-                held_out = compare(self.base, scored, self.folds, self.settings, null)
-        return self._decided(c, held_out, self._judged(c, held_out, scored, whole))
+    def held(self, candidates: list[Candidate]) -> list[Candidate]:
+        """Builds each of `candidates`, holds it to the yardstick against the base (and, when its floors are met but
+        not the margin, against its placebo: ident.diagnosis.yardstick.placebo, c built as it is on its bus signals
+        shifted by half the data, when c has one) and decides it unless it passes; those that pass, in order."""
+        for c in candidates:
+            self.tried.add(c.effect)
+            c.spec = _spec(c)
+        held: dict[int, HeldOut] = {}
+        for k, (c, made) in enumerate(zip(candidates, self._built([([c.spec], None) for c in candidates]))):
+            if isinstance(made, Exception):
+                c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
+                continue
+            self.scored[c.effect], whole = made
+            if whole is not None:
+                self.whole[c.effect] = whole
+            held[k] = compare(self.base, made[0], self.folds, self.settings)
+        # a gain in few blocks decides its own spread: the placebo's
+        shifted = {k: placebo(self.ds, candidates[k].definition.signals) for k, h in held.items()
+                   if not h.passes and h.floors_met}
+        shifted = {k: d for k, d in shifted.items() if d is not None}
+        for k, made in zip(shifted, self._built([([candidates[k].spec], d) for k, d in shifted.items()])):
+            if not isinstance(made, Exception):
+                held[k] = compare(self.base, self.scored[candidates[k].effect], self.folds, self.settings, made[0])
+        return [c for k, c in enumerate(candidates) if k in held and self._decided(
+            c, held[k], self._judged(c, held[k], self.scored[c.effect], self.whole.get(c.effect)))]
 
     def _judged(self, c: Candidate, held_out: HeldOut, scored: Scored, whole: PolyModel | None) -> _Judged:
         """c judged from a model built with it (held_out: against the model without it, scored: its fold refits):
@@ -258,11 +277,11 @@ class _Builds:
         direction each one's physics states, with the largest mean gain over the base: ([a, b] with their
         evidence beyond each other, the pair's model on all of ds or None, its fold refits); None when none does."""
         best = None
-        for a, b in itertools.combinations(single, 2):
-            try:
-                scored, whole = self._build([a.spec, b.spec])
-            except BUILD_ERRORS:
+        pairs = list(itertools.combinations(single, 2))
+        for (a, b), made in zip(pairs, self._built([([a.spec, b.spec], None) for a, b in pairs])):
+            if isinstance(made, Exception):
                 continue
+            scored, whole = made
             gain = compare(self.base, scored, self.folds, self.settings)
             if not gain.passes or (best is not None and gain.mean_gain <= best[0].mean_gain):
                 continue
@@ -327,7 +346,7 @@ def select(candidates: list[Candidate], model: PolyModel, ds, run, base: Scored 
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.BUILD_FAILED)
             break
         builds = _Builds(model, base, ds, folds, settings, defined, memo, rnd, progress)
-        passing = [c for c in eligible[:settings.max_builds + (term in eligible)] if builds.held(c)]
+        passing = builds.held(eligible[:settings.max_builds + (term in eligible)])
         for c in eligible:
             if c.effect not in builds.tried:
                 c.decide(Status.NAMED_NOT_RECOMMENDED, Reason.NOT_BUILT)

@@ -60,6 +60,7 @@ estimation. Review of Economic Studies 61(4), 631–653.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import warnings
 from dataclasses import dataclass
 
@@ -74,6 +75,7 @@ from fuelid.ident.fueldelay import shift_signal
 from fuelid.ident.modeldata import fuel_shift_s, model_data
 from fuelid.ident.polymodel import PolyModel, simulate
 from fuelid.ident.validation import cycle_fuel_error, error_table
+from fuelid.parallel import side_by_side
 
 BUILD_ERRORS = (FuelidError, ValueError, np.linalg.LinAlgError)  # a refit that fails: the candidate is not built
 
@@ -160,11 +162,17 @@ def refits(start, ds, folds: Folds, effects, settings: Settings, defined=()) -> 
     """Scored of the models refitted on each fold's training data with `effects` added ("ID" or "ID=VALUE"), each
     warm-started from `start`: a model (the same for every fold) or one model per fold. Raises BUILD_ERRORS."""
     starts = start if isinstance(start, (list, tuple)) else [start] * len(folds.held)
+    models = side_by_side([functools.partial(_refit, m, training(ds, held), list(effects), defined,
+                                             settings.refit_max_iter) for m, held in zip(starts, folds.held)])
+    return score(models, ds, folds)
+
+
+def _refit(model: PolyModel, ds, effects: list[str], defined, max_iter: int) -> PolyModel:
+    """refit_with_effects(model, ds, effects, defined=defined, max_iter=max_iter), its warnings left out (one fold's
+    fit: a pure call for fuelid.parallel)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        models = [refit_with_effects(m, training(ds, held), list(effects), defined=defined,
-                                     max_iter=settings.refit_max_iter) for m, held in zip(starts, folds.held)]
-    return score(models, ds, folds)
+        return refit_with_effects(model, ds, effects, defined=defined, max_iter=max_iter)
 
 
 def compare(without: Scored, with_: Scored, folds: Folds, settings: Settings, null: Scored | None = None) -> HeldOut:

@@ -2,6 +2,7 @@
 effects hidden in it): what is hidden is recommended, nothing is on clean trips — at the rate the procedure states —
 and the statuses, the JSON and `confirmed_effects` say the same."""
 import dataclasses
+import json
 import multiprocessing
 import os
 from pathlib import Path
@@ -15,6 +16,8 @@ from fuelid.ident import diagnosis as dg
 from fuelid.ident import effects as fx
 from fuelid.ident.diagnosis import MapStatus, Status
 from fuelid.ident.effectfile import effect_from_table, read_effects_file
+from fuelid.output import json_safe
+from fuelid.parallel import jobs
 from tests.ident import engine_data, hidden
 from tests.ident.diagnosis.trips import joined
 
@@ -193,30 +196,46 @@ def test_on_clean_trips_anything_is_recommended_no_more_often_than_alpha():
 
 
 def _children() -> list[int]:
-    """Process ids whose parent is this process."""
+    """Process ids whose parent is this process, but multiprocessing's resource tracker (started with the first
+    spawned worker, it lives as long as this process and exits with it)."""
     me, out = os.getpid(), []
     for pid in filter(str.isdigit, os.listdir("/proc")):
         try:
             stat = Path(f"/proc/{pid}/stat").read_text()
+            tracker = b"resource_tracker" in Path(f"/proc/{pid}/cmdline").read_bytes()
         except OSError:
             continue
-        if int(stat.rsplit(")", 1)[1].split()[1]) == me:
+        if int(stat.rsplit(")", 1)[1].split()[1]) == me and not tracker:
             out.append(int(pid))
     return out
 
 
-def test_no_child_process_is_left_after_the_diagnosis_ends_or_is_interrupted(monkeypatch):
+@pytest.mark.parametrize("workers", [1, 2])
+def test_no_child_process_is_left_after_the_diagnosis_ends_or_is_interrupted(monkeypatch, workers):
     before = set(_children())
-    diagnosed("dpf_regeneration", 18, n=2500)
+    with jobs(workers):
+        diagnosed("dpf_regeneration", 18, n=2500)
     assert set(_children()) <= before and not multiprocessing.active_children()
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr("fuelid.ident.diagnosis.selection.compare", interrupted)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt), jobs(workers):
         diagnosed("dpf_regeneration", 18, n=2500)
     assert set(_children()) <= before and not multiprocessing.active_children()
+
+
+@pytest.mark.parametrize("effects", [[], ["engine_map"]])
+def test_with_its_builds_side_by_side_in_workers_the_diagnosis_is_the_same(effects):
+    """fuelid.parallel: the builds and fold refits in a worker are the fits made here, bit for bit (a pure
+    computation moved, not a new one), on a linear and an engine-model base."""
+    ds = hidden.make(("dpf_regeneration", "cold_engine"), n=3000, seed=20)
+    model = hidden.identify(ds, hidden.STRUCTURE, effects)
+    here = json.dumps(json_safe(dg.diagnose(model, ds).to_json()), sort_keys=True)
+    with jobs(2):
+        side_by_side = json.dumps(json_safe(dg.diagnose(model, ds).to_json()), sort_keys=True)
+    assert side_by_side == here and '"recommended": true' in here
 
 
 def test_the_json_keeps_the_fields_its_readers_use():

@@ -5,6 +5,7 @@ import pytest
 from fuelid.ident.diagnosis import Settings
 from fuelid.ident.diagnosis.yardstick import Folds, Scored, compare, long_run_se, make_folds, placebo, refits, \
     trimmed_mean
+from fuelid.parallel import jobs
 from tests.ident import hidden
 from tests.ident.diagnosis.trips import joined
 
@@ -38,6 +39,15 @@ def test_the_true_effect_passes_the_margin_and_a_random_walk_does_not(regenerati
     assert true.n_blocks >= 15 and true.rmse_with < true.rmse_without
     walk = compare(base, refits(list(base.models), ds, folds, ["level:XX.UnknownSignal"], S), folds, S)
     assert not walk.passes and walk.drop_percent < 5
+
+
+def test_the_folds_refitted_side_by_side_in_a_worker_are_the_folds_refitted_here(regeneration):
+    ds, folds, base = regeneration
+    with jobs(2):
+        side = refits(list(base.models), ds, folds, ["dpf_regeneration"], S)
+    here = refits(list(base.models), ds, folds, ["dpf_regeneration"], S)
+    assert np.array_equal(side.ysim, here.ysim, equal_nan=True)
+    assert all(np.array_equal(a.theta, b.theta) for a, b in zip(side.models, here.models))
 
 
 def test_a_margin_no_fit_can_reach_rejects_even_the_true_effect(regeneration):
