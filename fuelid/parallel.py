@@ -3,17 +3,16 @@
 in up to n − 1 worker processes.
 
 A call must be a pure function of its arguments: it returns what it would return here, and whatever it changes in its
-arguments stays in the worker. One that does not pickle (a closure, not a module-level function or a
-functools.partial of one) runs here. The results
-come back in the calls' order; the first call (in that order) that raised raises here.
+arguments stays in the worker. One that does not pickle (a closure, not a module-level function or a functools.partial
+of one) runs here. The results come back in the calls' order; the first call (in that order) that raised raises here.
 
 The workers are spawned, never forked (a fork of a process running threads — BLAS's, a progress bar's — can
 deadlock, and not every platform forks), when the `jobs` context opens, so that they load fuelid while this process
 reads its data. They never outlive it: the context stops them when it closes (its work done, an error, Ctrl-C, which
-they ignore themselves); the
-kernel kills them when this process dies (Linux's PR_SET_PDEATHSIG), and elsewhere each checks every second that its
-parent is alive. A worker that dies, or a call that has not come back within `time_limit` of the first call's time
-here, is no reason to fail: the call runs again here (the same result) and the context uses no worker any more.
+they ignore themselves, or SIGTERM, which it turns into an exit); the kernel kills them when this process dies
+(Linux's PR_SET_PDEATHSIG), and elsewhere each checks every second that its parent is alive. A worker that dies, or a
+call that has not come back within `time_limit` of the first call's time here, is no reason to fail: the call runs
+again here (the same result) and the context uses no worker any more.
 
 Without a `jobs` context, in a daemonic process (a Dask worker may not start processes) or with n = 1 every call runs
 here, one after the other: the library's default, so that a fleet job's memory stays its own.
@@ -175,6 +174,8 @@ def side_by_side(calls: Sequence[Callable[[], T]]) -> list[T]:
                 if not finished:  # stuck: no more workers, their calls here
                     _lost(workers, away, todo)
             for future in finished:
+                if future not in away:  # put back by _lost: a worker died
+                    continue
                 k = away.pop(future)
                 try:
                     done[k] = _Outcome(future.result())

@@ -78,8 +78,9 @@ def test_a_call_inside_a_call_runs_its_own_calls_here():
         assert side_by_side([functools.partial(nested, k) for k in (0, 10)]) == [[0, 1, 4], [100, 121, 144]]
 
 
-def test_a_worker_that_dies_costs_its_call_a_rerun_here_and_no_error():
-    with jobs(2):
+@pytest.mark.parametrize("n", [2, 3])
+def test_a_worker_that_dies_costs_its_call_a_rerun_here_and_no_error(n):
+    with jobs(n):
         out = side_by_side([functools.partial(dies_in_worker, os.getpid()) for _ in range(3)])
         assert not workers_available()  # the rest of the context runs here
         assert side_by_side([functools.partial(square, 3)] * 2) == [(9, os.getpid())] * 2

@@ -32,7 +32,6 @@ from fuelid.ident.dataset import Dataset
 from fuelid.ident.diagnosis.settings import Settings
 from fuelid.ident.diagnosis.yardstick import held_out_summary, make_folds, refits
 from fuelid.ident.identify import effect_definitions, effect_inputs
-from fuelid.ident.modelrun import run_model
 from fuelid.ident.pem import pem
 from fuelid.ident.polymodel import PolyModel, Structure
 
