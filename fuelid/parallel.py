@@ -14,8 +14,9 @@ they ignore themselves, or SIGTERM, which it turns into an exit); the kernel kil
 call that has not come back within `time_limit` of the first call's time here, is no reason to fail: the call runs
 again here (the same result) and the context uses no worker any more.
 
-Without a `jobs` context, in a daemonic process (a Dask worker may not start processes) or with n = 1 every call runs
-here, one after the other: the library's default, so that a fleet job's memory stays its own.
+Without a `jobs` context, in a daemonic process (a Dask worker may not start processes), where processes cannot be
+started (no semaphores in a locked-down container) or with n = 1 every call runs here, one after the other: the
+library's default, so that a fleet job's memory stays its own.
 """
 from __future__ import annotations
 
@@ -79,11 +80,11 @@ def jobs(n: int, preload: Sequence[str] = ()):
     if n == 1 or multiprocessing.current_process().daemon:
         yield
         return
-    pool = ProcessPoolExecutor(n - 1, mp_context=multiprocessing.get_context("spawn"), initializer=_started,
-                               initargs=(os.getpid(), tuple(preload)))
+    pool = _started_pool(n - 1, preload)
+    if pool is None:
+        yield
+        return
     workers = _Workers(pool, n - 1)
-    for _ in range(n - 1):  # start them all now (the pool starts one per call waiting)
-        pool.submit(_ready)
     workers.processes = list(pool._processes.values())  # no public handle on them before Python 3.14
     token = _WORKERS.set(workers)
     # SIGTERM (a service stopped, timeout(1)) unwinds as an exit, so that the workers are stopped here too
@@ -101,6 +102,23 @@ def jobs(n: int, preload: Sequence[str] = ()):
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
         _WORKERS.reset(token)
         pool.shutdown(wait=workers.usable, cancel_futures=True)
+
+
+def _started_pool(count: int, preload: Sequence[str]) -> ProcessPoolExecutor | None:
+    """A pool of `count` spawned workers, started now (the pool starts one per call waiting); None where processes
+    cannot be started here (no semaphores in a locked-down container)."""
+    try:
+        pool = ProcessPoolExecutor(count, mp_context=multiprocessing.get_context("spawn"), initializer=_started,
+                                   initargs=(os.getpid(), tuple(preload)))
+    except (OSError, ImportError, NotImplementedError):
+        return None
+    try:
+        for _ in range(count):
+            pool.submit(_ready)
+    except (OSError, BrokenProcessPool):
+        pool.shutdown(wait=False, cancel_futures=True)
+        return None
+    return pool
 
 
 def _terminated(signum, frame):

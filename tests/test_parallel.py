@@ -168,6 +168,16 @@ def _alive(pid: int) -> bool:
         return False
 
 
+def test_where_no_process_can_be_started_everything_runs_here(monkeypatch):
+    def no_semaphores(*args, **kwargs):
+        raise ImportError("This platform lacks a functioning sem_open implementation")
+
+    monkeypatch.setattr(parallel, "ProcessPoolExecutor", no_semaphores)
+    with jobs(2):
+        assert not workers_available()
+        assert side_by_side([functools.partial(square, 2)] * 2) == [(4, os.getpid())] * 2
+
+
 def test_jobs_must_be_at_least_one():
     with pytest.raises(ValueError):
         with jobs(0):
