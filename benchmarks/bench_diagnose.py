@@ -14,8 +14,9 @@ Trips are simulated diesel trips (fuelid/sim/) decoded by fuelid's recorder (tes
 model diagnosed is the one `fuelid identify` builds by default (the paper's orders, `--model auto --fuel-lag auto`:
 the engine model and the fuel binned one report period earlier on a map engine), its kind and fuel lag [s] printed
 in the first columns. Wall time (best of --repeat, the machine is shared) and CPU time of this process (the workers'
-not counted); the peak of memory the diagnosis allocates in one process (tracemalloc, with the first of --jobs; each
-worker holds a copy of the dataset besides), which grows linearly with the samples (the folds' simulations
+not counted); the peak of memory the diagnosis allocates in one process (tracemalloc, with the first of --jobs) and a
+worker's peak resident memory (its imports and the data of its calls: a copy of the dataset each), which grow
+linearly with the samples (the folds' simulations
 and the screening's columns are N × a few tens). The acceptance rates: benchmarks/bench_diagnosis_acceptance.py.
 """
 import argparse
@@ -35,6 +36,13 @@ from fuelid.parallel import jobs, side_by_side  # noqa: E402
 from tests.ident import hidden  # noqa: E402
 
 
+def peak_rss_mb() -> float:
+    """This process's peak resident memory [MB] (Linux's VmHWM: of its own image, not the parent's it was forked
+    from before it ran Python, as getrusage's ru_maxrss counts)."""
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmHWM"))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--truth", default="diesel_p320", help="diesel_p320 (paper engine, default) or map")
@@ -43,7 +51,8 @@ def main():
     p.add_argument("--repeat", type=int, default=2)
     p.add_argument("--jobs", type=int, nargs="*", default=[1, 2], help="process counts to time (the first the base)")
     args = p.parse_args()
-    print("model   lag s  trip     samples  jobs  wall [s]  CPU [s]  ratio  peak memory [MB]  recommended")
+    print("model   lag s  trip     samples  jobs  wall [s]  CPU [s]  ratio  peak memory [MB]  worker RSS [MB]  "
+          "recommended")
     for minutes in args.minutes:
         model, ds = identify_lag_chosen(
             lambda lag: hidden.simulated("dpf_regeneration", 7, minutes * 60.0, truth=args.truth, engine=args.engine,
@@ -59,6 +68,8 @@ def main():
                     out = dg.diagnose(model, ds)
                     walls.append(time.perf_counter() - w)
                     cpus.append(time.process_time() - c)
+                # the worker's peak resident memory (its imports and its calls' data): asked of it by a call
+                worker = side_by_side([peak_rss_mb] * n)[-1] if n > 1 else float("nan")
             result = json.dumps(json_safe(out.to_json()), sort_keys=True)
             if same is not None and result != same:
                 raise SystemExit(f"the diagnosis with {n} jobs differs from the one with {args.jobs[0]}")
@@ -73,7 +84,8 @@ def main():
             if out.engine_map.status is dg.MapStatus.ADVISED:
                 rec.insert(0, "engine map")
             print(f"{kind:6s}  {ds.fuel_lag_s:5.2f}  {minutes:3d} min  {len(ds.t):7d}  {n:4d}  {min(walls):8.2f}  "
-                  f"{min(cpus):7.2f}  {min(walls) / first:5.2f}  {peak:16.1f}  {', '.join(rec) or '-'}", flush=True)
+                  f"{min(cpus):7.2f}  {min(walls) / first:5.2f}  {peak:16.1f}  {worker:15.0f}  {', '.join(rec) or '-'}",
+                  flush=True)
 
 
 if __name__ == "__main__":
