@@ -39,6 +39,12 @@ CACHE = REPO / "benchmarks" / ".cache" / "dataset"
 TRIP = REPO / "replay_logs" / "diesel_ident_90min.log.gz"
 
 
+def peak_rss_mb() -> float:
+    """This process's peak RSS [MB]: VmHWM, which starts afresh at exec (ru_maxrss would carry the parent's)."""
+    status = Path("/proc/self/status").read_text()
+    return int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmHWM:"))) / 1024
+
+
 def converted_trip(name: str = TRIP.name.removesuffix(".log.gz")) -> Path:
     """replay_logs/NAME.log.gz converted by `fuelid convert`, made once into CACHE."""
     out = CACHE / f"{name}.mcap"

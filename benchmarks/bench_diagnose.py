@@ -35,12 +35,8 @@ from fuelid.output import json_safe  # noqa: E402
 from fuelid.parallel import jobs, side_by_side  # noqa: E402
 from tests.ident import hidden  # noqa: E402
 
-
-def peak_rss_mb() -> float:
-    """This process's peak resident memory [MB] (Linux's VmHWM: of its own image, not the parent's it was forked
-    from before it ran Python, as getrusage's ru_maxrss counts)."""
-    with open("/proc/self/status") as f:
-        return next(int(line.split()[1]) / 1024 for line in f if line.startswith("VmHWM"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_dataset import peak_rss_mb  # noqa: E402  (VmHWM, called in a worker: its own peak)
 
 
 def main():

@@ -33,18 +33,12 @@ from fuelid.ident.polymodel import Structure, parse_orders
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "benchmarks"))
-from bench_dataset import converted_trip, long_recording  # noqa: E402
+from bench_dataset import converted_trip, long_recording, peak_rss_mb  # noqa: E402
 
 
 # glibc returns freed heap memory to the system as a Dask worker's does (its nanny sets this before the worker
 # starts: distributed's `nanny.pre-spawn-environ`), so that the peaks are a fleet job's
 WORKER_ENV = {"MALLOC_TRIM_THRESHOLD_": "65536"}
-
-
-def peak_rss_mb() -> float:
-    """This process's peak RSS [MB]: VmHWM, which starts afresh at exec (ru_maxrss would carry the parent's)."""
-    status = Path("/proc/self/status").read_text()
-    return int(next(line.split()[1] for line in status.splitlines() if line.startswith("VmHWM:"))) / 1024
 
 
 def one_job(paths: list[str]) -> dict:
